@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# One entry point for a fresh machine: creates .venv, installs navformer_rl (CPU torch), then runs
+#   ./run.sh demo [navformer demo options]   - the end-to-end demo
+#   ./run.sh test [pytest options]           - the test suite
+# Any other first word is passed to the `navformer` CLI (e.g. ./run.sh collect --help).
+set -euo pipefail
+cd "$(dirname "$0")"
+VENV="${NAVFORMER_VENV:-.venv}"
+PY="${PYTHON:-python3}"
+if [ ! -x "$VENV/bin/python" ]; then
+    "$PY" -m venv "$VENV"
+fi
+stamp="$VENV/.navformer-installed-$(cat pyproject.toml | sha256sum | cut -c1-16)"
+if [ ! -f "$stamp" ]; then
+    # torch first, pinned, so nothing later pulls the multi-GB CUDA build from the registry.
+    # A machine with a local CPU wheel folder (/opt/wheels here) uses it; elsewhere set
+    # NAVFORMER_TORCH_INDEX to PyTorch's CPU wheel index.
+    torch_args=("torch==2.13.0")
+    if [ -d /opt/wheels ]; then torch_args+=(--find-links /opt/wheels); fi
+    if [ -n "${NAVFORMER_TORCH_INDEX:-}" ]; then torch_args+=(--extra-index-url "$NAVFORMER_TORCH_INDEX"); fi
+    "$VENV/bin/pip" install --quiet "${torch_args[@]}"
+    "$VENV/bin/pip" install --quiet -e ".[dev]"
+    touch "$stamp"
+fi
+export RL_LOGGING_LEVEL="${RL_LOGGING_LEVEL:-WARNING}"
+cmd="${1:-demo}"
+shift || true
+case "$cmd" in
+    test) exec "$VENV/bin/python" -m pytest -q "$@" ;;
+    *) exec "$VENV/bin/navformer" "$cmd" "$@" ;;
+esac
