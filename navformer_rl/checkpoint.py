@@ -1,0 +1,304 @@
+"""Training checkpoints: an atomic folder per save, with a "run" part apart from a "resume" part.
+
+Layout of a run directory::
+
+    <run_dir>/checkpoints/
+        latest                      text file: the name of the newest complete checkpoint folder
+        iter_000500/
+            config.json             {"format", "iteration", "model_config", "train_config"}
+            model.safetensors       NavFormerModel weights; metadata repeats format + model config
+            resume.pt               torch.save of plain containers (optimiser, RNG, sampler, ...)
+
+* The **run part** (``config.json`` + ``model.safetensors``) is all an evaluator needs:
+  :func:`load_policy_model` rebuilds the ``NavFormerModel`` from it and never opens ``resume.pt``.
+* The **resume part** (``resume.pt``) holds optimiser states, BYOL target parameters, RNG states, the
+  iteration and the samplers' states. It only contains tensors and plain Python containers, so it loads
+  with ``torch.load(..., weights_only=True)``.
+
+Atomicity: a checkpoint is written completely into a private temporary folder, flushed to disk, then
+renamed into place with ``os.replace``; only then is ``latest`` rewritten (temp file + ``os.replace``). A
+crash at any point leaves the previous checkpoint, and ``latest`` pointing at it, intact.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import tempfile
+from collections.abc import Mapping
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+RUN_FORMAT = "navformer_rl.run/1"
+"""Format tag written into every run part; a file without it is refused."""
+
+CHECKPOINTS_DIRNAME = "checkpoints"
+LATEST_FILENAME = "latest"
+CONFIG_FILENAME = "config.json"
+WEIGHTS_FILENAME = "model.safetensors"
+RESUME_FILENAME = "resume.pt"
+
+
+def checkpoint_name(iteration: int) -> str:
+    """Folder name of the checkpoint taken after ``iteration`` completed iterations."""
+    return f"iter_{iteration:06d}"
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _fsync_file(path: Path) -> None:
+    with open(path, "rb") as handle:
+        os.fsync(handle.fileno())
+
+
+def save_checkpoint(
+    run_dir: str | os.PathLike,
+    iteration: int,
+    *,
+    model_state: Mapping[str, torch.Tensor],
+    model_config: Mapping[str, Any],
+    train_config: Mapping[str, Any],
+    resume_state: Mapping[str, Any] | None,
+    keep_last: int = 0,
+) -> Path:
+    """Write one checkpoint folder atomically and point ``latest`` at it.
+
+    Args:
+        run_dir: the run directory; the checkpoint goes to ``run_dir/checkpoints/iter_XXXXXX``.
+        iteration: number of completed training iterations.
+        model_state: ``NavFormerModel.state_dict()`` (tensors; made contiguous and moved to CPU).
+        model_config: JSON-serialisable ``NavFormerConfig`` fields.
+        train_config: JSON-serialisable training configuration (stored for provenance).
+        resume_state: plain containers of tensors/numbers for :func:`load_resume_state`, or ``None``
+            to write a run part only.
+        keep_last: keep only the newest ``keep_last`` checkpoints (0 keeps all).
+
+    Returns:
+        The path of the checkpoint folder.
+    """
+    from safetensors.torch import save_file
+
+    root = Path(run_dir) / CHECKPOINTS_DIRNAME
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / checkpoint_name(iteration)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=root))
+    try:
+        header = {
+            "format": RUN_FORMAT,
+            "iteration": int(iteration),
+            "model_config": dict(model_config),
+            "train_config": dict(train_config),
+        }
+        (tmp / CONFIG_FILENAME).write_text(json.dumps(header, indent=2, sort_keys=True))
+        tensors = {k: v.detach().to("cpu").contiguous() for k, v in model_state.items()}
+        metadata = {"format": RUN_FORMAT, "model_config": json.dumps(dict(model_config), sort_keys=True)}
+        save_file(tensors, str(tmp / WEIGHTS_FILENAME), metadata=metadata)
+        if resume_state is not None:
+            torch.save(dict(resume_state), tmp / RESUME_FILENAME)
+        for child in tmp.iterdir():
+            _fsync_file(child)
+        if final.exists():
+            # Same iteration saved twice (e.g. the final save after a periodic one): move the old
+            # folder aside first so that the rename below cannot fail on a non-empty target.
+            stale = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".old", dir=root))
+            os.replace(final, stale / final.name)
+            os.replace(tmp, final)
+            shutil.rmtree(stale, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    atomic_write_text(root / LATEST_FILENAME, final.name + "\n")
+    if keep_last > 0:
+        _prune(root, keep_last)
+    return final
+
+
+def _prune(root: Path, keep_last: int) -> None:
+    complete = sorted(p for p in root.glob("iter_*") if p.is_dir())
+    for old in complete[:-keep_last]:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def latest_checkpoint(run_dir: str | os.PathLike) -> Path | None:
+    """The newest complete checkpoint folder of ``run_dir`` (``None`` when it has none)."""
+    root = Path(run_dir) / CHECKPOINTS_DIRNAME
+    pointer = root / LATEST_FILENAME
+    if not pointer.is_file():
+        return None
+    target = root / pointer.read_text().strip()
+    if not (target / CONFIG_FILENAME).is_file():
+        raise FileNotFoundError(
+            f"{pointer} names {target.name!r}, which is not a complete checkpoint folder "
+            f"(no {CONFIG_FILENAME}); the run directory was modified by hand"
+        )
+    return target
+
+
+def resolve_checkpoint(path: str | os.PathLike) -> Path:
+    """Turn a run directory, a checkpoint folder or its ``model.safetensors`` into a checkpoint folder."""
+    path = Path(path)
+    if path.is_file() and path.name in (WEIGHTS_FILENAME, CONFIG_FILENAME, RESUME_FILENAME):
+        path = path.parent
+    if (path / CONFIG_FILENAME).is_file() and (path / WEIGHTS_FILENAME).is_file():
+        return path
+    if (path / CHECKPOINTS_DIRNAME).is_dir():
+        latest = latest_checkpoint(path)
+        if latest is not None:
+            return latest
+    raise FileNotFoundError(
+        f"no checkpoint at {str(path)!r}: expected a run directory with {CHECKPOINTS_DIRNAME}/{LATEST_FILENAME}, "
+        f"a checkpoint folder holding {CONFIG_FILENAME} and {WEIGHTS_FILENAME}, or the {WEIGHTS_FILENAME} file"
+    )
+
+
+def read_checkpoint_config(path: str | os.PathLike) -> dict[str, Any]:
+    """The ``config.json`` header of a checkpoint (format-checked)."""
+    folder = resolve_checkpoint(path)
+    header = json.loads((folder / CONFIG_FILENAME).read_text())
+    if header.get("format") != RUN_FORMAT:
+        raise ValueError(
+            f"{folder / CONFIG_FILENAME} has format {header.get('format')!r}; expected {RUN_FORMAT!r} "
+            "(not a navformer_rl training checkpoint, or one from an incompatible version)"
+        )
+    return header
+
+
+def load_model_state(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
+    """Read the run part: ``(model_config fields, state_dict)``, via safetensors (no pickle)."""
+    from safetensors import safe_open
+
+    folder = resolve_checkpoint(path)
+    header = read_checkpoint_config(folder)
+    weights = folder / WEIGHTS_FILENAME
+    with safe_open(str(weights), framework="pt") as handle:
+        metadata = handle.metadata() or {}
+        state = {key: handle.get_tensor(key) for key in handle.keys()}
+    if metadata.get("format") != RUN_FORMAT:
+        raise ValueError(f"{weights} has format {metadata.get('format')!r}; expected {RUN_FORMAT!r}")
+    if json.loads(metadata.get("model_config", "null")) != header["model_config"]:
+        raise ValueError(
+            f"{weights} and {folder / CONFIG_FILENAME} describe different model configurations "
+            "(the folder mixes files from two checkpoints)"
+        )
+    return header["model_config"], state
+
+
+def _config_from_dict(config_cls: type, values: Mapping[str, Any]) -> Any:
+    known = {f.name for f in fields(config_cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(
+            f"checkpoint model config has fields {unknown} that {config_cls.__name__} does not know; "
+            "it was written by another model version"
+        )
+    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+    return config_cls(**kwargs)
+
+
+def load_policy_model(path: str | os.PathLike, expected_config: Any | None = None) -> tuple[Any, Any]:
+    """Rebuild the trained ``NavFormerModel`` from a checkpoint's run part, in eval mode on CPU.
+
+    Args:
+        path: a run directory (its latest checkpoint), a checkpoint folder or its ``model.safetensors``.
+        expected_config: optional ``NavFormerConfig``; a checkpoint with another configuration is refused.
+
+    Returns:
+        ``(NavFormerConfig, NavFormerModel)``.
+
+    Raises:
+        FileNotFoundError: no checkpoint at ``path``.
+        ValueError: the checkpoint is not ours, is of another configuration than ``expected_config``, or its
+            weights do not fit the model its configuration describes.
+    """
+    from navformer_rl.modules import NavFormerConfig, NavFormerModel
+
+    config_fields, state = load_model_state(path)
+    config = _config_from_dict(NavFormerConfig, config_fields)
+    if expected_config is not None and expected_config != config:
+        diff = {
+            f.name: (getattr(config, f.name), getattr(expected_config, f.name))
+            for f in fields(NavFormerConfig)
+            if getattr(config, f.name) != getattr(expected_config, f.name)
+        }
+        raise ValueError(f"checkpoint {path} was trained with another model config; (checkpoint, expected): {diff}")
+    model = NavFormerModel(config)
+    expected = model.state_dict()
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    wrong_shape = sorted(k for k in set(state) & set(expected) if state[k].shape != expected[k].shape)
+    if missing or unexpected or wrong_shape:
+        raise ValueError(
+            f"checkpoint {path} does not match NavFormerModel({config}): missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}, wrong shapes {wrong_shape[:5]}"
+        )
+    model.load_state_dict(state)
+    model.eval()
+    return config, model
+
+
+def load_resume_state(path: str | os.PathLike) -> dict[str, Any]:
+    """Load a checkpoint's resume part with ``torch.load(weights_only=True)``."""
+    folder = resolve_checkpoint(path)
+    resume = folder / RESUME_FILENAME
+    if not resume.is_file():
+        raise FileNotFoundError(f"checkpoint {folder} has no resume part ({RESUME_FILENAME}); it cannot be resumed")
+    return torch.load(resume, map_location="cpu", weights_only=True)
+
+
+def capture_rng_state() -> dict[str, Any]:
+    """Global RNG states (torch CPU + CUDA, numpy legacy, python ``random``) as plain containers."""
+    np_state = np.random.get_state()
+    state: dict[str, Any] = {
+        "torch": torch.get_rng_state(),
+        "numpy": {
+            "name": np_state[0],
+            "keys": torch.from_numpy(np_state[1].astype(np.int64)),
+            "pos": int(np_state[2]),
+            "has_gauss": int(np_state[3]),
+            "cached_gaussian": float(np_state[4]),
+        },
+        "python": random.getstate(),
+    }
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def restore_rng_state(state: Mapping[str, Any]) -> None:
+    """Inverse of :func:`capture_rng_state`."""
+    torch.set_rng_state(state["torch"])
+    np_state = state["numpy"]
+    np.random.set_state(
+        (
+            np_state["name"],
+            np_state["keys"].numpy().astype(np.uint32),
+            np_state["pos"],
+            np_state["has_gauss"],
+            np_state["cached_gaussian"],
+        )
+    )
+    random.setstate(state["python"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
