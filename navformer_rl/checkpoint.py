@@ -242,7 +242,9 @@ def load_policy_model(path: str | os.PathLike, expected_config: Any | None = Non
             for f in fields(NavFormerConfig)
             if getattr(config, f.name) != getattr(expected_config, f.name)
         }
-        raise ValueError(f"checkpoint {path} was trained with another model config; (checkpoint, expected): {diff}")
+        raise ValueError(
+            f"checkpoint {path} was trained with another model config; (checkpoint, expected): {diff}"
+        )
     model = NavFormerModel(config)
     expected = model.state_dict()
     missing = sorted(set(expected) - set(state))
@@ -263,7 +265,9 @@ def load_resume_state(path: str | os.PathLike) -> dict[str, Any]:
     folder = resolve_checkpoint(path)
     resume = folder / RESUME_FILENAME
     if not resume.is_file():
-        raise FileNotFoundError(f"checkpoint {folder} has no resume part ({RESUME_FILENAME}); it cannot be resumed")
+        raise FileNotFoundError(
+            f"checkpoint {folder} has no resume part ({RESUME_FILENAME}); it cannot be resumed"
+        )
     return torch.load(resume, map_location="cpu", weights_only=True)
 
 

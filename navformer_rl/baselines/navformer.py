@@ -1,0 +1,24 @@
+"""NavFormer (and its Table IV model ablations) as an evaluation policy, from a training checkpoint."""
+
+from __future__ import annotations
+
+import os
+
+from navformer_rl.baselines.dt import is_dt_config
+
+
+def load_navformer_policy(checkpoint: str | os.PathLike):
+    """``(NavFormerPolicy, NavFormerConfig)`` from a NavFormer checkpoint (run dir, checkpoint folder or
+    ``model.safetensors``). The policy conditions on R-hat_1 = 1 and uses the KV cache.
+
+    Raises:
+        FileNotFoundError: nothing at ``checkpoint``.
+        ValueError: not a navformer_rl checkpoint (foreign or corrupt), or a DT-baseline model.
+    """
+    from navformer_rl.checkpoint import load_policy_model
+    from navformer_rl.modules import NavFormerPolicy
+
+    config, model = load_policy_model(checkpoint)
+    if is_dt_config(config):
+        raise ValueError(f"checkpoint {checkpoint} holds the DT baseline model; evaluate it with --method dt")
+    return NavFormerPolicy(model), config

@@ -1,0 +1,36 @@
+"""Datasets on disk (D_e, D_ca, D_ssl): schema, sharded writer, loader, samplers, synthetic data.
+
+Names are imported lazily (so collection workers do not pay for importing torchrl); collection itself
+(pybullet, experts) lives in :mod:`navformer_rl.data.collect`.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "CrossTaskSampler": "navformer_rl.data.cross_task",
+    "NavDataset": "navformer_rl.data.dataset",
+    "open_dataset": "navformer_rl.data.dataset",
+    "DEFAULT_CONTEXT_STEPS": "navformer_rl.data.samplers",
+    "EpisodeTable": "navformer_rl.data.samplers",
+    "PairBatcher": "navformer_rl.data.samplers",
+    "TrajectoryBatcher": "navformer_rl.data.samplers",
+    "TrajectorySampler": "navformer_rl.data.samplers",
+    "SCHEMA_VERSION": "navformer_rl.data.schema",
+    "DatasetKind": "navformer_rl.data.schema",
+    "return_to_go": "navformer_rl.data.schema",
+    "make_synthetic_dataset": "navformer_rl.data.synthetic",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'navformer_rl.data' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return __all__

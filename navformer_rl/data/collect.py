@@ -1,0 +1,468 @@
+"""Collection of D_e, D_ca and D_ssl (paper §V): parallel, resumable, sharded.
+
+Each dataset is a sequence of deterministic **work units** (unit ``u`` is seeded from ``(seed, kind, u)``):
+
+* D_e: ``episodes_per_unit`` single-robot exploration episodes, each in its own random maze of
+  5-17.5 m (frontier exploration + A* + DWA until the target is seen, then driving to it);
+* D_ca: one 12.5 m arena episode with the ego robot and 2-8 others, all driven by NH-ORCA to their own
+  targets; every robot that reaches its target gives one trajectory (ending at its success step);
+* D_ssl: one world of 5-17.5 m with 4-25 robots; robots are placed at random (re-drawn until
+  ``pairs_per_world`` pairs exist), each robot's view o^d is rendered with every robot visible, then the
+  robots are hidden and o^s is rendered from the same pose.
+
+Failed expert episodes (target not reached within ``max_steps``, or the expert reports failure) are
+dropped and counted in ``metadata.json``; they are never stored. Units run in a ``spawn`` process pool (one
+pybullet client per process); each worker writes its own shard atomically. The finished dataset is the
+first ``n`` items of units 0, 1, 2, ... (see :mod:`navformer_rl.data.writer`), so it is identical whatever
+the number of workers and however often collection was interrupted and resumed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from navformer_rl.constants import MAX_EPISODE_STEPS, SUCCESS_RADIUS
+from navformer_rl.data.schema import TASK_ID, DatasetKind, ssl_rows, trajectory_rows
+from navformer_rl.data.writer import DatasetWriter, write_shard
+from navformer_rl.envs.sim import COLLISION_ROBOT
+
+MAZE_SIZES = (5.0, 7.5, 10.0, 12.5, 15.0, 17.5)
+"""World sides for D_e and D_ssl: the paper's 5-17.5 m range on the 2.5 m maze-cell grid."""
+
+_KIND_CODE = {DatasetKind.EXPLORATION: 1, DatasetKind.COLLISION_AVOIDANCE: 2, DatasetKind.SSL: 3}
+
+
+@dataclass(frozen=True)
+class ExplorationSettings:
+    """D_e: ``n_trajectories`` successful episodes (paper: 3,496), one maze per episode."""
+
+    n_trajectories: int = 32
+    world_sizes: tuple[float, ...] = MAZE_SIZES
+    episodes_per_unit: int = 4
+    max_steps: int = MAX_EPISODE_STEPS
+    robot: str = "jackal"
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class CollisionAvoidanceSettings:
+    """D_ca: ``n_trajectories`` robot trajectories (paper: 7,467) from 12.5 m arena episodes with the ego
+    robot plus ``other_robots`` (inclusive range; paper: 2-8) others."""
+
+    n_trajectories: int = 64
+    arena_size: float = 12.5
+    other_robots: tuple[int, int] = (2, 8)
+    max_steps: int = MAX_EPISODE_STEPS
+    robot: str = "jackal"
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class SSLSettings:
+    """D_ssl: ``n_worlds`` worlds (paper: 1,000) x ``pairs_per_world`` pairs (paper: 98,000 in total) with
+    ``robots`` (inclusive range; paper: 4-25) robots."""
+
+    n_worlds: int = 8
+    pairs_per_world: int = 98
+    world_sizes: tuple[float, ...] = MAZE_SIZES
+    robots: tuple[int, int] = (4, 25)
+    robot: str = "jackal"
+    seed: int = 0
+
+
+SCALES: dict[str, dict[DatasetKind, Any]] = {
+    "small": {
+        DatasetKind.EXPLORATION: ExplorationSettings(n_trajectories=32),
+        DatasetKind.COLLISION_AVOIDANCE: CollisionAvoidanceSettings(n_trajectories=64),
+        DatasetKind.SSL: SSLSettings(n_worlds=8),
+    },
+    "paper": {
+        DatasetKind.EXPLORATION: ExplorationSettings(n_trajectories=3496),
+        DatasetKind.COLLISION_AVOIDANCE: CollisionAvoidanceSettings(n_trajectories=7467),
+        DatasetKind.SSL: SSLSettings(n_worlds=1000),
+    },
+}
+"""``small``: minutes on a laptop; ``paper``: the sizes of paper §V."""
+
+
+def settings_for(kind: DatasetKind | str, scale: str = "small", seed: int = 0, **overrides) -> Any:
+    """The settings dataclass of ``kind`` at ``scale`` with ``seed`` and any field ``overrides``."""
+    kind = DatasetKind.parse(kind)
+    if scale not in SCALES:
+        raise ValueError(f"unknown scale {scale!r}; expected one of {sorted(SCALES)}")
+    base = SCALES[scale][kind]
+    unknown = set(overrides) - {f.name for f in dataclasses.fields(base)}
+    if unknown:
+        raise ValueError(f"unknown {kind.value} collection setting(s) {sorted(unknown)}")
+    return dataclasses.replace(base, seed=seed, **overrides)
+
+
+def unit_seed(seed: int, kind: DatasetKind, unit: int, index: int = 0) -> int:
+    """Deterministic 32-bit seed of item ``index`` of work unit ``unit``."""
+    ss = np.random.SeedSequence(entropy=int(seed), spawn_key=(_KIND_CODE[kind], int(unit), int(index)))
+    return int(ss.generate_state(1)[0])
+
+
+# ----------------------------------------------------------------------------------------- episodes
+@dataclass
+class RobotTrajectory:
+    """One robot's recorded steps: frames uint8 ``[T, 84, 84, 3]``, actions ``[T, 2]``, collisions ``[T]``,
+    poses ``[T, 3]``; ``succeeded`` when it ended within ``SUCCESS_RADIUS`` of its target."""
+
+    frames: list[np.ndarray]
+    actions: list[np.ndarray]
+    collisions: list[bool]
+    poses: list[np.ndarray]
+    succeeded: bool = False
+    robot_collisions: int = 0
+
+    def rows(self, task: int, episode: int, target_position: np.ndarray):
+        T = len(self.actions)
+        reward = np.zeros(T, np.float32)
+        reward[-1] = 1.0 if self.succeeded else 0.0
+        return trajectory_rows(
+            pixels=np.stack(self.frames),
+            action=np.stack(self.actions),
+            reward=reward,
+            collision=np.asarray(self.collisions, dtype=bool),
+            pose=np.stack(self.poses),
+            target_position=target_position,
+            succeeded=self.succeeded,
+            task=task,
+            episode=episode,
+            target_id=episode,
+        )
+
+
+def _reached(sim, world) -> np.ndarray:
+    """bool ``[R]``: each robot within ``SUCCESS_RADIUS`` of its own target."""
+    d = np.hypot(*(sim.poses[:, :2] - world.target_positions[: sim.n_robots]).T)
+    return d <= SUCCESS_RADIUS
+
+
+def run_episode(
+    world, sim, expert, max_steps: int, record: bool = True
+) -> tuple[list[RobotTrajectory], dict[str, int]]:
+    """Drive every robot of ``sim`` with ``expert`` until each reached its target or ``max_steps``.
+
+    ``expert`` follows ``navformer_rl.experts.policies``: ``act(sim, active) -> float32 [R, 2]`` and a bool
+    ``[R]`` ``failed`` flag. At step t each still-active robot renders o_t, the expert gives a_t, the simulator
+    moves; a robot that ends the step within ``SUCCESS_RADIUS`` of its target finishes its trajectory
+    (reward 1 on that step) and stays in place. An expert that flags a robot ``failed`` ends that robot's
+    trajectory as a failure. Returns the per-robot trajectories and counters.
+    """
+    R = sim.n_robots
+    trajs = [RobotTrajectory([], [], [], []) for _ in range(R)]
+    active = ~_reached(sim, world)
+    steps = 0
+    for _ in range(max_steps):
+        if not active.any():
+            break
+        if record:
+            frames = sim.render_all(active)
+        poses = sim.poses
+        actions = np.asarray(expert.act(sim, active), dtype=np.float32).reshape(R, 2)
+        contacts = sim.step(np.where(active[:, None], actions, 0.0), active)
+        reached = _reached(sim, world)
+        failed = np.asarray(expert.failed, dtype=bool).reshape(R)
+        for i in np.flatnonzero(active):
+            t = trajs[i]
+            if record:
+                t.frames.append(frames[i])
+            t.actions.append(np.clip(actions[i], -1.0, 1.0))
+            t.collisions.append(bool(contacts.collided[i]))
+            t.robot_collisions += int(contacts.kind[i] == COLLISION_ROBOT)
+            t.poses.append(poses[i])
+            if reached[i]:
+                t.succeeded = True
+        active &= ~reached & ~failed
+        steps += 1
+    counters = {"episodes": 1, "episode_steps": steps}
+    return trajs, counters
+
+
+# ------------------------------------------------------------------------------------------- units
+def _exploration_unit(settings: ExplorationSettings, unit: int):
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.sim import Simulator
+    from navformer_rl.envs.target_image import render_target_image
+    from navformer_rl.envs.world import WorldConfig, generate_world
+    from navformer_rl.experts.policies import ExplorationExpert
+
+    spec = get_robot_spec(settings.robot)
+    rows, targets = [], []
+    counters = {"attempted": 0, "failed": 0, "collision_steps": 0}
+    for k in range(settings.episodes_per_unit):
+        seed = unit_seed(settings.seed, DatasetKind.EXPLORATION, unit, k)
+        rng = np.random.default_rng(seed)
+        size = float(settings.world_sizes[int(rng.integers(len(settings.world_sizes)))])
+        world = generate_world(
+            WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=spec.radius), seed
+        )
+        sim = Simulator(world, spec)
+        try:
+            expert = ExplorationExpert()
+            expert.reset(world, sim, rng)
+            (traj,), _ = run_episode(world, sim, expert, settings.max_steps)
+        finally:
+            sim.close()
+        counters["attempted"] += 1
+        if not traj.succeeded:
+            counters["failed"] += 1
+            continue
+        counters["collision_steps"] += int(np.sum(traj.collisions))
+        target = world.targets[0]
+        rows.append(traj.rows(TASK_ID[DatasetKind.EXPLORATION], len(targets), target.position))
+        targets.append(render_target_image(target.shape, target.color))
+    return rows, targets, counters
+
+
+def _collision_avoidance_unit(settings: CollisionAvoidanceSettings, unit: int):
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.sim import Simulator
+    from navformer_rl.envs.target_image import render_target_image
+    from navformer_rl.envs.world import WorldConfig, generate_world
+    from navformer_rl.experts.policies import NHORCAExpert
+
+    spec = get_robot_spec(settings.robot)
+    seed = unit_seed(settings.seed, DatasetKind.COLLISION_AVOIDANCE, unit)
+    rng = np.random.default_rng(seed)
+    lo, hi = settings.other_robots
+    n_robots = 1 + int(rng.integers(lo, hi + 1))
+    world = generate_world(
+        WorldConfig(size=settings.arena_size, kind="arena", n_robots=n_robots, robot_radius=spec.radius), seed
+    )
+    sim = Simulator(world, spec)
+    try:
+        expert = NHORCAExpert()
+        expert.reset(world, sim, rng)
+        trajs, _ = run_episode(world, sim, expert, settings.max_steps)
+    finally:
+        sim.close()
+    rows, targets = [], []
+    counters = {
+        "episodes": 1,
+        "attempted": n_robots,
+        "failed": 0,
+        "collision_steps": 0,
+        "robot_robot_collision_episodes": int(any(t.robot_collisions for t in trajs)),
+    }
+    for i, traj in enumerate(trajs):
+        if not traj.succeeded:
+            counters["failed"] += 1
+            continue
+        counters["collision_steps"] += int(np.sum(traj.collisions))
+        target = world.targets[i]
+        rows.append(traj.rows(TASK_ID[DatasetKind.COLLISION_AVOIDANCE], len(targets), target.position))
+        targets.append(render_target_image(target.shape, target.color))
+    return rows, targets, counters
+
+
+def _ssl_unit(settings: SSLSettings, unit: int):
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.sim import Simulator
+    from navformer_rl.envs.world import WorldConfig, generate_world, sample_start_poses
+
+    spec = get_robot_spec(settings.robot)
+    seed = unit_seed(settings.seed, DatasetKind.SSL, unit)
+    rng = np.random.default_rng(seed)
+    size = float(settings.world_sizes[int(rng.integers(len(settings.world_sizes)))])
+    lo, hi = settings.robots
+    n_robots = int(rng.integers(lo, hi + 1))
+    world = generate_world(WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=spec.radius), seed)
+    layouts = 0
+    statics, dynamics, poses = [], [], []
+    sim = None
+    try:
+        while len(poses) < settings.pairs_per_world:
+            layout = sample_start_poses(world, n_robots, rng, min_target_distance=0.0)
+            if sim is None:
+                sim = Simulator(world, [spec] * n_robots, poses=layout)
+            else:
+                sim.set_poses(layout)
+            layouts += 1
+            take = min(n_robots, settings.pairs_per_world - len(poses))
+            for i in range(n_robots):
+                sim.set_robot_visible(i, True)
+            dynamics.extend(sim.render(i) for i in range(take))  # o^d: every robot visible
+            for i in range(n_robots):
+                sim.set_robot_visible(i, False)
+            # o^s from the same poses: the cameras sit outside their own bodies, so hiding every robot
+            # removes exactly the other (dynamic) robots from each view
+            statics.extend(sim.render_pose(layout[i], spec) for i in range(take))
+            poses.extend(layout[:take])
+    finally:
+        if sim is not None:
+            sim.close()
+    statics, dynamics = np.stack(statics), np.stack(dynamics)
+    rows = ssl_rows(pixels_static=statics, pixels_dynamic=dynamics, world=unit, pose=np.stack(poses))
+    visible = int((statics != dynamics).reshape(len(statics), -1).any(1).sum())
+    return rows, {
+        "worlds": 1,
+        "layouts": layouts,
+        "robots_total": n_robots,
+        "pairs_with_visible_robot": visible,
+    }
+
+
+def run_unit(root: str, kind: str, settings: Any, unit: int) -> dict[str, int]:
+    """Collect work unit ``unit`` and write its shard under ``root`` (runs inside a worker process)."""
+    torch.set_num_threads(1)
+    kind = DatasetKind.parse(kind)
+    if kind is DatasetKind.SSL:
+        rows, counters = _ssl_unit(settings, unit)
+        write_shard(root, kind, unit, rows, None, counters)
+        return {"items": int(rows.shape[0]), "rows": int(rows.shape[0]), **counters}
+    make = _exploration_unit if kind is DatasetKind.EXPLORATION else _collision_avoidance_unit
+    rows, targets, counters = make(settings, unit)
+    td = torch.cat(rows) if rows else None
+    tgt = torch.from_numpy(np.stack(targets)) if targets else None
+    write_shard(root, kind, unit, td, tgt, counters)
+    return {"items": len(targets), "rows": 0 if td is None else int(td.shape[0]), **counters}
+
+
+# ------------------------------------------------------------------------------------------ driver
+def _target_count(kind: DatasetKind, settings: Any) -> int:
+    if kind is DatasetKind.SSL:
+        return settings.n_worlds * settings.pairs_per_world
+    return settings.n_trajectories
+
+
+def collect(
+    kind: DatasetKind | str,
+    out: str | Path,
+    settings: Any,
+    workers: int = 1,
+    progress: bool = True,
+    unit_fn: Callable[[str, str, Any, int], dict[str, int]] = run_unit,
+) -> Path:
+    """Collect (or resume, or just finish) the dataset ``kind`` into ``out``; returns ``out``.
+
+    ``workers`` processes (``spawn``) run work units; ``workers=1`` runs them in this process. Rerunning
+    the same call after an interruption continues where it stopped and ends with the same bytes.
+    """
+    kind = DatasetKind.parse(kind)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    settings_dict = {"kind": kind.value, **dataclasses.asdict(settings)}
+    target = _target_count(kind, settings)
+    writer = DatasetWriter(out, kind, settings_dict, target_count=target)
+    if writer.is_complete:
+        return writer.finalize()
+    items: dict[int, int] = {}
+
+    def covered() -> int:
+        total, u = 0, 0
+        while u in items and total < target:
+            total += items[u]
+            u += 1
+        return total
+
+    unit = 0
+    for done in sorted(int(p.name.split("-")[1]) for p in (Path(out) / "shards").glob("unit-*")):
+        items[done] = writer.shard_stats(done)["items"]
+    bar = _progress_bar(kind, target, progress)
+    bar.update(min(covered(), target))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_spawn()) if workers > 1 else None
+    pending: dict[Future, int] = {}
+    try:
+        while covered() < target:
+            # keep 2 units per worker in flight, in unit order, skipping finished ones
+            while len(pending) < 2 * workers and not _enough_in_flight(items, pending, target):
+                while unit in items:
+                    unit += 1
+                if pool is None:
+                    _record(items, unit, unit_fn(str(out), kind.value, settings, unit), bar, covered)
+                else:
+                    pending[pool.submit(unit_fn, str(out), kind.value, settings, unit)] = unit
+                unit += 1
+                if pool is None:
+                    break
+            if pool is not None and pending:
+                finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    _record(items, pending.pop(fut), fut.result(), bar, covered)
+    finally:
+        if pool is not None:
+            for fut in pending:
+                fut.cancel()
+            pool.shutdown(wait=True, cancel_futures=True)
+        bar.close()
+    return writer.finalize(extra_metadata={"seeds": {"base": settings.seed, "derivation": _SEED_DOC}})
+
+
+_SEED_DOC = (
+    "item k of unit u uses SeedSequence(entropy=seed, spawn_key=(kind_code, u, k)).generate_state(1)[0]"
+)
+
+
+def _enough_in_flight(items: dict[int, int], pending: dict[Future, int], target: int) -> bool:
+    """True when the units finished or running are expected to cover ``target`` items (mean yield)."""
+    if not items:
+        return False
+    mean = max(sum(items.values()) / len(items), 1e-3)
+    return sum(items.values()) + mean * len(pending) >= target * 1.05 + mean
+
+
+def _record(items: dict[int, int], unit: int, result: dict[str, int], bar, covered) -> None:
+    items[unit] = int(result["items"])
+    bar.n = min(covered(), bar.total)
+    bar.set_postfix(units=len(items), rows=result.get("rows", 0), refresh=False)
+    bar.refresh()
+
+
+def _spawn():
+    import multiprocessing
+
+    return multiprocessing.get_context("spawn")
+
+
+def _progress_bar(kind: DatasetKind, total: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    unit = "pairs" if kind is DatasetKind.SSL else "traj"
+    return tqdm(total=total, desc=f"collect {kind.value}", unit=unit, disable=not enabled, dynamic_ncols=True)
+
+
+def collect_exploration(out: str | Path, settings: ExplorationSettings | None = None, **kw) -> Path:
+    """D_e into ``out`` (see :func:`collect`)."""
+    return collect(DatasetKind.EXPLORATION, out, settings or ExplorationSettings(), **kw)
+
+
+def collect_collision_avoidance(
+    out: str | Path, settings: CollisionAvoidanceSettings | None = None, **kw
+) -> Path:
+    """D_ca into ``out`` (see :func:`collect`)."""
+    return collect(DatasetKind.COLLISION_AVOIDANCE, out, settings or CollisionAvoidanceSettings(), **kw)
+
+
+def collect_ssl_pairs(out: str | Path, settings: SSLSettings | None = None, **kw) -> Path:
+    """D_ssl into ``out`` (see :func:`collect`)."""
+    return collect(DatasetKind.SSL, out, settings or SSLSettings(), **kw)
+
+
+def collect_all(
+    out: str | Path, scale: str = "small", seed: int = 0, workers: int = 1, progress: bool = True
+) -> dict[str, Path]:
+    """The three datasets under ``out/{e,ca,ssl}`` at ``scale``."""
+    out = Path(out)
+    return {
+        kind.value: collect(
+            kind, out / kind.value, settings_for(kind, scale, seed), workers=workers, progress=progress
+        )
+        for kind in DatasetKind
+    }
+
+
+def default_workers() -> int:
+    """All cores this process may use."""
+    return max(1, len(os.sched_getaffinity(0)))

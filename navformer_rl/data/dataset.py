@@ -1,0 +1,214 @@
+"""Open a finished dataset folder, validate it, and build replay buffers / batchers over it.
+
+``open_dataset(path, kind=None) -> NavDataset``. Every check happens before any memmap is touched, so a
+foreign, truncated or half-written folder raises ``ValueError``/``FileNotFoundError`` naming the path and
+what was expected instead of crashing (a truncated memmap would otherwise fault on first read).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDict
+from torchrl.data import TensorDictReplayBuffer, TensorStorage
+from torchrl.data.replay_buffers import SamplerWithoutReplacement
+from torchrl.envs.transforms import Transform
+
+from navformer_rl.data.samplers import (
+    DEFAULT_CONTEXT_STEPS,
+    EpisodeTable,
+    PairBatcher,
+    TrajectoryBatcher,
+    TrajectorySampler,
+)
+from navformer_rl.data.schema import (
+    SCHEMA_VERSION,
+    TARGET_FIELDS,
+    DatasetKind,
+    FieldSpec,
+    fields_for,
+    key_name,
+)
+from navformer_rl.data.writer import CONSOLIDATED_DIR, METADATA_FILE
+
+
+class AttachTargetPixels(Transform):
+    """Replay-buffer transform writing ``target_pixels`` (uint8 ``[..., 84, 84, 3]``) looked up by ``target_id``."""
+
+    def __init__(self, targets: torch.Tensor):
+        super().__init__(in_keys=["target_id"], out_keys=["target_pixels"])
+        self.targets = targets
+
+    def _call(self, tensordict: TensorDict) -> TensorDict:
+        tensordict.set("target_pixels", self.targets[tensordict.get("target_id")])
+        return tensordict
+
+    def forward(self, tensordict: TensorDict) -> TensorDict:
+        return self._call(tensordict)
+
+
+class NavDataset:
+    """A validated, memmapped dataset folder.
+
+    Attributes:
+        root: the folder. metadata: parsed ``metadata.json``. kind: :class:`DatasetKind`.
+        rows: memmapped ``TensorDict [rows]`` in the kind's schema (see :mod:`navformer_rl.data.schema`).
+        targets: uint8 ``[n_trajectories, 84, 84, 3]`` target images (``None`` for D_ssl).
+        episodes: :class:`EpisodeTable` (``None`` for D_ssl).
+    """
+
+    def __init__(self, root: Path, metadata: dict[str, Any], rows: TensorDict, targets: torch.Tensor | None):
+        self.root = root
+        self.metadata = metadata
+        self.kind = DatasetKind.parse(metadata["kind"])
+        self.rows = rows
+        self.targets = targets
+        self.episodes = (
+            EpisodeTable.from_rows(rows["episode"], rows["target_id"], str(root))
+            if self.kind.is_trajectory
+            else None
+        )
+
+    def __len__(self) -> int:
+        return int(self.rows.shape[0])
+
+    @property
+    def num_trajectories(self) -> int:
+        return 0 if self.episodes is None else len(self.episodes)
+
+    def storage(self) -> TensorStorage:
+        """A TorchRL ``TensorStorage`` over the memmapped rows (no copy)."""
+        return TensorStorage(self.rows)
+
+    def replay_buffer(self, sampler=None, batch_size: int | None = None, **kwargs) -> TensorDictReplayBuffer:
+        """``TensorDictReplayBuffer`` over the rows with any TorchRL sampler (e.g. ``SliceSampler``)."""
+        return TensorDictReplayBuffer(
+            storage=self.storage(), sampler=sampler, batch_size=batch_size, **kwargs
+        )
+
+    def trajectory_buffer(
+        self, num_trajectories: int, context_steps: int = DEFAULT_CONTEXT_STEPS, seed: int = 0
+    ) -> TensorDictReplayBuffer:
+        """TorchRL buffer with :class:`TrajectorySampler`: ``sample()`` is flat ``[N * T]`` with
+        ``("collector", "mask")`` and per-row ``target_pixels``; ``.reshape(N, -1)`` gives windows."""
+        self._require_trajectories()
+        sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
+        return self.replay_buffer(
+            sampler=sampler, batch_size=num_trajectories, transform=AttachTargetPixels(self.targets)
+        )
+
+    def trajectory_batcher(
+        self,
+        num_trajectories: int,
+        context_steps: int = DEFAULT_CONTEXT_STEPS,
+        seed: int = 0,
+        keys: list[tuple[str, ...]] | None = None,
+        reuse_buffers: bool = True,
+    ) -> TrajectoryBatcher:
+        """Fast padded batches ``[N]`` with per-step keys ``[N, T, ...]``, ``mask`` and ``target_pixels``."""
+        self._require_trajectories()
+        sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
+        return TrajectoryBatcher(self.rows, self.targets, sampler, keys=keys, reuse_buffers=reuse_buffers)
+
+    def pair_buffer(self, batch_size: int = 512, seed: int = 0) -> TensorDictReplayBuffer:
+        """TorchRL buffer of D_ssl pairs, without replacement within an epoch."""
+        self._require_kind(DatasetKind.SSL)
+        return self.replay_buffer(
+            sampler=SamplerWithoutReplacement(drop_last=True),
+            batch_size=batch_size,
+            generator=torch.Generator().manual_seed(seed),
+        )
+
+    def pair_batcher(self, batch_size: int = 512, seed: int = 0, reuse_buffers: bool = True) -> PairBatcher:
+        """Fast D_ssl batches ``[B]`` (``pixels_static``, ``pixels_dynamic``, ``world``, ``pose``)."""
+        self._require_kind(DatasetKind.SSL)
+        return PairBatcher(self.rows, batch_size=batch_size, seed=seed, reuse_buffers=reuse_buffers)
+
+    def _require_trajectories(self) -> None:
+        if not self.kind.is_trajectory:
+            raise ValueError(
+                f"{self.root} is a {self.kind.value!r} dataset; trajectory sampling needs 'e' or 'ca'"
+            )
+
+    def _require_kind(self, kind: DatasetKind) -> None:
+        if self.kind is not kind:
+            raise ValueError(f"{self.root} is a {self.kind.value!r} dataset, expected {kind.value!r}")
+
+    def __repr__(self) -> str:
+        return f"NavDataset(root={str(self.root)!r}, kind={self.kind.value!r}, rows={len(self)}, trajectories={self.num_trajectories})"
+
+
+def open_dataset(path: str | Path, kind: DatasetKind | str | None = None) -> NavDataset:
+    """Open and validate a finished dataset folder.
+
+    Raises ``FileNotFoundError`` for a missing folder/file, ``ValueError`` for an unknown schema version,
+    an unfinished collection, a wrong ``kind``, or a memmap whose shape, dtype or file size differs from
+    the schema.
+    """
+    root = Path(path)
+    meta_path = root / METADATA_FILE
+    if not meta_path.is_file():
+        raise FileNotFoundError(f"{root} is not a navformer_rl dataset: {METADATA_FILE} is missing")
+    try:
+        with open(meta_path) as f:
+            metadata = json.load(f)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{meta_path} is not valid JSON ({err})") from None
+    version = metadata.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise ValueError(
+            f"{root}: schema_version {version!r} is not supported; this navformer_rl reads schema {SCHEMA_VERSION}"
+        )
+    found = DatasetKind.parse(metadata.get("kind", "?"))
+    if kind is not None and found is not DatasetKind.parse(kind):
+        raise ValueError(
+            f"{root} holds a {found.value!r} dataset, expected {DatasetKind.parse(kind).value!r}"
+        )
+    if metadata.get("status") != "complete":
+        raise ValueError(
+            f"{root}: collection is not finished (status {metadata.get('status')!r}); rerun the same collect "
+            "command to resume it"
+        )
+    counts = metadata.get("counts", {})
+    consolidated = root / CONSOLIDATED_DIR
+    rows = _load_checked(consolidated / "rows", fields_for(found), int(counts.get("rows", -1)))
+    targets = None
+    if found.is_trajectory:
+        targets = _load_checked(consolidated / "targets", TARGET_FIELDS, int(counts.get("items", -1)))[
+            "target_pixels"
+        ]
+    return NavDataset(root, metadata, rows, targets)
+
+
+def _load_checked(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows: int) -> TensorDict:
+    """Load a memmapped TensorDict after checking every file's existence, size, dtype and shape."""
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder} is missing (expected a consolidated memmap folder)")
+    for key, spec in fields.items():
+        file = folder.joinpath(*key[:-1], f"{key[-1]}.memmap")
+        if not file.is_file():
+            raise FileNotFoundError(f"{file} is missing (key {key_name(key)!r})")
+        expected = spec.nbytes(n_rows)
+        actual = file.stat().st_size
+        if actual != expected:
+            raise ValueError(
+                f"{file} has {actual} bytes, expected {expected} ({n_rows} rows of {spec.dtype} {spec.shape}); "
+                "the file is truncated or does not belong to this dataset"
+            )
+    try:
+        td = TensorDict.load_memmap(folder)
+    except Exception as err:  # tensordict raises assorted errors for a corrupt meta.json
+        raise ValueError(
+            f"{folder}: cannot read the memmapped TensorDict ({type(err).__name__}: {err})"
+        ) from None
+    for key, spec in fields.items():
+        value = td.get(key)
+        if value.dtype != spec.dtype or tuple(value.shape) != (n_rows, *spec.shape):
+            raise ValueError(
+                f"{folder}: key {key_name(key)!r} is {value.dtype} {tuple(value.shape)}, "
+                f"expected {spec.dtype} {(n_rows, *spec.shape)}"
+            )
+    return td

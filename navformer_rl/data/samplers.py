@@ -1,0 +1,343 @@
+"""Samplers for the DT loss (whole trajectories, cropped to the context) and for BYOL pairs.
+
+Two layers:
+
+* :class:`TrajectorySampler` is a TorchRL :class:`~torchrl.data.replay_buffers.Sampler`: inside a
+  ``TensorDictReplayBuffer`` it returns flat indices ``[N * T]`` (right padding repeats the last valid step)
+  and writes ``("collector", "mask")``, the convention of ``SliceSampler(pad_output=True)``, so
+  ``batch.reshape(N, -1)`` gives the padded trajectories.
+* :class:`TrajectoryBatcher` / :class:`PairBatcher` are the fast path used for training: they draw with
+  the same sampler and gather every key once with ``torch.index_select(..., out=)`` into buffers allocated
+  once, returning ``[N, T]`` (or ``[B]``) TensorDicts with the target images attached. (TorchRL's
+  ``SliceSampler`` gathers the pixels twice and allocates fresh tensors: ~10x slower, see
+  ``benchmarks/data.md``.)
+
+Randomness: one ``torch.Generator`` per sampler; ``state_dict()``/``load_state_dict()`` capture it together with
+the epoch permutation and cursor, so a resumed run draws exactly the batches an uninterrupted run would.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from tensordict import TensorDict
+from torchrl.data.replay_buffers import Sampler
+
+from navformer_rl.data.schema import TRAJECTORY_FIELDS, FieldSpec
+
+DEFAULT_CONTEXT_STEPS = 255
+"""1 target token + 4 tokens per step: 1 + 4 * 255 = 1021 <= 1024 tokens (paper §IV.C)."""
+
+
+class EpochPermutation:
+    """Draws ids ``0..n-1`` in batches without replacement within an epoch.
+
+    A new random permutation starts each epoch; a tail shorter than the batch is skipped (``drop_last``),
+    so a batch never holds the same id twice.
+    """
+
+    def __init__(self, n: int, seed: int):
+        if n < 1:
+            raise ValueError(f"cannot sample from an empty set (n={n})")
+        self.n = int(n)
+        self.generator = torch.Generator().manual_seed(int(seed))
+        self.epoch = 0
+        self._perm = torch.randperm(self.n, generator=self.generator)
+        self._cursor = 0
+
+    def draw(self, k: int) -> torch.Tensor:
+        """int64 ``[k]`` distinct ids."""
+        if not 1 <= k <= self.n:
+            raise ValueError(
+                f"batch of {k} items requested from a set of {self.n}; expected 1 <= k <= {self.n}"
+            )
+        if self._cursor + k > self.n:
+            self.epoch += 1
+            self._perm = torch.randperm(self.n, generator=self.generator)
+            self._cursor = 0
+        ids = self._perm[self._cursor : self._cursor + k]
+        self._cursor += k
+        return ids
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "n": self.n,
+            "generator": self.generator.get_state(),
+            "epoch": self.epoch,
+            "perm": self._perm.clone(),
+            "cursor": self._cursor,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if int(state["n"]) != self.n:
+            raise ValueError(f"sampler state is for {state['n']} items, this dataset has {self.n}")
+        self.generator.set_state(state["generator"])
+        self.epoch = int(state["epoch"])
+        self._perm = state["perm"].clone()
+        self._cursor = int(state["cursor"])
+
+
+@dataclass
+class EpisodeTable:
+    """Where each trajectory lies in the flat storage: int64 ``[n]`` ``start``, ``length``, ``target_id``."""
+
+    start: torch.Tensor
+    length: torch.Tensor
+    target_id: torch.Tensor
+
+    @classmethod
+    def from_rows(
+        cls, episode: torch.Tensor, target_id: torch.Tensor, where: str = "dataset"
+    ) -> EpisodeTable:
+        """Build from the ``episode`` / ``target_id`` columns (int64 ``[rows]``); trajectories must be stored
+        contiguously with ids ``0..n-1`` in order (as the writer does)."""
+        episode = torch.as_tensor(episode).to(torch.int64)
+        if episode.numel() == 0:
+            raise ValueError(f"{where}: no rows")
+        if episode[0] != 0 or bool((torch.diff(episode) < 0).any()) or bool((torch.diff(episode) > 1).any()):
+            raise ValueError(
+                f"{where}: 'episode' ids must be contiguous and numbered 0..n-1 in storage order"
+            )
+        length = torch.bincount(episode)
+        start = torch.cumsum(length, 0) - length
+        return cls(start=start, length=length, target_id=torch.as_tensor(target_id)[start].to(torch.int64))
+
+    def __len__(self) -> int:
+        return int(self.start.numel())
+
+
+@dataclass
+class TrajectoryDraw:
+    """One batch of N windows: ``index`` int64 ``[N, T]`` storage rows (padding repeats the last valid row),
+    ``mask`` bool ``[N, T]``, ``trajectory`` int64 ``[N]`` ids."""
+
+    index: torch.Tensor
+    mask: torch.Tensor
+    trajectory: torch.Tensor
+
+
+class TrajectorySampler(Sampler):
+    """N whole trajectories per batch, without replacement within an epoch, cropped to ``context_steps``.
+
+    A trajectory longer than ``context_steps`` is cut to a window of that length at a uniformly random
+    offset; windows never cross trajectories. In a TorchRL replay buffer the buffer's ``batch_size`` is the
+    number of trajectories N and the output is flat ``[N * T]`` with ``("collector", "mask")``.
+
+    Args:
+        num_trajectories: N per batch (25 for D_e, 150 for D_ca in the paper); the replay buffer's
+            ``batch_size`` overrides it when given.
+        context_steps: maximum window length T (default 255 steps = 1021 tokens of the 1024 context).
+        seed: seed of the sampler's ``torch.Generator``.
+        episodes: the trajectory table; built from the storage's ``episode``/``target_id`` columns on first
+            use when omitted.
+    """
+
+    def __init__(
+        self,
+        num_trajectories: int,
+        context_steps: int = DEFAULT_CONTEXT_STEPS,
+        seed: int = 0,
+        episodes: EpisodeTable | None = None,
+    ):
+        if num_trajectories < 1:
+            raise ValueError(f"num_trajectories must be >= 1, got {num_trajectories}")
+        if context_steps < 1:
+            raise ValueError(f"context_steps must be >= 1, got {context_steps}")
+        self.num_trajectories = int(num_trajectories)
+        self.context_steps = int(context_steps)
+        self.seed = int(seed)
+        self.episodes = episodes
+        self._ids: EpochPermutation | None = None
+        self._pending_state: dict[str, Any] | None = None
+        if episodes is not None:
+            self._bind(episodes)
+
+    def _bind(self, episodes: EpisodeTable) -> None:
+        self.episodes = episodes
+        self._ids = EpochPermutation(len(episodes), self.seed)
+        if self._pending_state is not None:
+            self._ids.load_state_dict(self._pending_state)
+            self._pending_state = None
+
+    @property
+    def epoch(self) -> int:
+        return 0 if self._ids is None else self._ids.epoch
+
+    def draw(self, num_trajectories: int | None = None) -> TrajectoryDraw:
+        """Draw one batch of windows (needs the episode table)."""
+        if self._ids is None:
+            raise RuntimeError(
+                "TrajectorySampler has no episode table yet; pass episodes= or sample a storage"
+            )
+        n = self.num_trajectories if num_trajectories is None else int(num_trajectories)
+        traj = self._ids.draw(n)
+        length = self.episodes.length[traj]
+        start = self.episodes.start[traj]
+        window = length.clamp(max=self.context_steps)
+        slack = length - window
+        # uniform offset in [0, slack]; one draw per trajectory from the sampler's generator
+        u = torch.rand(n, generator=self._ids.generator, dtype=torch.float64)
+        offset = torch.minimum((u * (slack + 1).to(torch.float64)).floor().to(torch.int64), slack)
+        T = int(window.max())
+        t = torch.arange(T, dtype=torch.int64)
+        mask = t[None, :] < window[:, None]
+        index = (start + offset)[:, None] + torch.minimum(t[None, :], (window - 1)[:, None])
+        return TrajectoryDraw(index=index, mask=mask, trajectory=traj)
+
+    # --- torchrl Sampler API -------------------------------------------------------------------------
+    def sample(self, storage, batch_size: int) -> tuple[torch.Tensor, dict]:
+        if self._ids is None:
+            rows = storage.get(slice(None))
+            self._bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"], "replay buffer storage"))
+        out = self.draw(batch_size)
+        return out.index.reshape(-1), {("collector", "mask"): out.mask.reshape(-1)}
+
+    def _empty(self) -> None:
+        self.episodes = None
+        self._ids = None
+
+    def state_dict(self) -> dict[str, Any]:
+        if self._ids is None:
+            return {} if self._pending_state is None else dict(self._pending_state)
+        return self._ids.state_dict()
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        if not state_dict:
+            return
+        if self._ids is None:
+            self._pending_state = dict(state_dict)
+        else:
+            self._ids.load_state_dict(state_dict)
+
+    def dumps(self, path) -> None:
+        torch.save(self.state_dict(), f"{path}/trajectory_sampler.pt")
+
+    def loads(self, path) -> None:
+        self.load_state_dict(torch.load(f"{path}/trajectory_sampler.pt", weights_only=True))
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(num_trajectories={self.num_trajectories}, "
+            f"context_steps={self.context_steps}, seed={self.seed})"
+        )
+
+
+def _gather_into(source: torch.Tensor, index: torch.Tensor, buffer: torch.Tensor | None) -> torch.Tensor:
+    """``source[index]`` written into the first ``len(index)`` rows of ``buffer`` (no allocation), or into a
+    new tensor when ``buffer`` is None."""
+    if buffer is None:
+        out = torch.empty((index.numel(), *source.shape[1:]), dtype=source.dtype)
+    else:
+        out = buffer[: index.numel()]
+    torch.index_select(source.as_subclass(torch.Tensor), 0, index, out=out)
+    return out
+
+
+class TrajectoryBatcher:
+    """Fast padded trajectory batches: ``sample() -> TensorDict`` with batch size ``[N]``.
+
+    Per-step keys have shape ``[N, T, ...]``: every trajectory key of the schema (``pixels`` uint8 ``[N, T, 84, 84, 3]``, ``action`` ``[N, T, 2]``,
+    ``return_to_go`` ``[N, T, 1]``, ``step`` ``[N, T]``, ...), ``mask`` bool ``[N, T]`` (False on padding, which
+    repeats the last valid step). Per-trajectory keys: ``target_pixels`` uint8 ``[N, 84, 84, 3]`` (from the targets table via
+    ``target_id``) and ``trajectory`` int64 ``[N]``. T is the longest window in the batch. (The root batch size is ``[N]``
+    because the target image is per trajectory; ``td["pixels"]`` is ``[N, T, 84, 84, 3]``.)
+
+    With ``reuse_buffers=True`` (default) the returned tensors are views of buffers allocated once and
+    overwritten by the next ``sample()``: consume (or ``.clone()``) a batch before drawing the next.
+    """
+
+    def __init__(
+        self,
+        rows: TensorDict,
+        targets: torch.Tensor,
+        sampler: TrajectorySampler,
+        keys: list[tuple[str, ...]] | None = None,
+        reuse_buffers: bool = True,
+    ):
+        if sampler.episodes is None:
+            sampler._bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"]))
+        self.rows = rows
+        self.targets = targets.as_subclass(torch.Tensor)
+        self.sampler = sampler
+        fields: dict[tuple[str, ...], FieldSpec] = (
+            TRAJECTORY_FIELDS if keys is None else {tuple(k): TRAJECTORY_FIELDS[tuple(k)] for k in keys}
+        )
+        self.fields = fields
+        self.reuse_buffers = reuse_buffers
+        capacity = sampler.num_trajectories * sampler.context_steps
+        self._sources = {key: rows.get(key).as_subclass(torch.Tensor) for key in fields}
+        self._buffers = (
+            {key: torch.empty((capacity, *spec.shape), dtype=spec.dtype) for key, spec in fields.items()}
+            if reuse_buffers
+            else {}
+        )
+        self._target_buffer = (
+            torch.empty((sampler.num_trajectories, *targets.shape[1:]), dtype=targets.dtype)
+            if reuse_buffers
+            else None
+        )
+
+    def sample(self) -> TensorDict:
+        draw = self.sampler.draw()
+        N, T = draw.index.shape
+        flat = draw.index.reshape(-1)
+        out = TensorDict(batch_size=[N])
+        for key, spec in self.fields.items():
+            buffer = self._buffers[key] if self.reuse_buffers else None
+            out.set(key, _gather_into(self._sources[key], flat, buffer).view(N, T, *spec.shape))
+        target_rows = self.sampler.episodes.target_id[draw.trajectory]
+        tbuf = self._target_buffer if self.reuse_buffers else None
+        out.set("target_pixels", _gather_into(self.targets, target_rows, tbuf))
+        out.set("mask", draw.mask)
+        out.set("trajectory", draw.trajectory)
+        return out
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.sampler.state_dict()
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.sampler.load_state_dict(state)
+
+
+class PairBatcher:
+    """D_ssl batches of ``batch_size`` image pairs (512 in the paper), without replacement within an epoch.
+
+    ``sample() -> TensorDict [B]`` with ``pixels_static`` / ``pixels_dynamic`` uint8 ``[B, 84, 84, 3]``,
+    ``world`` int64 ``[B]``, ``pose`` float32 ``[B, 3]``. Buffers are reused as in :class:`TrajectoryBatcher`.
+    """
+
+    def __init__(self, rows: TensorDict, batch_size: int = 512, seed: int = 0, reuse_buffers: bool = True):
+        from navformer_rl.data.schema import SSL_FIELDS
+
+        if batch_size < 1 or batch_size > rows.shape[0]:
+            raise ValueError(
+                f"batch_size must be in [1, {rows.shape[0]}] (pairs in the dataset), got {batch_size}"
+            )
+        self.batch_size = int(batch_size)
+        self.ids = EpochPermutation(rows.shape[0], seed)
+        self.fields = SSL_FIELDS
+        self._sources = {key: rows.get(key).as_subclass(torch.Tensor) for key in SSL_FIELDS}
+        self._buffers = {
+            key: (torch.empty((batch_size, *spec.shape), dtype=spec.dtype) if reuse_buffers else None)
+            for key, spec in SSL_FIELDS.items()
+        }
+
+    @property
+    def epoch(self) -> int:
+        return self.ids.epoch
+
+    def sample(self) -> TensorDict:
+        index = self.ids.draw(self.batch_size)
+        out = TensorDict(batch_size=[self.batch_size])
+        for key in self.fields:
+            out.set(key, _gather_into(self._sources[key], index, self._buffers[key]))
+        out.set("index", index)
+        return out
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.ids.state_dict()
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.ids.load_state_dict(state)

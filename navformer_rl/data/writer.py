@@ -1,0 +1,303 @@
+"""Sharded, atomic, resumable writing of a dataset folder.
+
+Layout of a dataset folder::
+
+    metadata.json          schema version, kind, settings, seeds, counts, package version (atomic rewrite)
+    shards/unit-000012/    one per deterministic work unit, renamed into place when complete:
+        rows/              memmapped TensorDict of the unit's rows (local episode / target ids from 0)
+        targets/           memmapped TensorDict {"target_pixels": uint8 [n, 84, 84, 3]} (trajectory kinds)
+        stats.json         {"items": n, "rows": r, "counters": {...}}
+    consolidated/          after completion: rows/ (one flat memmap, global ids) and targets/
+                           (built in consolidated.tmp/, then renamed); shards/ is deleted afterwards.
+
+The finished dataset is the first ``target_count`` items (trajectories or pairs) of the contiguous run of
+completed units 0, 1, 2, ... so it does not depend on the order in which parallel workers finished, nor on
+interruptions: rerunning the same command after a crash yields the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from navformer_rl.data.schema import (
+    SCHEMA_VERSION,
+    TARGET_FIELDS,
+    DatasetKind,
+    check_rows,
+    fields_for,
+)
+
+METADATA_FILE = "metadata.json"
+SHARDS_DIR = "shards"
+CONSOLIDATED_DIR = "consolidated"
+_TMP_PREFIX = ".tmp-"
+
+
+def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
+    """Write ``payload`` as sorted, indented JSON to ``path`` through a temp file + ``os.replace``."""
+    path = Path(path)
+    tmp = path.with_name(f"{_TMP_PREFIX}{path.name}.{os.getpid()}")
+    with open(tmp, "w") as f:
+        json.dump(payload, f, indent=2, sort_keys=True)
+        f.write("\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    with open(path) as f:
+        return json.load(f)
+
+
+def shard_dir(root: Path, unit: int) -> Path:
+    return Path(root) / SHARDS_DIR / f"unit-{unit:06d}"
+
+
+def write_shard(
+    root: str | Path,
+    kind: DatasetKind | str,
+    unit: int,
+    rows: TensorDict | None,
+    targets: torch.Tensor | None,
+    counters: dict[str, int],
+) -> None:
+    """Atomically write work unit ``unit`` (safe to call from worker processes).
+
+    ``rows``: flat TensorDict in the kind's schema with local ``episode``/``target_id`` starting at 0
+    (``None`` when the unit produced nothing, e.g. every episode failed). ``targets``: uint8
+    ``[n_items, 84, 84, 3]`` for trajectory kinds. ``counters``: integer statistics summed into metadata.
+    The shard is built in ``shards/.tmp-unit-XXXXXX-<pid>`` and renamed; a crash leaves no partial shard.
+    """
+    kind = DatasetKind.parse(kind)
+    final = shard_dir(root, unit)
+    if final.exists():
+        return
+    tmp = final.with_name(f"{_TMP_PREFIX}{final.name}-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    n_rows = 0 if rows is None else int(rows.shape[0])
+    if kind.is_trajectory:
+        n_items = 0 if targets is None else int(targets.shape[0])
+        if n_rows:
+            check_rows(rows, fields_for(kind), f"shard {unit} of {root}")
+            episodes = rows["episode"]
+            if int(episodes.max()) + 1 != n_items or int(episodes.min()) != 0:
+                raise ValueError(
+                    f"shard {unit}: episodes must be numbered 0..{n_items - 1} to match {n_items} targets"
+                )
+        elif n_items:
+            raise ValueError(f"shard {unit}: {n_items} targets but no rows")
+    else:
+        n_items = n_rows
+        if n_rows:
+            check_rows(rows, fields_for(kind), f"shard {unit} of {root}")
+    if n_rows:
+        rows.memmap_(tmp / "rows")
+        if kind.is_trajectory:
+            TensorDict({"target_pixels": targets.contiguous()}, batch_size=[n_items]).memmap_(tmp / "targets")
+    stats = {"items": n_items, "rows": n_rows, "counters": {k: int(v) for k, v in counters.items()}}
+    write_json_atomic(tmp / "stats.json", stats)
+    try:
+        os.rename(tmp, final)
+    except OSError:
+        # Another worker finished the same unit first; the two are identical by construction.
+        shutil.rmtree(tmp, ignore_errors=True)
+        if not final.exists():
+            raise
+
+
+class DatasetWriter:
+    """Owns a dataset folder: metadata, completed-unit bookkeeping and consolidation.
+
+    Args:
+        root: dataset folder (created if missing).
+        kind: ``"e"``, ``"ca"`` or ``"ssl"``.
+        settings: everything that determines the content (sizes, seeds, expert parameters); JSON-able.
+            Reopening a folder with different settings raises ``ValueError`` (refusing to mix datasets).
+        target_count: number of items of the finished dataset (trajectories, or pairs for ``ssl``).
+    """
+
+    def __init__(
+        self, root: str | Path, kind: DatasetKind | str, settings: dict[str, Any], target_count: int
+    ):
+        from navformer_rl import __version__
+
+        if target_count < 1:
+            raise ValueError(f"target_count must be >= 1, got {target_count}")
+        self.root = Path(root)
+        self.kind = DatasetKind.parse(kind)
+        self.target_count = int(target_count)
+        header = {
+            "schema_version": SCHEMA_VERSION,
+            "kind": self.kind.value,
+            "settings": json.loads(json.dumps(settings, sort_keys=True)),
+            "target_count": self.target_count,
+            "package_version": __version__,
+        }
+        meta_path = self.root / METADATA_FILE
+        if meta_path.exists():
+            old = read_json(meta_path)
+            for key in ("schema_version", "kind", "settings", "target_count"):
+                if old.get(key) != header[key]:
+                    raise ValueError(
+                        f"{self.root} already holds a dataset with {key}={old.get(key)!r}, but this run asks "
+                        f"for {key}={header[key]!r}; use another output folder or delete that one"
+                    )
+            self.metadata = old
+        else:
+            self.root.mkdir(parents=True, exist_ok=True)
+            self.metadata = {**header, "status": "collecting"}
+            write_json_atomic(meta_path, self.metadata)
+        (self.root / SHARDS_DIR).mkdir(exist_ok=True)
+        for leftover in (self.root / SHARDS_DIR).glob(f"{_TMP_PREFIX}*"):
+            shutil.rmtree(leftover, ignore_errors=True)
+
+    @property
+    def is_complete(self) -> bool:
+        return self.metadata.get("status") == "complete"
+
+    def has_shard(self, unit: int) -> bool:
+        return shard_dir(self.root, unit).is_dir()
+
+    def shard_stats(self, unit: int) -> dict[str, Any]:
+        return read_json(shard_dir(self.root, unit) / "stats.json")
+
+    def write_shard(
+        self, unit: int, rows: TensorDict | None, targets: torch.Tensor | None, counters: dict[str, int]
+    ) -> None:
+        write_shard(self.root, self.kind, unit, rows, targets, counters)
+
+    def prefix_plan(self) -> tuple[list[tuple[int, int]], int]:
+        """Units 0, 1, ... while complete: ``([(unit, items_taken)], items_total)``, stopping once
+        ``target_count`` items are covered."""
+        plan: list[tuple[int, int]] = []
+        total = 0
+        unit = 0
+        while total < self.target_count and self.has_shard(unit):
+            items = self.shard_stats(unit)["items"]
+            take = min(items, self.target_count - total)
+            plan.append((unit, take))
+            total += take
+            unit += 1
+        return plan, total
+
+    def needs_more(self) -> bool:
+        """Whether the completed prefix of units still lacks items."""
+        return not self.is_complete and self.prefix_plan()[1] < self.target_count
+
+    def finalize(self, extra_metadata: dict[str, Any] | None = None) -> Path:
+        """Consolidate the completed prefix into ``consolidated/`` and mark the dataset complete.
+
+        Idempotent: rerunning after a crash at any point gives the same folder. Returns ``root``.
+        """
+        if self.is_complete:
+            self._remove_shards()
+            return self.root
+        plan, total = self.prefix_plan()
+        if total < self.target_count:
+            raise RuntimeError(
+                f"{self.root}: only {total} of {self.target_count} items are collected; run collection first"
+            )
+        fields = fields_for(self.kind)
+        n_rows = 0
+        row_counts = []
+        counters: dict[str, int] = {}
+        for unit, take in plan:
+            stats = self.shard_stats(unit)
+            for key, value in stats["counters"].items():
+                counters[key] = counters.get(key, 0) + value
+            rows = self._take_rows(unit, take)
+            row_counts.append(rows)
+            n_rows += rows
+        tmp = self.root / f"{CONSOLIDATED_DIR}.tmp"
+        final = self.root / CONSOLIDATED_DIR
+        for stale in (tmp, final):
+            if stale.exists():
+                shutil.rmtree(stale)
+        out = _preallocate(tmp / "rows", fields, n_rows)
+        targets_out = (
+            _preallocate(tmp / "targets", TARGET_FIELDS, self.target_count)["target_pixels"]
+            if self.kind.is_trajectory
+            else None
+        )
+        row_at, item_at = 0, 0
+        for (unit, take), rows in zip(plan, row_counts):
+            if rows == 0:
+                continue
+            shard = TensorDict.load_memmap(shard_dir(self.root, unit) / "rows")
+            for key in fields:
+                out.get(key)[row_at : row_at + rows].copy_(shard.get(key)[:rows])
+            if self.kind.is_trajectory:
+                out["episode"][row_at : row_at + rows] += item_at
+                out["target_id"][row_at : row_at + rows] += item_at
+                shard_targets = TensorDict.load_memmap(shard_dir(self.root, unit) / "targets")
+                targets_out[item_at : item_at + take].copy_(shard_targets["target_pixels"][:take])
+            row_at += rows
+            item_at += take
+        os.rename(tmp, final)
+        counts = {"rows": n_rows, "items": self.target_count, "units": len(plan), **counters}
+        self.metadata = {
+            **self.metadata,
+            **(extra_metadata or {}),
+            "status": "complete",
+            "counts": counts,
+            "statistics": dataset_statistics(TensorDict.load_memmap(final / "rows"), self.kind),
+        }
+        write_json_atomic(self.root / METADATA_FILE, self.metadata)
+        self._remove_shards()
+        return self.root
+
+    def _take_rows(self, unit: int, take_items: int) -> int:
+        """Rows of the first ``take_items`` items of a shard (its rows are ordered by local episode)."""
+        stats = self.shard_stats(unit)
+        if take_items == stats["items"]:
+            return stats["rows"]
+        if not self.kind.is_trajectory:
+            return take_items
+        episodes = TensorDict.load_memmap(shard_dir(self.root, unit) / "rows")["episode"]
+        return int((episodes < take_items).sum())
+
+    def _remove_shards(self) -> None:
+        shutil.rmtree(self.root / SHARDS_DIR, ignore_errors=True)
+
+
+def _preallocate(path: Path, fields: dict, n_rows: int) -> TensorDict:
+    """Empty memmapped TensorDict ``[n_rows]`` with the given fields, written under ``path``."""
+    template = TensorDict(
+        {key: torch.zeros((1, *spec.shape), dtype=spec.dtype) for key, spec in fields.items()}, batch_size=[1]
+    )
+    return template.expand(n_rows).memmap_like(path)
+
+
+def dataset_statistics(rows: TensorDict, kind: DatasetKind) -> dict[str, Any]:
+    """Summary numbers of a consolidated dataset for the metadata and the dataset card."""
+    if not kind.is_trajectory:
+        worlds = rows["world"].numpy()
+        return {"pairs": int(rows.shape[0]), "worlds": int(np.unique(worlds).size)}
+    episode = rows["episode"].numpy()
+    lengths = np.bincount(episode)
+    collision = rows["next", "collision"].numpy()[:, 0]
+    per_traj_collisions = np.bincount(episode, weights=collision.astype(np.float64), minlength=lengths.size)
+    success = rows["next", "terminated"].numpy()[:, 0]
+    return {
+        "trajectories": int(lengths.size),
+        "steps": int(episode.size),
+        "length_min": int(lengths.min()),
+        "length_mean": float(round(lengths.mean(), 3)),
+        "length_median": float(np.median(lengths)),
+        "length_max": int(lengths.max()),
+        "successful_trajectories": int(success.sum()),
+        "collision_steps": int(collision.sum()),
+        "collision_rate_per_step": float(round(collision.mean(), 6)),
+        "trajectories_with_collision": int((per_traj_collisions > 0).sum()),
+    }

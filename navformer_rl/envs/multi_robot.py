@@ -1,0 +1,277 @@
+"""TorchRL ``MultiRobotNavEnv``: every robot is controlled (paper §VII.A: all robots of a trial run the policy).
+
+Per-robot entries live under the group key ``"agents"`` with the robot dimension first (TorchRL's
+MARL convention); privileged state for experts and metrics lives under ``"privileged"``; the root
+``done``/``terminated``/``truncated`` end the episode when every robot found its target or after
+``max_steps`` steps.
+
+Keys (A robots):
+
+- ``("agents", "pixels")``, ``("agents", "target_pixels")``: uint8 ``[A, 84, 84, 3]``. A robot that
+  has succeeded keeps the frame of the step it arrived (it no longer renders).
+- ``("agents", "action")``: float32 ``[A, 2]`` in [-1, 1]; ignored for robots that have succeeded.
+- ``("agents", "reward")``: float32 ``[A, 1]``, 1 on the step a robot first reaches its target.
+- ``("agents", "terminated")`` bool ``[A, 1]`` (= succeeded), ``("agents", "done")`` bool ``[A, 1]``
+  (succeeded, or the episode was truncated). They are observations, not done-spec entries, so TorchRL
+  rollouts and collectors do not stop (or partially reset) when a single robot finishes.
+- ``("agents", "collision")`` bool ``[A, 1]``, ``("agents", "collision_kind")`` int64 ``[A, 1]`` (0 none,
+  1 wall or target, 2 robot), for the last step.
+- ``("agents", "step_count")`` int64 ``[A, 1]``: steps since reset (0 right after a reset).
+- ``("privileged", k)``: ``pose`` float32 ``[A, 3]``, ``velocity`` ``[A, 2]``, ``target_position``
+  ``[A, 2]``, ``success`` bool ``[A, 1]``, ``path_length`` float32 ``[A, 1]`` (metres driven),
+  ``shortest_path_length`` float32 ``[A, 1]`` (geodesic from the start to the 1.5 m success region, the
+  SPL reference), ``collisions`` int64 ``[A, 1]`` (steps in collision so far).
+- root ``done``, ``terminated``, ``truncated``: bool ``[1]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
+from navformer_rl.envs.robots import get_robot_spec
+from navformer_rl.envs.sim import Simulator, validate_actions
+from navformer_rl.envs.target_image import render_target_image
+from navformer_rl.envs.target_nav import _same_scene
+from navformer_rl.envs.world import EpisodeSpec, WorldConfig, WorldSpec, generate_world, sample_start_poses
+
+_SEED_HIGH = 2**31 - 1
+
+
+class MultiRobotNavEnv(EnvBase):
+    """Multi-robot target-driven navigation; all robots take actions from the tensordict.
+
+    Args:
+        size, n_robots, kind: the world (see :class:`WorldConfig`); ignored where ``world_config`` is given.
+        robots: optional robot style per robot (e.g. ``["jackal", "turtlebot3", ...]``); sets ``n_robots``.
+        robot_style: style of every robot when ``robots`` is not given.
+        max_steps: truncation horizon (500 in the paper).
+        world_config: full :class:`WorldConfig`.
+        episodes_per_world: resets that reuse a world (fresh starts) before a new one is drawn.
+        textured: tiled floor and coloured walls in the camera images.
+        seed: seed of the env's generator (also settable with ``set_seed``).
+        device: torch device of the output tensors.
+
+    ``env.world`` (:class:`WorldSpec`) and ``env.simulator`` (:class:`Simulator`) expose the current
+    episode; ``env.set_next_episode(EpisodeSpec | WorldSpec)`` makes the next reset replay a fixed
+    world, starts and targets (evaluation).
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        size: float = 12.5,
+        n_robots: int = 2,
+        kind: str = "maze",
+        robots: Sequence[str] | None = None,
+        robot_style: str = "jackal",
+        max_steps: int = MAX_EPISODE_STEPS,
+        world_config: WorldConfig | None = None,
+        episodes_per_world: int = 1,
+        textured: bool = True,
+        seed: int | None = None,
+        device: str | torch.device = "cpu",
+    ):
+        super().__init__(device=device, batch_size=torch.Size([]))
+        styles = list(robots) if robots is not None else [robot_style] * int(n_robots)
+        if not styles:
+            raise ValueError("MultiRobotNavEnv needs at least one robot")
+        self.robot_specs = [get_robot_spec(s) for s in styles]
+        n = len(self.robot_specs)
+        if world_config is None:
+            radius = max(s.radius for s in self.robot_specs)
+            world_config = WorldConfig(size=size, kind=kind, n_robots=n, robot_radius=radius)
+        if world_config.n_robots != n:
+            raise ValueError(f"world_config.n_robots={world_config.n_robots} but {n} robot styles were given")
+        if max_steps < 1 or episodes_per_world < 1:
+            raise ValueError(
+                f"max_steps and episodes_per_world must be >= 1, got {max_steps}, {episodes_per_world}"
+            )
+        self.config = world_config
+        self.n_agents = n
+        self.max_steps = int(max_steps)
+        self.episodes_per_world = int(episodes_per_world)
+        self.textured = textured
+        self.world: WorldSpec | None = None
+        self.simulator: Simulator | None = None
+        self._next_episode: EpisodeSpec | WorldSpec | None = None
+        self._episodes_in_world = 0
+        self._rng = np.random.default_rng(seed)
+        self._make_specs()
+
+    # ------------------------------------------------------------------ specs
+    def _make_specs(self) -> None:
+        a = self.n_agents
+        image = Bounded(0, 255, (a, IMAGE_SIZE, IMAGE_SIZE, 3), dtype=torch.uint8, device=self.device)
+        flag = Categorical(2, shape=(a, 1), dtype=torch.bool, device=self.device)
+        self.observation_spec = Composite(
+            agents=Composite(
+                pixels=image,
+                target_pixels=image.clone(),
+                collision=flag.clone(),
+                collision_kind=Categorical(3, shape=(a, 1), dtype=torch.int64, device=self.device),
+                step_count=Bounded(0, self.max_steps, (a, 1), dtype=torch.int64, device=self.device),
+                done=flag.clone(),
+                terminated=flag.clone(),
+                shape=(a,),
+                device=self.device,
+            ),
+            privileged=Composite(
+                pose=Unbounded((a, 3), dtype=torch.float32, device=self.device),
+                velocity=Unbounded((a, 2), dtype=torch.float32, device=self.device),
+                target_position=Unbounded((a, 2), dtype=torch.float32, device=self.device),
+                success=flag.clone(),
+                path_length=Unbounded((a, 1), dtype=torch.float32, device=self.device),
+                shortest_path_length=Unbounded((a, 1), dtype=torch.float32, device=self.device),
+                collisions=Unbounded((a, 1), dtype=torch.int64, device=self.device),
+                shape=(a,),
+                device=self.device,
+            ),
+            device=self.device,
+        )
+        self.action_spec = Composite(
+            agents=Composite(
+                action=Bounded(-1.0, 1.0, (a, 2), dtype=torch.float32, device=self.device),
+                shape=(a,),
+                device=self.device,
+            ),
+            device=self.device,
+        )
+        self.reward_spec = Composite(
+            agents=Composite(
+                reward=Unbounded((a, 1), dtype=torch.float32, device=self.device),
+                shape=(a,),
+                device=self.device,
+            ),
+            device=self.device,
+        )
+        done = Categorical(2, shape=(1,), dtype=torch.bool, device=self.device)
+        self.done_spec = Composite(
+            done=done, terminated=done.clone(), truncated=done.clone(), device=self.device
+        )
+
+    # ------------------------------------------------------------------ episodes
+    def set_next_episode(self, episode: EpisodeSpec | WorldSpec) -> None:
+        """Make the next ``reset`` use this fixed episode (world, starts, targets)."""
+        if not isinstance(episode, (EpisodeSpec, WorldSpec)):
+            raise ValueError(f"expected an EpisodeSpec or WorldSpec, got {type(episode).__name__}")
+        self._next_episode = episode
+
+    def _draw_world(self) -> WorldSpec:
+        if self._next_episode is not None:
+            episode, self._next_episode = self._next_episode, None
+            world = episode.build() if isinstance(episode, EpisodeSpec) else episode
+            if world.n_robots != self.n_agents:
+                raise ValueError(f"the episode has {world.n_robots} robots, this env drives {self.n_agents}")
+            self._episodes_in_world = self.episodes_per_world  # a fixed episode is never reused implicitly
+            return world
+        if self.world is not None and self._episodes_in_world < self.episodes_per_world:
+            self._episodes_in_world += 1
+            starts = sample_start_poses(self.world, self.n_agents, self._rng)
+            return dataclasses.replace(self.world, starts=starts)
+        self._episodes_in_world = 1
+        return generate_world(self.config, int(self._rng.integers(_SEED_HIGH)))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        world = self._draw_world()
+        if self.simulator is not None and self.world is not None and _same_scene(world, self.world):
+            self.simulator.world = world
+            self.simulator.set_poses(world.starts)
+        else:
+            if self.simulator is not None:
+                self.simulator.close()
+            self.simulator = Simulator(world, self.robot_specs, textured=self.textured)
+        self.world = world
+        a = self.n_agents
+        self._target_xy = world.target_positions.astype(np.float64)
+        self._target_pixels = np.stack([render_target_image(t.shape, t.color) for t in world.targets])
+        self._shortest = np.array(
+            [
+                world.shortest_path_length(world.starts[i, :2], i, spec.radius, goal_radius=SUCCESS_RADIUS)
+                for i, spec in enumerate(self.robot_specs)
+            ],
+            dtype=np.float32,
+        )
+        self._success = np.zeros(a, dtype=bool)
+        self._collisions = np.zeros(a, dtype=np.int64)
+        self._path_length = np.zeros(a, dtype=np.float64)
+        self._step_count = 0
+        self._pixels = self.simulator.render_all()
+        zeros = np.zeros(a, dtype=bool)
+        return self._make_tensordict(zeros, np.zeros(a, dtype=np.int8), reward=None, truncated=False)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get(("agents", "action"))
+        actions = validate_actions(action.detach().cpu().numpy(), self.n_agents)
+        active = ~self._success
+        before = self.simulator.poses[:, :2].astype(np.float64)
+        contacts = self.simulator.step(actions, active)
+        after = self.simulator.poses[:, :2].astype(np.float64)
+        self._path_length += np.hypot(*(after - before).T)
+        self._collisions += contacts.collided
+        arrived = active & (np.hypot(*(after - self._target_xy).T) <= SUCCESS_RADIUS)
+        self._success |= arrived
+        self._step_count += 1
+        if active.any():
+            fresh = self.simulator.render_all(active)
+            self._pixels[active] = fresh[active]
+        truncated = self._step_count >= self.max_steps and not self._success.all()
+        return self._make_tensordict(contacts.collided, contacts.kind, reward=arrived, truncated=truncated)
+
+    def _make_tensordict(
+        self, collided: np.ndarray, kind: np.ndarray, reward: np.ndarray | None, truncated: bool
+    ) -> TensorDictBase:
+        a = self.n_agents
+        dev = self.device
+        success = torch.from_numpy(self._success.copy()).reshape(a, 1)
+        terminated = bool(self._success.all())
+        agents = {
+            "pixels": torch.from_numpy(self._pixels.copy()),
+            "target_pixels": torch.from_numpy(self._target_pixels.copy()),
+            "collision": torch.from_numpy(np.asarray(collided, dtype=bool)).reshape(a, 1),
+            "collision_kind": torch.from_numpy(np.asarray(kind, dtype=np.int64)).reshape(a, 1),
+            "step_count": torch.full((a, 1), self._step_count, dtype=torch.int64),
+            "terminated": success,
+            "done": success | truncated,
+        }
+        if reward is not None:
+            agents["reward"] = torch.from_numpy(np.asarray(reward, dtype=np.float32)).reshape(a, 1)
+        poses = self.simulator.poses
+        privileged = {
+            "pose": torch.from_numpy(poses),
+            "velocity": torch.from_numpy(self.simulator.velocities),
+            "target_position": torch.from_numpy(self._target_xy.astype(np.float32)),
+            "success": success.clone(),
+            "path_length": torch.from_numpy(self._path_length.astype(np.float32)).reshape(a, 1),
+            "shortest_path_length": torch.from_numpy(self._shortest).reshape(a, 1),
+            "collisions": torch.from_numpy(self._collisions.copy()).reshape(a, 1),
+        }
+        out = TensorDict(
+            {
+                "agents": TensorDict(agents, batch_size=(a,)),
+                "privileged": TensorDict(privileged, batch_size=(a,)),
+                "done": torch.tensor([terminated or truncated]),
+                "terminated": torch.tensor([terminated]),
+                "truncated": torch.tensor([truncated]),
+            },
+            batch_size=(),
+        )
+        return out.to(dev) if dev is not None and dev != torch.device("cpu") else out
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._rng = np.random.default_rng(seed)
+        self.world, self._episodes_in_world = None, 0
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if self.simulator is not None:
+            self.simulator.close()
+            self.simulator = None
+        super().close(raise_if_closed=raise_if_closed)

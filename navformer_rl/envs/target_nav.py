@@ -1,0 +1,237 @@
+"""gymnasium env ``navformer_rl/TargetNav-v0``: one camera robot looks for its target among moving robots.
+
+Paper §III/§VII.A: robot 0 gets its 84x84 RGB camera image and the target image; reward 1 when it comes
+within 1.5 m of its target (then the episode terminates); truncation at 500 steps of 0.2 s. Robots
+1..R-1 are dynamic obstacles driven by a pluggable :class:`ObstaclePolicy`. Privileged state (poses,
+targets, collisions, shortest path) is in ``info`` only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import cv2
+import gymnasium as gym
+import numpy as np
+
+from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
+from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy, ObstaclePolicy
+from navformer_rl.envs.robots import RobotSpec, get_robot_spec
+from navformer_rl.envs.sim import Simulator, validate_actions
+from navformer_rl.envs.target_image import render_target_image
+from navformer_rl.envs.topdown import draw_topdown
+from navformer_rl.envs.world import EpisodeSpec, WorldConfig, WorldSpec, generate_world, sample_start_poses
+
+_SEED_HIGH = 2**31 - 1
+
+
+def robot_specs_for(n_robots: int, robot_style: str, obstacle_style: str | None) -> list[RobotSpec]:
+    """Robot 0 in ``robot_style``, the others in ``obstacle_style`` (default: the same style)."""
+    main = get_robot_spec(robot_style)
+    other = main if obstacle_style is None else get_robot_spec(obstacle_style)
+    return [main] + [other] * (n_robots - 1)
+
+
+class TargetNavEnv(gym.Env):
+    """Single-robot target-driven navigation in a seeded maze with other moving robots.
+
+    Args:
+        size: world side in metres, in [5, 17.5].
+        n_robots: robots in the world (robot 0 is controlled; the others are obstacles).
+        kind: ``"maze"`` or ``"arena"``.
+        robot_style: style of robot 0 (``"jackal"`` or ``"turtlebot3"``).
+        obstacle_style: style of the other robots (default: ``robot_style``).
+        obstacle_policy: drives robots 1..R-1 (default :class:`GoalSeekingPolicy`).
+        max_episode_steps: truncation horizon (500 in the paper).
+        render_mode: ``None`` or ``"rgb_array"`` (top-down map with trajectories beside the camera view).
+        episodes_per_world: resets that reuse the same world with fresh starts before a new world is drawn
+            (the paper draws a new world every 10 trials).
+        world_config: full :class:`WorldConfig` overriding ``size``/``n_robots``/``kind``.
+        textured: tiled floor and coloured walls in the camera images.
+
+    Spaces: observation ``Dict(pixels=Box(0, 255, (84, 84, 3), uint8), target_pixels=Box(same))``;
+    action ``Box(-1, 1, (2,), float32)`` = (linear, angular), clipped; NaN or a wrong shape raise ValueError.
+
+    ``reset(seed=..., options={"episode": EpisodeSpec | WorldSpec})`` replays a fixed episode.
+    ``info`` keys: ``pose`` float32 [3], ``velocity`` [2], ``target_position`` [2], ``distance_to_target``,
+    ``success``, ``collision``, ``collision_kind`` (0/1/2), ``collisions`` (count), ``path_length``
+    (metres driven), ``shortest_path_length`` (geodesic from the start to the 1.5 m success region),
+    ``robot_poses`` float32 [R, 3], ``world_seed``, ``step``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+
+    def __init__(
+        self,
+        size: float = 12.5,
+        n_robots: int = 1,
+        kind: str = "maze",
+        robot_style: str = "jackal",
+        obstacle_style: str | None = None,
+        obstacle_policy: ObstaclePolicy | None = None,
+        max_episode_steps: int = MAX_EPISODE_STEPS,
+        render_mode: str | None = None,
+        episodes_per_world: int = 1,
+        world_config: WorldConfig | None = None,
+        textured: bool = True,
+    ):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if max_episode_steps < 1 or episodes_per_world < 1:
+            raise ValueError(
+                f"max_episode_steps and episodes_per_world must be >= 1, got {max_episode_steps}, {episodes_per_world}"
+            )
+        self.config = world_config or WorldConfig(size=size, n_robots=n_robots, kind=kind)
+        self.robot_specs = robot_specs_for(self.config.n_robots, robot_style, obstacle_style)
+        self.obstacle_policy = obstacle_policy if obstacle_policy is not None else GoalSeekingPolicy()
+        if not isinstance(self.obstacle_policy, ObstaclePolicy):
+            raise ValueError(
+                f"obstacle_policy must have reset(world, sim, rng) and act(sim, indices), got {obstacle_policy!r}"
+            )
+        self.max_episode_steps = int(max_episode_steps)
+        self.render_mode = render_mode
+        self.episodes_per_world = int(episodes_per_world)
+        self.textured = textured
+        image = gym.spaces.Box(0, 255, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
+        self.observation_space = gym.spaces.Dict({"pixels": image, "target_pixels": image})
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+        self.world: WorldSpec | None = None
+        self.simulator: Simulator | None = None
+        self._episodes_in_world = 0
+
+    # ------------------------------------------------------------------ episode set-up
+    def _next_world(self, options: dict[str, Any] | None) -> WorldSpec:
+        episode = (options or {}).get("episode")
+        if episode is not None:
+            if isinstance(episode, EpisodeSpec):
+                return episode.build()
+            if isinstance(episode, WorldSpec):
+                return episode
+            raise ValueError(
+                f"options['episode'] must be an EpisodeSpec or WorldSpec, got {type(episode).__name__}"
+            )
+        if self.world is not None and self._episodes_in_world < self.episodes_per_world:
+            starts = sample_start_poses(self.world, self.world.n_robots, self.np_random)
+            return dataclasses.replace(self.world, starts=starts)
+        self._episodes_in_world = 0
+        return generate_world(self.config, int(self.np_random.integers(_SEED_HIGH)))
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.world, self._episodes_in_world = None, 0
+        world = self._next_world(options)
+        if world.n_robots != len(self.robot_specs):
+            raise ValueError(
+                f"the episode has {world.n_robots} robots, this env drives {len(self.robot_specs)}"
+            )
+        same_layout = self.simulator is not None and self.world is not None and _same_scene(world, self.world)
+        if same_layout:
+            self.simulator.world = world
+            self.simulator.set_poses(world.starts)
+        else:
+            if self.simulator is not None:
+                self.simulator.close()
+            self.simulator = Simulator(world, self.robot_specs, textured=self.textured)
+        self.world = world
+        self._episodes_in_world += 1
+        self.obstacle_policy.reset(world, self.simulator, self.np_random)
+        target = world.targets[0]
+        self._target_pixels = render_target_image(target.shape, target.color)
+        self._target_xy = target.position.astype(np.float64)
+        self._shortest = world.shortest_path_length(
+            world.starts[0, :2], 0, clearance=self.robot_specs[0].radius, goal_radius=SUCCESS_RADIUS
+        )
+        self._step = 0
+        self._collisions = 0
+        self._path_length = 0.0
+        self._trajectory = [world.starts[0, :2].astype(np.float64)]
+        self._last_contact = (False, 0)
+        return self._observation(), self._info()
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, action):
+        if self.simulator is None:
+            raise RuntimeError("call reset() before step()")
+        own = validate_actions(action, 1)
+        n = len(self.robot_specs)
+        actions = np.zeros((n, 2), dtype=np.float64)
+        actions[0] = own[0]
+        if n > 1:
+            actions[1:] = self.obstacle_policy.act(self.simulator, range(1, n))
+        before = self.simulator.poses[0, :2].astype(np.float64)
+        contacts = self.simulator.step(actions)
+        after = self.simulator.poses[0, :2].astype(np.float64)
+        self._path_length += float(np.hypot(*(after - before)))
+        self._trajectory.append(after)
+        self._step += 1
+        collided = bool(contacts.collided[0])
+        self._collisions += int(collided)
+        self._last_contact = (collided, int(contacts.kind[0]))
+        success = bool(np.hypot(*(after - self._target_xy)) <= SUCCESS_RADIUS)
+        truncated = not success and self._step >= self.max_episode_steps
+        return self._observation(), float(success), success, truncated, self._info(success)
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        return {"pixels": self.simulator.render(0), "target_pixels": self._target_pixels.copy()}
+
+    def _info(self, success: bool = False) -> dict[str, Any]:
+        poses = self.simulator.poses
+        return {
+            "pose": poses[0].copy(),
+            "velocity": self.simulator.velocities[0].copy(),
+            "target_position": self._target_xy.astype(np.float32),
+            "distance_to_target": float(np.hypot(*(poses[0, :2] - self._target_xy))),
+            "success": success,
+            "collision": self._last_contact[0],
+            "collision_kind": self._last_contact[1],
+            "collisions": self._collisions,
+            "path_length": self._path_length,
+            "shortest_path_length": self._shortest,
+            "robot_poses": poses,
+            "world_seed": self.world.seed,
+            "step": self._step,
+        }
+
+    # ------------------------------------------------------------------ rendering
+    def render(self) -> np.ndarray | None:
+        """``"rgb_array"``: uint8 ``[H, W, 3]`` top-down map (robot 0's trajectory) beside its camera view."""
+        if self.render_mode != "rgb_array" or self.simulator is None:
+            return None
+        return compose_frame(
+            draw_topdown(self.world, [np.array(self._trajectory)], self.simulator.poses, self.robot_specs),
+            [self.simulator.render(0), self._target_pixels],
+        )
+
+    def close(self) -> None:
+        if self.simulator is not None:
+            self.simulator.close()
+            self.simulator = None
+
+
+def compose_frame(topdown: np.ndarray, views: list[np.ndarray], view_px: int | None = None) -> np.ndarray:
+    """Put camera ``views`` (uint8 ``[84, 84, 3]`` each), scaled up and stacked vertically, to the right of a
+    top-down map ``[H, W, 3]``: returns uint8 ``[H, W + view_px, 3]``."""
+    h = topdown.shape[0]
+    view_px = view_px or max(84, min(h // max(len(views), 1), 336))
+    column = np.full((h, view_px, 3), 255, dtype=np.uint8)
+    for k, view in enumerate(views[: max(h // view_px, 1)]):
+        column[k * view_px : (k + 1) * view_px] = cv2.resize(
+            view, (view_px, view_px), interpolation=cv2.INTER_NEAREST
+        )
+    return np.concatenate([topdown, column], axis=1)
+
+
+def _same_scene(a: WorldSpec, b: WorldSpec) -> bool:
+    """True when two worlds share walls and targets (only the starts differ)."""
+    return (
+        a.size == b.size
+        and a.walls.shape == b.walls.shape
+        and np.array_equal(a.walls, b.walls)
+        and len(a.targets) == len(b.targets)
+        and all(
+            ta.shape == tb.shape and ta.color == tb.color and np.array_equal(ta.position, tb.position)
+            for ta, tb in zip(a.targets, b.targets)
+        )
+    )

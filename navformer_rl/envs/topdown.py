@@ -1,0 +1,148 @@
+"""Top-down map of a world (OpenCV): walls, targets, robots and their trajectories.
+
+World ``(x, y)`` maps to pixel ``(u, v) = (margin + x * px_per_m, margin + (size - y) * px_per_m)``,
+so +y points up in the image. Robot ``i`` and its target share colour ``ROBOT_COLORS[i % 10]``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from navformer_rl.constants import SUCCESS_RADIUS
+from navformer_rl.envs.robots import JACKAL, RobotSpec
+from navformer_rl.envs.world import WorldSpec
+
+ROBOT_COLORS = np.array(
+    [
+        (31, 119, 180),
+        (255, 127, 14),
+        (44, 160, 44),
+        (214, 39, 40),
+        (148, 103, 189),
+        (140, 86, 75),
+        (227, 119, 194),
+        (127, 127, 127),
+        (188, 189, 34),
+        (23, 190, 207),
+    ],
+    dtype=np.uint8,
+)
+"""RGB colour per robot index (matplotlib's tab10)."""
+
+_FLOOR = (245, 243, 238)
+_GRID = (228, 225, 218)
+_WALL = (60, 60, 66)
+
+
+def draw_topdown(
+    world: WorldSpec,
+    trajectories: Sequence[np.ndarray] | None = None,
+    poses: np.ndarray | None = None,
+    robot_specs: Sequence[RobotSpec] | None = None,
+    px_per_m: float = 48.0,
+    margin_px: int = 12,
+    show_success_radius: bool = True,
+    labels: bool = True,
+) -> np.ndarray:
+    """Draw the world from above: uint8 ``[H, W, 3]`` RGB with ``H = W = size * px_per_m + 2 * margin_px``.
+
+    Args:
+        world: the world (walls, targets).
+        trajectories: optional per-robot paths, each float ``[T, 2]`` (x, y), drawn as polylines.
+        poses: optional float ``[R, 3]`` current poses, drawn as discs with a heading tick.
+        robot_specs: radii for the robot discs (default: Jackal for every robot).
+        px_per_m: scale; margin_px: border around the world.
+        show_success_radius: draw each target's 1.5 m success circle (dashed look, in its robot's colour).
+        labels: write the robot index next to each robot and target.
+    """
+    if not px_per_m > 0:
+        raise ValueError(f"px_per_m must be > 0, got {px_per_m}")
+    side = int(round(world.size * px_per_m)) + 2 * margin_px
+    img = np.full((side, side, 3), _FLOOR, dtype=np.uint8)
+
+    def to_px(xy) -> tuple[int, int]:
+        return (
+            int(round(margin_px + float(xy[0]) * px_per_m)),
+            int(round(margin_px + (world.size - float(xy[1])) * px_per_m)),
+        )
+
+    for k in range(int(math.floor(world.size)) + 1):  # 1 m grid, like the floor tiles
+        cv2.line(img, to_px((k, 0)), to_px((k, world.size)), _GRID, 1)
+        cv2.line(img, to_px((0, k)), to_px((world.size, k)), _GRID, 1)
+    for cx, cy, hx, hy in world.walls.astype(np.float64):
+        cv2.rectangle(img, to_px((cx - hx, cy + hy)), to_px((cx + hx, cy - hy)), _WALL, -1)
+
+    def robot_color(i: int) -> tuple[int, int, int]:
+        return tuple(int(v) for v in ROBOT_COLORS[i % len(ROBOT_COLORS)])
+
+    for i, target in enumerate(world.targets):
+        centre = to_px(target.position)
+        rgb = tuple(int(255 * v) for v in target.rgba[:3])
+        half = max(2, int(round(target.half_extent * px_per_m)))
+        if show_success_radius:
+            _dashed_circle(img, centre, int(round(SUCCESS_RADIUS * px_per_m)), robot_color(i))
+        if target.shape == "sphere":
+            cv2.circle(img, centre, half, rgb, -1, cv2.LINE_AA)
+            cv2.circle(img, centre, half, (0, 0, 0), 1, cv2.LINE_AA)
+        else:
+            cv2.rectangle(
+                img, (centre[0] - half, centre[1] - half), (centre[0] + half, centre[1] + half), rgb, -1
+            )
+            cv2.rectangle(
+                img, (centre[0] - half, centre[1] - half), (centre[0] + half, centre[1] + half), (0, 0, 0), 1
+            )
+        if labels:
+            cv2.putText(
+                img,
+                f"T{i}",
+                (centre[0] + half + 2, centre[1] - half),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.4,
+                robot_color(i),
+                1,
+                cv2.LINE_AA,
+            )
+
+    for i, path in enumerate(trajectories or []):
+        path = np.asarray(path, dtype=np.float64).reshape(-1, 2)
+        if len(path) >= 2:
+            pts = np.array([to_px(p) for p in path], dtype=np.int32)
+            cv2.polylines(img, [pts], False, robot_color(i), 2, cv2.LINE_AA)
+        if len(path):
+            cv2.circle(img, to_px(path[0]), 3, robot_color(i), -1, cv2.LINE_AA)
+
+    if poses is not None:
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        for i, (x, y, yaw) in enumerate(poses):
+            radius = (robot_specs[i] if robot_specs is not None else JACKAL).radius
+            r_px = max(3, int(round(radius * px_per_m)))
+            centre = to_px((x, y))
+            cv2.circle(img, centre, r_px, robot_color(i), -1, cv2.LINE_AA)
+            cv2.circle(img, centre, r_px, (0, 0, 0), 1, cv2.LINE_AA)
+            tip = to_px((x + radius * 1.4 * math.cos(yaw), y + radius * 1.4 * math.sin(yaw)))
+            cv2.line(img, centre, tip, (0, 0, 0), 2, cv2.LINE_AA)
+            if labels:
+                cv2.putText(
+                    img,
+                    str(i),
+                    (centre[0] - 4, centre[1] + 4),
+                    cv2.FONT_HERSHEY_SIMPLEX,
+                    0.4,
+                    (255, 255, 255),
+                    1,
+                    cv2.LINE_AA,
+                )
+    return img
+
+
+def _dashed_circle(img: np.ndarray, centre: tuple[int, int], radius: int, color, segments: int = 24) -> None:
+    """A circle drawn as ``segments`` arcs with gaps (in place)."""
+    step = 360.0 / segments
+    for k in range(segments):
+        cv2.ellipse(
+            img, centre, (radius, radius), 0.0, k * step, k * step + step * 0.55, color, 1, cv2.LINE_AA
+        )

@@ -1,0 +1,67 @@
+"""TorchRL wrapper of the single-robot gymnasium env (``GymWrapper``) with its privileged ``info``.
+
+Keys: ``pixels`` and ``target_pixels`` uint8 ``[84, 84, 3]``, ``action`` float32 ``[2]``, ``reward``
+float32 ``[1]``, ``done``/``terminated``/``truncated`` bool ``[1]``, and ``("privileged", k)`` for
+``pose`` float32 ``[3]``, ``velocity`` ``[2]``, ``target_position`` ``[2]``, ``success``/``collision``
+bool ``[1]``, ``collision_kind``/``collisions`` int64 ``[1]``, ``path_length``/``shortest_path_length``
+float32 ``[1]``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.envs.gym_like import BaseInfoDictReader
+from torchrl.envs.libs.gym import GymWrapper
+
+from navformer_rl.envs.target_nav import TargetNavEnv
+
+_PRIVILEGED: dict[str, tuple[tuple[int, ...], torch.dtype]] = {
+    "pose": ((3,), torch.float32),
+    "velocity": ((2,), torch.float32),
+    "target_position": ((2,), torch.float32),
+    "success": ((1,), torch.bool),
+    "collision": ((1,), torch.bool),
+    "collision_kind": ((1,), torch.int64),
+    "collisions": ((1,), torch.int64),
+    "path_length": ((1,), torch.float32),
+    "shortest_path_length": ((1,), torch.float32),
+}
+
+
+class PrivilegedInfoReader(BaseInfoDictReader):
+    """Copies :class:`TargetNavEnv`'s ``info`` entries to ``("privileged", key)`` with fixed specs."""
+
+    def __init__(self) -> None:
+        specs = {}
+        for key, (shape, dtype) in _PRIVILEGED.items():
+            specs[key] = (
+                Categorical(2, shape=shape, dtype=dtype)
+                if dtype is torch.bool
+                else Unbounded(shape, dtype=dtype)
+            )
+        self._spec = Composite(privileged=Composite(specs, shape=()), shape=())
+
+    def __call__(self, info_dict: dict[str, Any], tensordict: TensorDictBase) -> TensorDictBase:
+        for key, (shape, dtype) in _PRIVILEGED.items():
+            value = torch.as_tensor(np.asarray(info_dict[key]), dtype=dtype).reshape(shape)
+            tensordict.set(("privileged", key), value)
+        return tensordict
+
+    @property
+    def info_spec(self) -> Composite:
+        return self._spec
+
+
+def make_torchrl_target_nav_env(**kwargs) -> GymWrapper:
+    """``GymWrapper(TargetNavEnv(**kwargs))`` with the privileged info reader registered.
+
+    ``kwargs`` are :class:`TargetNavEnv`'s (``size``, ``n_robots``, ``kind``, ``robot_style``, ...).
+    """
+    env = GymWrapper(TargetNavEnv(**kwargs))
+    env.set_info_dict_reader(PrivilegedInfoReader())
+    return env

@@ -1,0 +1,500 @@
+"""Seeded world generator (pure numpy): mazes and open arenas, targets, collision-free robot starts.
+
+A world is a square ``[0, size]^2`` with axis-aligned wall boxes (paper §VII.A: 3D mazes of 7.5 / 12.5 /
+17.5 m; §V: training worlds from 5 to 17.5 m and a 12.5 m collision-avoidance arena). Everything a
+simulator, an expert or a metric needs is in the frozen :class:`WorldSpec`; the same ``(config, seed)``
+always gives the same world.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from navformer_rl.constants import (
+    MAX_WORLD_SIZE,
+    MIN_WORLD_SIZE,
+    SUCCESS_RADIUS,
+    TARGET_COLORS,
+    TARGET_SHAPES,
+)
+from navformer_rl.envs.occupancy import OccupancyMap
+from navformer_rl.envs.robots import JACKAL
+
+TARGET_RGBA: dict[str, tuple[float, float, float, float]] = {
+    "green": (0.10, 0.80, 0.15, 1.0),
+    "red": (0.90, 0.08, 0.08, 1.0),
+    "white": (0.97, 0.97, 0.97, 1.0),
+    "yellow": (0.98, 0.88, 0.05, 1.0),
+    "blue": (0.08, 0.25, 0.95, 1.0),
+    "orange": (1.00, 0.45, 0.00, 1.0),
+    "purple": (0.55, 0.15, 0.80, 1.0),
+    "cyan": (0.05, 0.85, 0.90, 1.0),
+}
+"""Known target colours (the paper's five first, then extras for configurable worlds)."""
+
+TARGET_HALF_EXTENT: dict[str, float] = {"sphere": 0.25, "box": 0.20}
+"""Known target shapes: sphere of radius 0.25 m, cube of side 0.40 m (both resting on the floor)."""
+
+WORLD_KINDS = ("maze", "arena")
+OCCUPANCY_RESOLUTION = 0.05
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """One target object: ``position`` float32 ``[2]`` (x, y) of its centre, ``shape``, ``color``."""
+
+    position: np.ndarray
+    shape: str
+    color: str
+
+    @property
+    def half_extent(self) -> float:
+        """Sphere radius or half the cube side, in metres."""
+        return TARGET_HALF_EXTENT[self.shape]
+
+    @property
+    def rgba(self) -> tuple[float, float, float, float]:
+        return TARGET_RGBA[self.color]
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """What kind of world to generate.
+
+    Attributes:
+        size: side of the square world in metres, in [5, 17.5].
+        kind: ``"maze"`` (random perfect maze with extra openings) or ``"arena"`` (outer walls plus a few
+            short inner walls).
+        n_robots: robots to place (each gets its own distinct target).
+        target_shapes, target_colors: the catalogue targets are drawn from (shape x colour, without
+            replacement); known shapes are ``TARGET_HALF_EXTENT``'s keys, colours ``TARGET_RGBA``'s.
+        cell_size: nominal maze cell in metres; a side of ``size`` gets ``max(2, round(size / cell_size))``
+            cells of ``size / n`` metres (2.5 m cells leave 2.4 m corridors: two robots pass).
+        loop_fraction: share of the interior walls left by the perfect maze that are removed again
+            (adds loops, so several routes exist).
+        wall_thickness, wall_height: wall boxes in metres.
+        arena_inner_walls: inclusive range of short inner walls in an arena.
+        arena_wall_length: inclusive range of their lengths in metres.
+        robot_radius: clearance radius used to place starts and targets (the largest robot's disc).
+        start_target_margin: starts are more than ``SUCCESS_RADIUS + start_target_margin`` metres
+            (straight line, hence also geodesically) from their own target.
+        min_robot_gap: free space in metres between two robot discs at the start.
+    """
+
+    size: float = 12.5
+    kind: str = "maze"
+    n_robots: int = 1
+    target_shapes: tuple[str, ...] = TARGET_SHAPES
+    target_colors: tuple[str, ...] = TARGET_COLORS
+    cell_size: float = 2.5
+    loop_fraction: float = 0.15
+    wall_thickness: float = 0.10
+    wall_height: float = 1.0
+    arena_inner_walls: tuple[int, int] = (0, 3)
+    arena_wall_length: tuple[float, float] = (1.0, 2.5)
+    robot_radius: float = JACKAL.radius
+    start_target_margin: float = 1.0
+    min_robot_gap: float = 0.2
+
+    def __post_init__(self) -> None:
+        size = float(self.size)
+        if not (MIN_WORLD_SIZE <= size <= MAX_WORLD_SIZE):
+            raise ValueError(
+                f"world size {self.size!r} m is outside the supported range [{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}] m"
+            )
+        if self.kind not in WORLD_KINDS:
+            raise ValueError(f"unknown world kind {self.kind!r}; expected one of {WORLD_KINDS}")
+        if (
+            isinstance(self.n_robots, bool)
+            or not isinstance(self.n_robots, (int, np.integer))
+            or self.n_robots < 1
+        ):
+            raise ValueError(f"n_robots must be an integer >= 1, got {self.n_robots!r}")
+        object.__setattr__(self, "target_shapes", tuple(self.target_shapes))
+        object.__setattr__(self, "target_colors", tuple(self.target_colors))
+        for shape in self.target_shapes:
+            if shape not in TARGET_HALF_EXTENT:
+                raise ValueError(
+                    f"unknown target shape {shape!r}; expected one of {sorted(TARGET_HALF_EXTENT)}"
+                )
+        for color in self.target_colors:
+            if color not in TARGET_RGBA:
+                raise ValueError(f"unknown target colour {color!r}; expected one of {sorted(TARGET_RGBA)}")
+        n_targets = len(set(self.target_shapes)) * len(set(self.target_colors))
+        if self.n_robots > n_targets:
+            raise ValueError(
+                f"n_robots={self.n_robots} needs as many distinct targets, but shapes {self.target_shapes} x "
+                f"colours {self.target_colors} give only {n_targets}"
+            )
+        if not 0.0 <= self.loop_fraction <= 1.0:
+            raise ValueError(f"loop_fraction must be in [0, 1], got {self.loop_fraction}")
+        lo, hi = self.arena_inner_walls
+        if not 0 <= lo <= hi:
+            raise ValueError(
+                f"arena_inner_walls must be a range (lo, hi) with 0 <= lo <= hi, got {self.arena_inner_walls}"
+            )
+        if self.robot_radius <= 0 or self.wall_thickness <= 0 or self.wall_height <= 0:
+            raise ValueError("robot_radius, wall_thickness and wall_height must be > 0")
+
+    @property
+    def cells_per_side(self) -> int:
+        """Maze cells per side: ``max(2, round(size / cell_size))``."""
+        return max(2, round(self.size / self.cell_size))
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """A generated world (read-only). Robot ``i`` starts at ``starts[i]`` and looks for ``targets[i]``.
+
+    Attributes:
+        size: side in metres; the world spans ``[0, size]^2``.
+        kind: ``"maze"`` or ``"arena"``.
+        walls: float32 ``[W, 4]`` axis-aligned wall boxes ``(cx, cy, half_x, half_y)``.
+        wall_height: metres.
+        occupancy: :class:`OccupancyMap` at 0.05 m of walls and (solid) targets.
+        starts: float32 ``[R, 3]`` start poses ``(x, y, yaw)``.
+        targets: one :class:`TargetSpec` per robot, all distinct (shape, colour) pairs.
+        seed: the generator seed.
+        config: the :class:`WorldConfig` it was generated from.
+    """
+
+    size: float
+    kind: str
+    walls: np.ndarray
+    wall_height: float
+    occupancy: OccupancyMap
+    starts: np.ndarray
+    targets: list[TargetSpec]
+    seed: int
+    config: WorldConfig = field(repr=False)
+
+    @property
+    def n_robots(self) -> int:
+        return int(self.starts.shape[0])
+
+    @property
+    def target_positions(self) -> np.ndarray:
+        """float32 ``[R, 2]`` target centres."""
+        return np.array([t.position for t in self.targets], dtype=np.float32).reshape(-1, 2)
+
+    @property
+    def obstacle_boxes(self) -> np.ndarray:
+        """float64 ``[W + B, 4]``: wall boxes plus cube targets, the static boxes robots collide with."""
+        boxes = [t.position.tolist() + [t.half_extent] * 2 for t in self.targets if t.shape == "box"]
+        return np.concatenate(
+            [self.walls.astype(np.float64), np.array(boxes, dtype=np.float64).reshape(-1, 4)]
+        )
+
+    @property
+    def obstacle_circles(self) -> np.ndarray:
+        """float64 ``[S, 3]`` ``(cx, cy, r)``: sphere targets, the static discs robots collide with."""
+        circles = [t.position.tolist() + [t.half_extent] for t in self.targets if t.shape == "sphere"]
+        return np.array(circles, dtype=np.float64).reshape(-1, 3)
+
+    def shortest_path_length(
+        self, start_xy, target_index: int, clearance: float = JACKAL.radius, goal_radius: float = 0.0
+    ) -> float:
+        """Shortest collision-free path in metres from ``start_xy`` to ``targets[target_index]`` on the true map
+        inflated by ``clearance`` (see :meth:`OccupancyMap.shortest_path_length`); the goal is the free cell
+        nearest to the (solid) target, or with ``goal_radius`` the first cell within that radius of it."""
+        if not 0 <= target_index < len(self.targets):
+            raise ValueError(f"target_index {target_index} is out of range [0, {len(self.targets)})")
+        goal = self.targets[target_index].position
+        return self.occupancy.shortest_path_length(start_xy, goal, clearance, goal_radius)
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """A fixed episode for evaluation: a world from ``(config, world_seed)`` (or a given ``world``), with
+    optional overriding ``starts`` float ``[R, 3]`` and ``targets``.
+
+    ``build()`` returns the :class:`WorldSpec` to use; overrides are checked for collisions.
+    """
+
+    config: WorldConfig | None = None
+    world_seed: int | None = None
+    world: WorldSpec | None = None
+    starts: np.ndarray | None = None
+    targets: list[TargetSpec] | None = None
+
+    def build(self) -> WorldSpec:
+        if self.world is not None:
+            world = self.world
+        elif self.config is not None and self.world_seed is not None:
+            world = generate_world(self.config, self.world_seed)
+        else:
+            raise ValueError("EpisodeSpec needs either a world or both a config and a world_seed")
+        return replace_layout(world, self.starts, self.targets)
+
+
+# ---------------------------------------------------------------------------------------------- walls
+def _maze_walls(config: WorldConfig, rng: np.random.Generator) -> np.ndarray:
+    """Random DFS perfect maze, then ``loop_fraction`` of the remaining interior walls removed; walls merged
+    into maximal straight runs. Returns float32 ``[W, 4]`` boxes."""
+    n = config.cells_per_side
+    cell = config.size / n
+    # vertical[r, c]: wall on the line x = c * cell between rows r and r+1 (c in 0..n)
+    vertical = np.ones((n, n + 1), dtype=bool)
+    horizontal = np.ones((n + 1, n), dtype=bool)  # horizontal[r, c]: wall on y = r * cell, column c
+    visited = np.zeros((n, n), dtype=bool)
+    start = (int(rng.integers(n)), int(rng.integers(n)))
+    stack = [start]
+    visited[start] = True
+    while stack:
+        r, c = stack[-1]
+        options = [
+            (dr, dc)
+            for dr, dc in ((1, 0), (-1, 0), (0, 1), (0, -1))
+            if 0 <= r + dr < n and 0 <= c + dc < n and not visited[r + dr, c + dc]
+        ]
+        if not options:
+            stack.pop()
+            continue
+        dr, dc = options[int(rng.integers(len(options)))]
+        if dc == 1:
+            vertical[r, c + 1] = False
+        elif dc == -1:
+            vertical[r, c] = False
+        elif dr == 1:
+            horizontal[r + 1, c] = False
+        else:
+            horizontal[r, c] = False
+        visited[r + dr, c + dc] = True
+        stack.append((r + dr, c + dc))
+    interior = [("v", r, c) for r in range(n) for c in range(1, n) if vertical[r, c]]
+    interior += [("h", r, c) for r in range(1, n) for c in range(n) if horizontal[r, c]]
+    n_remove = int(round(config.loop_fraction * len(interior)))
+    for k in rng.permutation(len(interior))[:n_remove]:
+        kind, r, c = interior[k]
+        (vertical if kind == "v" else horizontal)[r, c] = False
+    half_t = config.wall_thickness / 2
+    boxes = []
+    for c in range(n + 1):  # runs along each vertical line
+        for r0, r1 in _runs(vertical[:, c]):
+            y0, y1 = r0 * cell - half_t, r1 * cell + half_t
+            boxes.append((c * cell, (y0 + y1) / 2, half_t, (y1 - y0) / 2))
+    for r in range(n + 1):
+        for c0, c1 in _runs(horizontal[r, :]):
+            x0, x1 = c0 * cell - half_t, c1 * cell + half_t
+            boxes.append(((x0 + x1) / 2, r * cell, (x1 - x0) / 2, half_t))
+    return np.array(boxes, dtype=np.float32)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs ``[start, end)`` of True in a 1-D bool array."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist()))
+
+
+def _outer_walls(size: float, thickness: float) -> list[tuple[float, float, float, float]]:
+    h = thickness / 2
+    half = size / 2 + h
+    return [
+        (size / 2, 0.0, half, h),
+        (size / 2, size, half, h),
+        (0.0, size / 2, h, half),
+        (size, size / 2, h, half),
+    ]
+
+
+def _arena_walls(config: WorldConfig, rng: np.random.Generator) -> np.ndarray:
+    """Outer walls plus ``arena_inner_walls`` short axis-aligned segments kept >= 1.5 m from the border."""
+    boxes = _outer_walls(config.size, config.wall_thickness)
+    lo, hi = config.arena_inner_walls
+    h = config.wall_thickness / 2
+    for _ in range(int(rng.integers(lo, hi + 1))):
+        length = float(rng.uniform(*config.arena_wall_length))
+        along = rng.uniform(1.5 + length / 2, config.size - 1.5 - length / 2)
+        across = rng.uniform(2.0, config.size - 2.0)
+        if rng.random() < 0.5:
+            boxes.append((along, across, length / 2, h))
+        else:
+            boxes.append((across, along, h, length / 2))
+    return np.array(boxes, dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------- placement
+def _free_cells(occupancy: OccupancyMap, clearance: float) -> np.ndarray:
+    """int64 ``[K, 2]`` cells of the largest free component of the map inflated by ``clearance``."""
+    return np.argwhere(occupancy.largest_free_component(clearance))
+
+
+def sample_free_positions(
+    occupancy: OccupancyMap,
+    n: int,
+    clearance: float,
+    min_separation: float,
+    rng: np.random.Generator,
+    avoid: np.ndarray | None = None,
+    avoid_separation: float = 0.0,
+    max_tries: int = 2000,
+) -> np.ndarray:
+    """Sample ``n`` positions float64 ``[n, 2]`` in the largest free component of ``inflate(clearance)``,
+    pairwise more than ``min_separation`` apart and more than ``avoid_separation`` from every row of
+    ``avoid`` (float ``[K, 2]``). Raises ValueError when they do not fit (after ``max_tries`` draws)."""
+    cells = _free_cells(occupancy, clearance)
+    if len(cells) == 0:
+        raise ValueError(f"no free space with clearance {clearance} m to place {n} objects")
+    avoid = np.zeros((0, 2)) if avoid is None else np.asarray(avoid, dtype=np.float64).reshape(-1, 2)
+    chosen: list[np.ndarray] = []
+    tries = 0
+    while len(chosen) < n:
+        tries += 1
+        if tries > max_tries:
+            raise ValueError(
+                f"could not place {n} objects with clearance {clearance} m and separation {min_separation} m "
+                f"in this {occupancy.shape[0] * occupancy.resolution:.1f} m world (placed {len(chosen)})"
+            )
+        xy = occupancy.cell_to_world(cells[int(rng.integers(len(cells)))])
+        if chosen and np.min(np.hypot(*(np.array(chosen) - xy).T)) <= min_separation:
+            continue
+        if len(avoid) and np.min(np.hypot(*(avoid - xy).T)) <= avoid_separation:
+            continue
+        chosen.append(xy)
+    return np.array(chosen, dtype=np.float64).reshape(n, 2)
+
+
+def sample_start_poses(
+    world: WorldSpec,
+    n: int,
+    rng: np.random.Generator,
+    robot_radius: float | None = None,
+    min_target_distance: float | None = None,
+) -> np.ndarray:
+    """Collision-free random poses float32 ``[n, 3]`` for ``n`` robots in ``world`` (e.g. new starts, or the
+    D_ssl obstacle layouts). Robot ``i < len(world.targets)`` is kept more than ``min_target_distance``
+    (default ``SUCCESS_RADIUS + start_target_margin``) from its own target; all are clear of every target."""
+    cfg = world.config
+    radius = cfg.robot_radius if robot_radius is None else robot_radius
+    min_dist = (
+        SUCCESS_RADIUS + cfg.start_target_margin if min_target_distance is None else min_target_distance
+    )
+    targets = world.target_positions.astype(np.float64)
+    clearance = radius + 0.05
+    cells = _free_cells(world.occupancy, clearance)
+    if len(cells) == 0:
+        raise ValueError(f"no free space for a robot of radius {radius} m in this world")
+    poses: list[np.ndarray] = []
+    for i in range(n):
+        for _ in range(4000):
+            xy = world.occupancy.cell_to_world(cells[int(rng.integers(len(cells)))])
+            if poses and np.min(np.hypot(*(np.array(poses)[:, :2] - xy).T)) <= 2 * radius + cfg.min_robot_gap:
+                continue
+            if i < len(targets) and np.hypot(*(targets[i] - xy)) <= min_dist:
+                continue
+            poses.append(np.array([xy[0], xy[1], rng.uniform(-math.pi, math.pi)]))
+            break
+        else:
+            raise ValueError(
+                f"could not place {n} robots (radius {radius} m) in this {world.size} m {world.kind}: "
+                f"placed {len(poses)}; use fewer robots or a larger world"
+            )
+    return np.array(poses, dtype=np.float32).reshape(n, 3)
+
+
+def replace_layout(world: WorldSpec, starts=None, targets: list[TargetSpec] | None = None) -> WorldSpec:
+    """A copy of ``world`` with new ``starts`` float ``[R, 3]`` and/or ``targets`` (occupancy rebuilt).
+
+    ValueError when a start overlaps a wall or target or another start, or counts disagree."""
+    targets = world.targets if targets is None else list(targets)
+    starts = world.starts if starts is None else np.asarray(starts, dtype=np.float32)
+    if starts.ndim != 2 or starts.shape[1] != 3 or not np.all(np.isfinite(starts)):
+        raise ValueError(f"starts must be finite float [R, 3] (x, y, yaw), got shape {starts.shape}")
+    if len(targets) != len(starts):
+        raise ValueError(f"{len(starts)} starts need as many targets, got {len(targets)}")
+    if len({(t.shape, t.color) for t in targets}) != len(targets):
+        raise ValueError("targets must be distinct (shape, colour) pairs")
+    for t in targets:
+        if t.shape not in TARGET_HALF_EXTENT or t.color not in TARGET_RGBA:
+            raise ValueError(f"unknown target {t.shape!r}/{t.color!r}")
+    occupancy = _build_occupancy(world.size, world.walls, targets)
+    new = dataclasses.replace(world, starts=starts, targets=targets, occupancy=occupancy)
+    blocked = occupancy.inflate(world.config.robot_radius)
+    cells = occupancy.world_to_cell(starts[:, :2])
+    h, w = occupancy.shape
+    for i, (r, c) in enumerate(cells):
+        if not (0 <= r < h and 0 <= c < w) or blocked[r, c]:
+            raise ValueError(
+                f"start {i} at {starts[i, :2].tolist()} overlaps a wall or target (or is outside)"
+            )
+    gaps = np.hypot(*(starts[:, None, :2] - starts[None, :, :2]).transpose(2, 0, 1))
+    np.fill_diagonal(gaps, np.inf)
+    if gaps.min(initial=np.inf) < 2 * world.config.robot_radius:
+        raise ValueError("two starts overlap (closer than two robot radii)")
+    return new
+
+
+def _build_occupancy(size: float, walls: np.ndarray, targets: list[TargetSpec]) -> OccupancyMap:
+    boxes = [t.position.tolist() + [t.half_extent] * 2 for t in targets if t.shape == "box"]
+    circles = [t.position.tolist() + [t.half_extent] for t in targets if t.shape == "sphere"]
+    return OccupancyMap.from_shapes(
+        size,
+        OCCUPANCY_RESOLUTION,
+        np.concatenate([walls, np.array(boxes, dtype=np.float32).reshape(-1, 4)]),
+        np.array(circles, dtype=np.float64).reshape(-1, 3),
+    )
+
+
+def _targets_reachable(occupancy: OccupancyMap, targets: list[TargetSpec], clearance: float) -> bool:
+    """True when the free space at ``clearance`` is one component and touches every target."""
+    labels, n = occupancy.free_components(clearance)
+    if n != 1:
+        return False
+    return all(labels[occupancy.snap_to_free(t.position, clearance)] == 1 for t in targets)
+
+
+# ---------------------------------------------------------------------------------------------- generator
+def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
+    """Generate the world for ``(config, seed)`` (deterministic).
+
+    Walls (maze or arena), then ``n_robots`` distinct targets in reachable free space (0.9 m from walls,
+    more than 2 m apart), then collision-free starts, each more than ``SUCCESS_RADIUS +
+    start_target_margin`` from its own target. The free space (inflated by ``robot_radius``) is one
+    connected component. ValueError when the robots/targets do not fit.
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5EED]))
+    for _ in range(100):
+        walls = _maze_walls(config, rng) if config.kind == "maze" else _arena_walls(config, rng)
+        wall_map = OccupancyMap.from_shapes(config.size, OCCUPANCY_RESOLUTION, walls)
+        _, n_components = wall_map.free_components(config.robot_radius)
+        if n_components == 1:
+            break
+        if config.kind == "maze":  # a maze with corridors wider than two robots is always connected
+            raise RuntimeError(f"maze generator produced {n_components} free components (seed {seed})")
+    else:
+        raise RuntimeError(f"could not draw a connected arena for seed {seed}")
+
+    pairs = [(s, c) for s in dict.fromkeys(config.target_shapes) for c in dict.fromkeys(config.target_colors)]
+    chosen = rng.permutation(len(pairs))[: config.n_robots]
+    target_clearance = max(TARGET_HALF_EXTENT.values()) + 2 * config.robot_radius + 0.15
+    for _ in range(50):
+        positions = sample_free_positions(wall_map, config.n_robots, target_clearance, 2.0, rng)
+        targets = [
+            TargetSpec(position=positions[i].astype(np.float32), shape=pairs[k][0], color=pairs[k][1])
+            for i, k in enumerate(chosen)
+        ]
+        occupancy = _build_occupancy(config.size, walls, targets)
+        if _targets_reachable(occupancy, targets, config.robot_radius):
+            break
+    else:
+        raise ValueError(f"could not place {config.n_robots} reachable targets in this {config.size} m world")
+    world = WorldSpec(
+        size=float(config.size),
+        kind=config.kind,
+        walls=walls,
+        wall_height=float(config.wall_height),
+        occupancy=occupancy,
+        starts=np.zeros((config.n_robots, 3), dtype=np.float32),
+        targets=targets,
+        seed=int(seed),
+        config=config,
+    )
+    starts = sample_start_poses(world, config.n_robots, rng)
+    return dataclasses.replace(world, starts=starts)

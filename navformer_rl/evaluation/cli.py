@@ -1,0 +1,139 @@
+"""``navformer evaluate``: run a method on an episode set; ``evaluate make-episodes`` / ``evaluate report``.
+
+Examples::
+
+    navformer evaluate --method fca --protocol table1 --out runs/eval/fca --workers 2
+    navformer evaluate --method navformer --checkpoint runs/train --episodes table1.json --out runs/eval/nf
+    navformer evaluate make-episodes --protocol table1 --out table1.json
+    navformer evaluate report runs/eval/vrw runs/eval/fca runs/eval/nf --out runs/eval/README.md
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from navformer_rl.constants import MAX_EPISODE_STEPS
+
+
+def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``evaluate`` subcommand (with ``make-episodes`` and ``report``) to the ``navformer`` CLI.
+
+    Every parser sets ``run`` (``args.run(args) -> int``), the convention of ``navformer_rl.cli``.
+    """
+    from navformer_rl.evaluation.episodes import PROTOCOLS
+    from navformer_rl.evaluation.harness import METHODS
+
+    parser = subparsers.add_parser(
+        "evaluate",
+        help="measure SR / SPL / CR of a method on fixed episodes (paper §VII)",
+        description="Run a method on every episode of an episode set (a file, or a protocol generated on the "
+        "fly) and write per-robot-trial JSONL, a Table I-layout CSV/markdown with 95%% CIs, bar plots, "
+        "top-down maps and videos into --out.",
+    )
+    parser.add_argument("--method", help=f"one of: {', '.join(METHODS)}")
+    parser.add_argument("--checkpoint", help="run dir, checkpoint folder or model.safetensors (navformer, dt)")
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--episodes", type=Path, help="episode-set JSON file (from `evaluate make-episodes`)")
+    source.add_argument("--protocol", help=f"generate the episodes of a protocol: {', '.join(PROTOCOLS)}")
+    _add_generation_options(parser)
+    parser.add_argument("--out", type=Path, help="output folder")
+    parser.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
+    parser.add_argument("--videos", type=int, default=1, help="episodes per setup recorded as mp4 (default 1)")
+    parser.add_argument("--maps", type=int, default=2, help="episodes per setup drawn as top-down maps (default 2)")
+    parser.add_argument("--label", help="method name in tables (default: --method), e.g. navformer-no_thsc")
+    parser.add_argument("--seed", type=int, default=0, help="seed of stochastic policies (default 0)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(run=_run_evaluate)
+
+    commands = parser.add_subparsers(dest="evaluate_command", metavar="{make-episodes,report}")
+    make = commands.add_parser(
+        "make-episodes",
+        help="write a fixed, versioned episode-set file",
+        description="Generate the episodes of a protocol (seeded, deterministic) and save them as JSON.",
+    )
+    make.add_argument("--protocol", dest="make_protocol", required=True, help=", ".join(PROTOCOLS))
+    make.add_argument("--out", dest="make_out", type=Path, required=True, help="episode-set JSON file to write")
+    _add_generation_options(make)
+    make.set_defaults(run=_run_make_episodes)
+
+    report = commands.add_parser(
+        "report",
+        help="markdown report over several evaluation folders, beside the paper's numbers",
+        description="Combine evaluation folders (one per method) into one markdown report with tables, "
+        "plots, links to maps/videos and the paper's Table I.",
+    )
+    report.add_argument("folders", nargs="+", type=Path, help="evaluation folders (from `navformer evaluate`)")
+    report.add_argument("--out", dest="report_out", type=Path, required=True, help="report .md file to write")
+    report.add_argument("--title", default="NavFormer evaluation")
+    report.set_defaults(run=_run_report)
+    return parser
+
+
+def _add_generation_options(parser: argparse.ArgumentParser) -> None:
+    from navformer_rl.evaluation.episodes import PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD
+
+    parser.add_argument(
+        "--trials-per-setup", type=int, default=PAPER_TRIALS_PER_SETUP, help="with --protocol (paper: 60)"
+    )
+    parser.add_argument(
+        "--trials-per-world", type=int, default=PAPER_TRIALS_PER_WORLD, help="with --protocol (paper: 10)"
+    )
+    parser.add_argument("--episode-seed", type=int, default=0, help="with --protocol: generation seed")
+    parser.add_argument(
+        "--max-steps", type=int, default=MAX_EPISODE_STEPS, help="with --protocol: steps per trial (paper: 500)"
+    )
+
+
+def _run_evaluate(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes
+    from navformer_rl.evaluation.harness import METHODS, PolicySpec, evaluate
+
+    if args.method is None:
+        raise ValueError(f"--method is required: one of {', '.join(METHODS)}")
+    if args.out is None:
+        raise ValueError("--out DIR is required")
+    if args.episodes is None and args.protocol is None:
+        raise ValueError("give the episodes: --episodes FILE or --protocol {table1,table3,table4,smoke}")
+    # Refuse a bad method / checkpoint before spending time on episode generation.
+    PolicySpec(args.method, args.checkpoint, args.seed).validate()
+    if args.episodes is not None:
+        episode_set = load_episode_set(args.episodes)
+    else:
+        episode_set = make_protocol_episodes(
+            args.protocol, args.trials_per_setup, args.trials_per_world, args.episode_seed, args.max_steps
+        )
+    result = evaluate(
+        args.method,
+        episode_set,
+        args.out,
+        checkpoint=args.checkpoint,
+        workers=args.workers,
+        label=args.label,
+        seed=args.seed,
+        maps_per_setup=args.maps,
+        videos_per_setup=args.videos,
+        progress=not args.no_progress,
+    )
+    print((result.out_dir / "summary.md").read_text(), end="")
+    print(f"results in {result.out_dir}")
+    return 0
+
+
+def _run_make_episodes(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.episodes import make_protocol_episodes, save_episode_set
+
+    episode_set = make_protocol_episodes(
+        args.make_protocol, args.trials_per_setup, args.trials_per_world, args.episode_seed, args.max_steps
+    )
+    path = save_episode_set(episode_set, args.make_out)
+    print(f"wrote {len(episode_set)} episodes ({', '.join(episode_set.setups)}) to {path}")
+    return 0
+
+
+def _run_report(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.report import write_report
+
+    path = write_report(args.folders, args.report_out, title=args.title)
+    print(f"wrote {path}")
+    return 0

@@ -1,0 +1,450 @@
+"""Fixed, versioned evaluation episode sets, saved as JSON, so every method faces the same episodes.
+
+Paper protocol (§VII.A): 60 trials per setup, a new maze every 10 trials, sizes {7.5, 12.5, 17.5} m x
+{2, 4, 6} robots (Table I); Table III: 12.5 m, 4 robots, with Jackal ("seen") or TurtleBot3 ("unseen")
+dynamic obstacles; Table IV: the ablations on 12.5 m, 4 robots. Within one maze every trial draws new
+targets (shape, colour, position) and new robot starts ("robots were randomly located ... target object
+locations were randomly chosen").
+
+File format (``FORMAT`` / ``FORMAT_VERSION``)::
+
+    {"format": "navformer_rl.episode_set", "version": 1, "name": ..., "max_steps": 500,
+     "generation": {protocol, seed, trials_per_setup, trials_per_world, package_version},
+     "content_sha256": sha256 of the canonical JSON of every other field,
+     "episodes": [{"episode_id", "setup", "size", "n_robots", "world_index", "trial",
+                   "world": {"config": WorldConfig fields, "seed", "walls_sha256"},
+                   "robots": [style per robot], "measured": [bool per robot],
+                   "starts": [[x, y, yaw] per robot],
+                   "targets": [{"position": [x, y], "shape", "color"} per robot],
+                   "shortest_paths": [l_i per robot],            # SPL's l: start -> target, metres
+                   "shortest_paths_to_disc": [per robot],        # start -> 1.5 m success disc (reference)
+                   "seed": per-episode seed for stochastic policies}, ...]}
+
+Loading refuses a file that is not JSON, has another ``format``, another ``version``, a content hash that
+does not match (edited or truncated), or episodes that do not follow the schema. When an episode is
+turned into a world the maze is regenerated from ``(config, seed)`` and its walls are checked against
+``walls_sha256``, so a changed world generator cannot silently give different mazes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from navformer_rl.constants import EVAL_ROBOT_COUNTS, EVAL_SIZES, MAX_EPISODE_STEPS, SUCCESS_RADIUS
+from navformer_rl.evaluation._io import atomic_write_text
+
+FORMAT = "navformer_rl.episode_set"
+FORMAT_VERSION = 1
+PROTOCOLS = ("table1", "table3", "table4", "smoke")
+PAPER_TRIALS_PER_SETUP = 60
+PAPER_TRIALS_PER_WORLD = 10
+
+
+@dataclass(frozen=True)
+class Setup:
+    """One experiment setup: world size, robot styles (one per robot) and which robots are measured."""
+
+    name: str
+    size: float
+    robots: tuple[str, ...]
+    measured: tuple[bool, ...]
+
+    @property
+    def n_robots(self) -> int:
+        return len(self.robots)
+
+
+def table1_setups() -> list[Setup]:
+    """Table I: sizes {7.5, 12.5, 17.5} m x {2, 4, 6} Jackal robots, every robot measured."""
+    return [
+        Setup(f"{size:g}m-{n}r", float(size), ("jackal",) * n, (True,) * n)
+        for size in EVAL_SIZES
+        for n in EVAL_ROBOT_COUNTS
+    ]
+
+
+def table3_setups() -> list[Setup]:
+    """Table III (12.5 m, 4 robots): one Jackal plus three Jackal ("seen") or TurtleBot3 ("unseen")
+    dynamic obstacles. Seen: all four Jackals are measured (the paper's seen row equals its Table I
+    12.5 m / 4 robots row); unseen: only the Jackal (robot 0) is measured."""
+    return [
+        Setup("12.5m-4r-seen", 12.5, ("jackal",) * 4, (True,) * 4),
+        Setup("12.5m-4r-unseen", 12.5, ("jackal",) + ("turtlebot3",) * 3, (True, False, False, False)),
+    ]
+
+
+def protocol_setups(protocol: str) -> list[Setup]:
+    """The setups of a named protocol (``table1``, ``table3``, ``table4``, ``smoke``)."""
+    if protocol == "table1":
+        return table1_setups()
+    if protocol == "table3":
+        return table3_setups()
+    if protocol == "table4":
+        return [Setup("12.5m-4r", 12.5, ("jackal",) * 4, (True,) * 4)]
+    if protocol == "smoke":
+        return [Setup("7.5m-2r", 7.5, ("jackal",) * 2, (True,) * 2)]
+    raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One evaluation trial (see the module docstring for the fields)."""
+
+    episode_id: str
+    setup: str
+    size: float
+    n_robots: int
+    world_index: int
+    trial: int
+    world_config: dict[str, Any]
+    world_seed: int
+    walls_sha256: str
+    robots: tuple[str, ...]
+    measured: tuple[bool, ...]
+    starts: tuple[tuple[float, float, float], ...]
+    targets: tuple[dict[str, Any], ...]
+    shortest_paths: tuple[float, ...]
+    shortest_paths_to_disc: tuple[float, ...]
+    seed: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "episode_id": self.episode_id,
+            "setup": self.setup,
+            "size": self.size,
+            "n_robots": self.n_robots,
+            "world_index": self.world_index,
+            "trial": self.trial,
+            "world": {"config": self.world_config, "seed": self.world_seed, "walls_sha256": self.walls_sha256},
+            "robots": list(self.robots),
+            "measured": list(self.measured),
+            "starts": [list(s) for s in self.starts],
+            "targets": [dict(t) for t in self.targets],
+            "shortest_paths": list(self.shortest_paths),
+            "shortest_paths_to_disc": list(self.shortest_paths_to_disc),
+            "seed": self.seed,
+        }
+
+    @classmethod
+    def from_json(cls, row: dict[str, Any]) -> Episode:
+        """Parse and validate one episode object (ValueError naming the bad field)."""
+        try:
+            world = row["world"]
+            n = int(row["n_robots"])
+            episode = cls(
+                episode_id=str(row["episode_id"]),
+                setup=str(row["setup"]),
+                size=float(row["size"]),
+                n_robots=n,
+                world_index=int(row["world_index"]),
+                trial=int(row["trial"]),
+                world_config=dict(world["config"]),
+                world_seed=int(world["seed"]),
+                walls_sha256=str(world["walls_sha256"]),
+                robots=tuple(str(r) for r in row["robots"]),
+                measured=tuple(bool(m) for m in row["measured"]),
+                starts=tuple(tuple(float(v) for v in s) for s in row["starts"]),
+                targets=tuple(
+                    {"position": [float(v) for v in t["position"]], "shape": str(t["shape"]), "color": str(t["color"])}
+                    for t in row["targets"]
+                ),
+                shortest_paths=tuple(float(v) for v in row["shortest_paths"]),
+                shortest_paths_to_disc=tuple(float(v) for v in row["shortest_paths_to_disc"]),
+                seed=int(row["seed"]),
+            )
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"episode {row.get('episode_id', '?') if isinstance(row, dict) else '?'} "
+                             f"does not follow the episode schema: {error!r}") from None  # fmt: skip
+        per_robot = {
+            "robots": episode.robots, "measured": episode.measured, "starts": episode.starts,
+            "targets": episode.targets, "shortest_paths": episode.shortest_paths,
+            "shortest_paths_to_disc": episode.shortest_paths_to_disc,
+        }  # fmt: skip
+        for name, values in per_robot.items():
+            if len(values) != n:
+                raise ValueError(f"episode {episode.episode_id}: {name} has {len(values)} entries, expected n_robots={n}")
+        if any(len(s) != 3 for s in episode.starts) or any(len(t["position"]) != 2 for t in episode.targets):
+            raise ValueError(f"episode {episode.episode_id}: starts must be [x, y, yaw], target positions [x, y]")
+        if not all(np.isfinite(episode.shortest_paths)) or min(episode.shortest_paths) <= 0:
+            raise ValueError(f"episode {episode.episode_id}: shortest paths must be finite and > 0")
+        return episode
+
+    def world_spec(self):
+        """The :class:`~navformer_rl.envs.world.EpisodeSpec` to hand to ``MultiRobotNavEnv.set_next_episode``."""
+        from navformer_rl.envs.world import EpisodeSpec, TargetSpec
+
+        return EpisodeSpec(
+            config=_world_config(self.world_config),
+            world_seed=self.world_seed,
+            starts=np.array(self.starts, dtype=np.float32),
+            targets=[
+                TargetSpec(position=np.array(t["position"], dtype=np.float32), shape=t["shape"], color=t["color"])
+                for t in self.targets
+            ],
+        )
+
+    def check_world(self, world) -> None:
+        """ValueError if the regenerated ``world`` (a ``WorldSpec``) has other walls than when the set was made."""
+        if walls_digest(world.walls) != self.walls_sha256:
+            raise ValueError(
+                f"episode {self.episode_id}: the world generator now makes a different maze for seed "
+                f"{self.world_seed} than when this episode set was written; regenerate the episode set"
+            )
+
+
+@dataclass(frozen=True)
+class EpisodeSet:
+    """A named, ordered list of :class:`Episode` plus how it was made."""
+
+    name: str
+    episodes: tuple[Episode, ...]
+    max_steps: int = MAX_EPISODE_STEPS
+    generation: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.episodes)
+
+    @property
+    def setups(self) -> list[str]:
+        """Setup names in order of first appearance."""
+        return list(dict.fromkeys(e.setup for e in self.episodes))
+
+    def content(self) -> dict[str, Any]:
+        """Every field the content hash covers."""
+        return {
+            "format": FORMAT,
+            "version": FORMAT_VERSION,
+            "name": self.name,
+            "max_steps": self.max_steps,
+            "generation": self.generation,
+            "episodes": [e.to_json() for e in self.episodes],
+        }
+
+    def content_hash(self) -> str:
+        return hashlib.sha256(_canonical(self.content()).encode()).hexdigest()
+
+
+def walls_digest(walls: np.ndarray) -> str:
+    """sha256 of the float32 wall boxes ``[W, 4]`` (identifies a maze)."""
+    return hashlib.sha256(np.ascontiguousarray(walls, dtype=np.float32).tobytes()).hexdigest()
+
+
+def make_episode_set(
+    setups: Sequence[Setup],
+    trials_per_setup: int = PAPER_TRIALS_PER_SETUP,
+    trials_per_world: int = PAPER_TRIALS_PER_WORLD,
+    seed: int = 0,
+    name: str = "custom",
+    max_steps: int = MAX_EPISODE_STEPS,
+    protocol: str | None = None,
+) -> EpisodeSet:
+    """Generate an episode set (deterministic in all arguments).
+
+    Each setup gets ``ceil(trials_per_setup / trials_per_world)`` mazes; world ``k`` of a setup has seed
+    drawn from ``SeedSequence([seed, size_cm, n_robots, k])``, so setups with the same size and robot count
+    share their episodes across protocols (e.g. Table I 12.5 m / 4 robots = Table IV = Table III "seen").
+    """
+    from navformer_rl import __version__
+
+    if trials_per_setup < 1 or trials_per_world < 1:
+        raise ValueError(f"trials_per_setup and trials_per_world must be >= 1, got {trials_per_setup}, {trials_per_world}")
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    episodes: list[Episode] = []
+    for setup in setups:
+        for world_index in range((trials_per_setup + trials_per_world - 1) // trials_per_world):
+            base = _make_world(setup, world_index, seed)
+            first = world_index * trials_per_world
+            for trial in range(first, min(first + trials_per_world, trials_per_setup)):
+                episodes.append(_make_episode(setup, base, world_index, trial))
+    generation = {
+        "protocol": protocol,
+        "seed": int(seed),
+        "trials_per_setup": int(trials_per_setup),
+        "trials_per_world": int(trials_per_world),
+        "setups": [dataclasses.asdict(s) for s in setups],
+        "package_version": __version__,
+    }
+    generation = json.loads(json.dumps(generation))  # the form it takes after a save / load round trip
+    return EpisodeSet(name=name, episodes=tuple(episodes), max_steps=int(max_steps), generation=generation)
+
+
+def make_protocol_episodes(
+    protocol: str,
+    trials_per_setup: int = PAPER_TRIALS_PER_SETUP,
+    trials_per_world: int = PAPER_TRIALS_PER_WORLD,
+    seed: int = 0,
+    max_steps: int = MAX_EPISODE_STEPS,
+) -> EpisodeSet:
+    """:func:`make_episode_set` for a named protocol (see :func:`protocol_setups`)."""
+    return make_episode_set(
+        protocol_setups(protocol), trials_per_setup, trials_per_world, seed, protocol, max_steps, protocol
+    )
+
+
+def save_episode_set(episode_set: EpisodeSet, path: str | os.PathLike) -> Path:
+    """Write ``episode_set`` as JSON (atomic) with its content hash; returns the path."""
+    document = episode_set.content()
+    document["content_sha256"] = episode_set.content_hash()
+    path = Path(path)
+    atomic_write_text(path, json.dumps(document, indent=1, sort_keys=True) + "\n")
+    return path
+
+
+def load_episode_set(path: str | os.PathLike) -> EpisodeSet:
+    """Read and verify an episode-set file (see the module docstring for what is refused)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no episode-set file at {str(path)!r}")
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not a valid episode-set file (not JSON: {error})") from None
+    if not isinstance(document, dict) or document.get("format") != FORMAT:
+        found = document.get("format") if isinstance(document, dict) else type(document).__name__
+        raise ValueError(f"{path} is not an episode-set file: format {found!r}, expected {FORMAT!r}")
+    if document.get("version") != FORMAT_VERSION:
+        raise ValueError(
+            f"{path} has episode-set version {document.get('version')!r}; this navformer_rl reads version "
+            f"{FORMAT_VERSION} only - regenerate it with `navformer evaluate make-episodes`"
+        )
+    stored_hash = document.get("content_sha256")
+    try:
+        episode_set = EpisodeSet(
+            name=str(document["name"]),
+            episodes=tuple(Episode.from_json(e) for e in document["episodes"]),
+            max_steps=int(document["max_steps"]),
+            generation=dict(document["generation"]),
+        )
+    except (KeyError, TypeError) as error:
+        raise ValueError(f"{path} is missing episode-set field {error}") from None
+    if stored_hash != episode_set.content_hash():
+        raise ValueError(
+            f"{path} is corrupt or was edited: its content hash does not match (stored {str(stored_hash)[:12]}..., "
+            f"computed {episode_set.content_hash()[:12]}...)"
+        )
+    ids = [e.episode_id for e in episode_set.episodes]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"{path} has duplicate episode ids")
+    return episode_set
+
+
+# ---------------------------------------------------------------------------------------------- internals
+def _canonical(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def _world_config(fields: dict[str, Any]):
+    from navformer_rl.envs.world import WorldConfig
+
+    known = {f.name for f in dataclasses.fields(WorldConfig)}
+    unknown = sorted(set(fields) - known)
+    if unknown:
+        raise ValueError(f"episode world config has fields {unknown} that this WorldConfig does not know")
+    return WorldConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, tuple | list):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _make_world(setup: Setup, world_index: int, seed: int):
+    """The maze (a ``WorldSpec``) of world ``world_index`` of ``setup``."""
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.world import WorldConfig, generate_world
+
+    radius = max(get_robot_spec(style).radius for style in setup.robots)
+    config = WorldConfig(size=setup.size, kind="maze", n_robots=setup.n_robots, robot_radius=radius)
+    world_rng = np.random.default_rng(np.random.SeedSequence([seed, round(setup.size * 100), setup.n_robots, world_index]))
+    return generate_world(config, int(world_rng.integers(2**31)))
+
+
+def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
+    """Draw the layout of ``trial`` in the maze ``base`` (a ``WorldSpec``): targets, then starts."""
+    from navformer_rl.envs.occupancy import OccupancyMap
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.world import (
+        OCCUPANCY_RESOLUTION,
+        TARGET_HALF_EXTENT,
+        TargetSpec,
+        replace_layout,
+        sample_free_positions,
+        sample_start_poses,
+    )
+
+    specs = [get_robot_spec(style) for style in setup.robots]
+    config = base.config
+    world_seed = base.seed
+    rng = np.random.default_rng(np.random.SeedSequence([world_seed, trial, 0xE7A1]))
+    pairs = [(s, c) for s in dict.fromkeys(config.target_shapes) for c in dict.fromkeys(config.target_colors)]
+    chosen = rng.permutation(len(pairs))[: setup.n_robots]
+    wall_map = OccupancyMap.from_shapes(config.size, OCCUPANCY_RESOLUTION, base.walls)
+    target_clearance = max(TARGET_HALF_EXTENT.values()) + 2 * config.robot_radius + 0.05
+    positions = sample_free_positions(wall_map, setup.n_robots, target_clearance, 2.0, rng)
+    targets = [
+        TargetSpec(position=positions[i].astype(np.float32), shape=pairs[k][0], color=pairs[k][1])
+        for i, k in enumerate(chosen)
+    ]
+    holder = dataclasses.replace(base, targets=targets)  # the base starts are replaced below
+    holder = dataclasses.replace(
+        holder,
+        occupancy=OccupancyMap.from_shapes(config.size, OCCUPANCY_RESOLUTION, holder.obstacle_boxes, holder.obstacle_circles),
+    )
+    starts = sample_start_poses(holder, setup.n_robots, rng)
+    world = replace_layout(base, starts=starts, targets=targets)
+    shortest, to_disc = [], []
+    for i, spec in enumerate(specs):
+        l_target, l_disc = _shortest_paths(world.occupancy, starts[i, :2], targets[i].position, spec.radius)
+        shortest.append(l_target)
+        to_disc.append(l_disc)
+    if not all(np.isfinite(shortest)):
+        raise RuntimeError(f"setup {setup.name} world {world_seed} trial {trial}: a target is unreachable")
+    episode_seed = int(rng.integers(2**31))
+    return Episode(
+        episode_id=f"{setup.name}/w{world_index:02d}t{trial:02d}",
+        setup=setup.name,
+        size=float(setup.size),
+        n_robots=setup.n_robots,
+        world_index=world_index,
+        trial=trial,
+        world_config={k: _jsonable(v) for k, v in dataclasses.asdict(config).items()},
+        world_seed=world_seed,
+        walls_sha256=walls_digest(base.walls),
+        robots=tuple(setup.robots),
+        measured=tuple(setup.measured),
+        starts=tuple(tuple(round(float(v), 6) for v in s) for s in starts),
+        targets=tuple(
+            {"position": [round(float(v), 6) for v in t.position], "shape": t.shape, "color": t.color} for t in targets
+        ),
+        shortest_paths=tuple(round(float(v), 6) for v in shortest),
+        shortest_paths_to_disc=tuple(round(float(v), 6) for v in to_disc),
+        seed=episode_seed,
+    )
+
+
+def _shortest_paths(occupancy, start_xy, target_xy, clearance: float) -> tuple[float, float]:
+    """``(l, l_disc)`` in metres from one Dijkstra rooted at the start, on ``occupancy`` inflated by
+    ``clearance``: ``l`` to the free cell nearest the target (= ``OccupancyMap.shortest_path_length``, the
+    graph is undirected) and ``l_disc`` to the nearest free cell whose centre is within the success radius
+    of the target (or that cell)."""
+    field = occupancy.distance_field(start_xy, clearance)
+    row, col = occupancy.snap_to_free(target_xy, clearance)
+    l_target = float(field[row, col])
+    free = np.argwhere(np.isfinite(field))
+    centres = occupancy.cell_to_world(free)
+    near = np.hypot(centres[:, 0] - target_xy[0], centres[:, 1] - target_xy[1]) <= SUCCESS_RADIUS
+    l_disc = min(l_target, float(field[tuple(free[near].T)].min(initial=np.inf)))
+    return l_target, l_disc

@@ -1,0 +1,422 @@
+"""The evaluation harness: run one method on every episode of an episode set and write the results.
+
+``evaluate(method, episode_set, out_dir, workers=...)`` runs each episode in a ``MultiRobotNavEnv`` with
+every robot driven by the evaluated method (paper §VII.A), measures each robot-trial
+(:mod:`navformer_rl.evaluation.measures`) and writes into ``out_dir``:
+
+- ``episodes.jsonl``: one row per robot-trial (:class:`~navformer_rl.evaluation.measures.RobotTrial`);
+- ``summary.csv`` / ``summary.md``: SR, SPL, CR per setup with 95 % intervals (Table I layout);
+- ``metrics.png``: bar plots per setup;
+- ``maps/<episode>.png``: top-down maps with every robot's trajectory (first ``maps_per_setup`` episodes
+  of each setup); ``videos/<episode>.mp4``: the robots' cameras beside the top-down map (first
+  ``videos_per_setup`` episodes of each setup);
+- ``episode_set.json``: the episode set that was run; ``run.json``: method, checkpoint, settings, hashes.
+
+Episodes run in ``workers`` spawned processes (one env per robot line-up and one policy per process);
+each episode's result depends only on the episode (its world, layout and seed) and the method, never on
+which worker ran it or in which order, so any worker count gives the same records.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from navformer_rl.evaluation._io import atomic_write_text
+from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
+from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
+from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
+
+METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
+"""Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
+CHECKPOINT_METHODS = ("navformer", "dt")
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A picklable recipe for an evaluation policy, built once in every worker.
+
+    Attributes:
+        method: one of :data:`METHODS`.
+        checkpoint: run dir / checkpoint folder / ``model.safetensors`` for ``navformer`` and ``dt``.
+        seed: base seed of stochastic policies (VRW, FCA's noise); each episode adds its own seed.
+    """
+
+    method: str
+    checkpoint: str | None = None
+    seed: int = 0
+
+    def validate(self) -> dict[str, Any]:
+        """Check the method and (by loading it) the checkpoint; returns a description for ``run.json``."""
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+        if self.method in CHECKPOINT_METHODS:
+            if self.checkpoint is None:
+                raise ValueError(f"method {self.method!r} needs a checkpoint (--checkpoint PATH)")
+            _, config = self.build_with_config()
+            return {"model_config": {k: getattr(config, k) for k in config.__dataclass_fields__}}
+        if self.checkpoint is not None:
+            raise ValueError(f"method {self.method!r} takes no checkpoint (got {self.checkpoint!r})")
+        return {}
+
+    def build_with_config(self):
+        """``(policy, model config or None)``."""
+        if self.method == "navformer":
+            from navformer_rl.baselines.navformer import load_navformer_policy
+
+            return load_navformer_policy(self.checkpoint)
+        if self.method == "dt":
+            from navformer_rl.baselines.dt import load_dt_policy
+
+            return load_dt_policy(self.checkpoint)
+        if self.method == "vrw":
+            from navformer_rl.baselines.random_walk import RandomWalkPolicy
+
+            return RandomWalkPolicy(seed=self.seed), None
+        if self.method == "fca":
+            from navformer_rl.baselines.fca import FCAPolicy
+
+            return FCAPolicy(), None
+        raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+
+
+@dataclass(frozen=True)
+class EpisodeTask:
+    """One unit of work: an episode, what to visualise, where to write visuals."""
+
+    index: int
+    episode: dict[str, Any]
+    save_map: bool
+    save_video: bool
+    out_dir: str
+    label: str
+
+
+@dataclass
+class EvaluationResult:
+    """What :func:`evaluate` produced."""
+
+    out_dir: Path
+    records: list[RobotTrial]
+    summaries: list[SetupSummary]
+    files: dict[str, Any] = field(default_factory=dict)
+
+
+def evaluate(
+    method: str,
+    episode_set: EpisodeSet | str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    checkpoint: str | os.PathLike | None = None,
+    workers: int = 1,
+    label: str | None = None,
+    seed: int = 0,
+    maps_per_setup: int = 2,
+    videos_per_setup: int = 1,
+    video_fps: float = 10.0,
+    confidence: float = 0.95,
+    progress: bool = True,
+) -> EvaluationResult:
+    """Run ``method`` on every episode of ``episode_set`` and write the outputs (module docstring).
+
+    Args:
+        method: one of :data:`METHODS`; ValueError listing them otherwise.
+        episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
+        out_dir: output folder (created; files in it are overwritten).
+        checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``.
+        workers: processes (>= 1; 1 runs in this process).
+        label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation).
+        seed: base seed of stochastic policies.
+        maps_per_setup, videos_per_setup: how many episodes per setup (the first ones) get a top-down map
+            PNG / an mp4 video.
+        video_fps: frames per second of the videos (one frame per 0.2 s step).
+        confidence: level of the intervals.
+        progress: show a tqdm progress bar.
+    """
+    if isinstance(episode_set, str | os.PathLike):
+        episode_set = load_episode_set(episode_set)
+    if not isinstance(episode_set, EpisodeSet) or len(episode_set) == 0:
+        raise ValueError("episode_set must be a non-empty EpisodeSet or the path of an episode-set file")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if maps_per_setup < 0 or videos_per_setup < 0:
+        raise ValueError("maps_per_setup and videos_per_setup must be >= 0")
+    spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed))
+    description = spec.validate()
+    label = label or method
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_episode_set(episode_set, out_dir / "episode_set.json")
+
+    tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup)
+    started = time.perf_counter()
+    outputs = _run_tasks(tasks, spec, episode_set.max_steps, video_fps, workers, progress, label)
+    elapsed = time.perf_counter() - started
+
+    records = [record for output in outputs for record in output["records"]]
+    atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
+    summaries = write_summary_files(records, out_dir, confidence, seed)
+    from navformer_rl.evaluation.plots import plot_setup_bars
+
+    plot = plot_setup_bars(summaries, out_dir / "metrics.png", title=f"{label} on {episode_set.name}")
+    files = {
+        "episodes": "episodes.jsonl",
+        "summary_csv": "summary.csv",
+        "summary_md": "summary.md",
+        "plot": plot.name,
+        "maps": [m for o in outputs for m in o["maps"]],
+        "videos": [v for o in outputs for v in o["videos"]],
+    }
+    from navformer_rl import __version__
+
+    run = {
+        "method": method,
+        "label": label,
+        "checkpoint": spec.checkpoint,
+        "seed": int(seed),
+        "workers": workers,
+        "episode_set": {
+            "name": episode_set.name,
+            "content_sha256": episode_set.content_hash(),
+            "episodes": len(episode_set),
+            "max_steps": episode_set.max_steps,
+            "setups": episode_set.setups,
+        },
+        "confidence": confidence,
+        "seconds": round(elapsed, 3),
+        "package_version": __version__,
+        "files": files,
+        **description,
+    }
+    atomic_write_text(out_dir / "run.json", json.dumps(run, indent=2, sort_keys=True, default=str) + "\n")
+    return EvaluationResult(out_dir=out_dir, records=records, summaries=summaries, files=files)
+
+
+def _make_tasks(
+    episode_set: EpisodeSet, out_dir: Path, label: str, maps_per_setup: int, videos_per_setup: int
+) -> list[EpisodeTask]:
+    seen: dict[str, int] = {}
+    tasks = []
+    for index, episode in enumerate(episode_set.episodes):
+        rank = seen.get(episode.setup, 0)
+        seen[episode.setup] = rank + 1
+        tasks.append(
+            EpisodeTask(
+                index=index,
+                episode=episode.to_json(),
+                save_map=rank < maps_per_setup,
+                save_video=rank < videos_per_setup,
+                out_dir=str(out_dir),
+                label=label,
+            )
+        )
+    return tasks
+
+
+def _run_tasks(
+    tasks: list[EpisodeTask],
+    spec: PolicySpec,
+    max_steps: int,
+    video_fps: float,
+    workers: int,
+    progress: bool,
+    label: str,
+) -> list[dict[str, Any]]:
+    from tqdm.auto import tqdm
+
+    results: list[dict[str, Any] | None] = [None] * len(tasks)
+    bar = tqdm(total=len(tasks), desc=f"evaluate {label}", unit="episode", disable=not progress)
+    try:
+        if workers == 1:
+            runner = EpisodeRunner(spec, max_steps, video_fps)
+            try:
+                for task in tasks:
+                    results[task.index] = runner.run(task)
+                    bar.update(1)
+            finally:
+                runner.close()
+        else:
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(
+                max_workers=min(workers, len(tasks)),
+                mp_context=context,
+                initializer=_init_worker,
+                initargs=(spec, max_steps, video_fps),
+            ) as pool:
+                futures = {pool.submit(_run_in_worker, task): task.index for task in tasks}
+                from concurrent.futures import as_completed
+
+                for future in as_completed(futures):
+                    results[futures[future]] = future.result()
+                    bar.update(1)
+    finally:
+        bar.close()
+    return [r for r in results if r is not None]
+
+
+_WORKER_RUNNER: EpisodeRunner | None = None
+
+
+def _init_worker(spec: PolicySpec, max_steps: int, video_fps: float) -> None:
+    global _WORKER_RUNNER
+    import torch
+
+    torch.set_num_threads(1)
+    _WORKER_RUNNER = EpisodeRunner(spec, max_steps, video_fps)
+
+
+def _run_in_worker(task: EpisodeTask) -> dict[str, Any]:
+    if _WORKER_RUNNER is None:
+        raise RuntimeError("evaluation worker used before its initialiser ran")
+    return _WORKER_RUNNER.run(task)
+
+
+class EpisodeRunner:
+    """Runs episodes one at a time: one policy, one ``MultiRobotNavEnv`` per robot line-up (cached).
+
+    Args:
+        spec: the policy recipe.
+        max_steps: trial length (500 in the paper).
+        video_fps: frames per second of recorded videos.
+    """
+
+    def __init__(self, spec: PolicySpec, max_steps: int, video_fps: float = 10.0) -> None:
+        self.spec = spec
+        self.policy, _ = spec.build_with_config()
+        self.max_steps = int(max_steps)
+        self.video_fps = float(video_fps)
+        self._envs: dict[tuple[str, ...], Any] = {}
+
+    def close(self) -> None:
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()
+
+    def _env(self, robots: tuple[str, ...]):
+        if robots not in self._envs:
+            self._envs[robots] = make_eval_env(robots, self.max_steps)
+        return self._envs[robots]
+
+    def run(self, task: EpisodeTask) -> dict[str, Any]:
+        """Run one episode; returns ``{"records": [RobotTrial], "maps": [...], "videos": [...]}``."""
+        import torch
+
+        from navformer_rl.evaluation.video import VideoWriter, compose_frame, draw_map, save_map_png
+
+        episode = Episode.from_json(task.episode)
+        env = self._env(episode.robots)
+        env.set_next_episode(episode.world_spec())
+        with torch.no_grad():
+            td = env.reset()
+            world = env.world
+            episode.check_world(world)
+            specs = list(env.simulator.robot_specs)
+            if hasattr(self.policy, "bind"):
+                self.policy.bind(env, episode.seed ^ self.spec.seed)
+            poses = td.get(("privileged", "pose")).numpy().astype(np.float64)
+            tracker = TrialTracker(poses[:, :2])
+            keep_path = task.save_map or task.save_video
+            paths = [[p[:2].copy()] for p in poses] if keep_path else None
+            name = _file_stem(episode.episode_id)
+            video = VideoWriter(Path(task.out_dir) / "videos" / f"{name}.mp4", self.video_fps) if task.save_video else None
+            title = f"{task.label} | {episode.episode_id} | {episode.size:g} m, {episode.n_robots} robots"
+            try:
+                if video is not None:
+                    video.write(self._frame(world, paths, poses, specs, td, tracker, title, 0, compose_frame, draw_map))
+                for t in range(1, self.max_steps + 1):
+                    td = self.policy(td)
+                    td = env.step(td)
+                    nxt = td.get("next")
+                    poses = nxt.get(("privileged", "pose")).numpy().astype(np.float64)
+                    collided = nxt.get(("agents", "collision")).numpy().reshape(-1)
+                    success = nxt.get(("privileged", "success")).numpy().reshape(-1)
+                    was_active = tracker.active.copy()
+                    tracker.update(poses[:, :2], collided, success)
+                    if paths is not None:
+                        for i in np.flatnonzero(was_active):
+                            paths[i].append(poses[i, :2].copy())
+                    if video is not None:
+                        video.write(self._frame(world, paths, poses, specs, nxt, tracker, title, t, compose_frame, draw_map))
+                    if bool(nxt.get("done").any()):
+                        break
+                    td = _next_input(td)
+            except BaseException:
+                if video is not None:
+                    video.abort()
+                raise
+            videos = [str(video.close().relative_to(task.out_dir))] if video is not None else []
+        maps = []
+        if task.save_map:
+            image = draw_map(world, [np.array(p) for p in paths], poses, specs)
+            outcome = ", ".join(
+                f"{i}:{'ok' if s else 'fail'}" for i, s in enumerate(tracker.success)
+            )
+            path = save_map_png(image, Path(task.out_dir) / "maps" / f"{name}.png", f"{title} | {outcome}")
+            maps.append(str(path.relative_to(task.out_dir)))
+        final_distance = np.hypot(*(poses[:, :2] - world.target_positions.astype(np.float64)).T)
+        records = [
+            RobotTrial(
+                method=task.label,
+                episode_id=episode.episode_id,
+                setup=episode.setup,
+                size=episode.size,
+                n_robots=episode.n_robots,
+                world_seed=episode.world_seed,
+                trial=episode.trial,
+                robot=i,
+                robot_style=episode.robots[i],
+                measured=episode.measured[i],
+                success=bool(tracker.success[i]),
+                success_step=int(tracker.success_step[i]) if tracker.success[i] else None,
+                steps=int(tracker.steps[i]),
+                collisions=int(tracker.collisions[i]),
+                path_length=round(float(tracker.path_length[i]), 6),
+                shortest_path=episode.shortest_paths[i],
+                shortest_path_to_disc=episode.shortest_paths_to_disc[i],
+                final_distance=round(float(final_distance[i]), 6),
+            )
+            for i in range(episode.n_robots)
+        ]
+        return {"records": records, "maps": maps, "videos": videos}
+
+    @staticmethod
+    def _frame(world, paths, poses, specs, td, tracker, title, t, compose_frame, draw_map) -> np.ndarray:
+        from navformer_rl.envs.topdown import ROBOT_COLORS
+
+        cameras = td.get(("agents", "pixels")).numpy()
+        collided = td.get(("agents", "collision"), None)
+        collided = np.zeros(len(poses), bool) if collided is None else collided.numpy().reshape(-1)
+        status = []
+        for i in range(len(poses)):
+            if tracker.success[i]:
+                status.append(f"found target (step {tracker.success_step[i]})")
+            else:
+                status.append(f"collisions {tracker.collisions[i]}" + (" - contact!" if collided[i] else ""))
+        map_image = draw_map(world, [np.array(p) for p in paths], poses, specs)
+        return compose_frame(map_image, cameras, ROBOT_COLORS, status, f"{title} | step {t}")
+
+
+def make_eval_env(robots: tuple[str, ...], max_steps: int):
+    """A ``MultiRobotNavEnv`` for the robot styles ``robots`` (one per robot) and trial length ``max_steps``."""
+    from navformer_rl.envs.multi_robot import MultiRobotNavEnv
+
+    return MultiRobotNavEnv(robots=list(robots), max_steps=max_steps)
+
+
+def _next_input(td):
+    """The next policy input: ``td["next"]`` with the rewards kept (NavFormer's R-hat reads them)."""
+    from torchrl.envs.utils import step_mdp
+
+    return step_mdp(td, exclude_reward=False)
+
+
+def _file_stem(episode_id: str) -> str:
+    return episode_id.replace("/", "_").replace(" ", "_")

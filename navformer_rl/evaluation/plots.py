@@ -1,0 +1,78 @@
+"""Bar plots of SR / SPL / CR per setup with confidence-interval error bars (matplotlib, Agg backend)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from navformer_rl.evaluation._io import atomic_path
+from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, setup_order_key
+
+_METRICS = (("sr", "SR (success rate)", "sr_ci"), ("spl", "SPL", "spl_ci"), ("cr", "CR (collision rate)", "cr_ci"))
+
+
+def plot_setup_bars(
+    summaries: Sequence[SetupSummary],
+    path: str | os.PathLike,
+    methods: Sequence[str] | None = None,
+    title: str | None = None,
+) -> Path:
+    """Write a PNG with one panel per metric; per setup (x axis) one bar per method with its CI.
+
+    Args:
+        summaries: per-(method, setup) summaries (the pooled ``"all"`` rows are skipped).
+        path: output ``.png`` (written atomically).
+        methods: bar order; default: order of first appearance.
+        title: figure title.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    rows = [s for s in summaries if s.setup != ALL_SETUPS]
+    if not rows:
+        raise ValueError("no per-setup summaries to plot")
+    if methods is None:
+        methods = list(dict.fromkeys(s.method for s in rows))
+    setups = sorted({(s.size, s.n_robots, s.setup) for s in rows}, key=lambda k: setup_order_key(*k))
+    labels = [setup for _, _, setup in setups]
+    by_key = {(s.method, s.setup): s.metrics for s in rows}
+    x = np.arange(len(setups))
+    width = 0.8 / len(methods)
+    colors = plt.get_cmap("tab10").colors
+    fig, axes = plt.subplots(1, 3, figsize=(max(9.0, 1.2 * len(setups) * 3), 3.8), constrained_layout=True)
+    for ax, (attr, name, ci_attr) in zip(axes, _METRICS):
+        for k, method in enumerate(methods):
+            values, low, high = [], [], []
+            for label in labels:
+                m = by_key.get((method, label))
+                value = np.nan if m is None else getattr(m, attr)
+                ci = (np.nan, np.nan) if m is None else getattr(m, ci_attr)
+                values.append(value)
+                low.append(value - ci[0])
+                high.append(ci[1] - value)
+            ax.bar(
+                x + (k - (len(methods) - 1) / 2) * width,
+                values,
+                width,
+                yerr=np.array([low, high]),
+                capsize=2,
+                label=method,
+                color=colors[k % len(colors)],
+            )
+        ax.set_title(name)
+        ax.set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
+        ax.set_ylim(0, 1)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return path

@@ -1,0 +1,193 @@
+"""A markdown report over one or more methods' evaluation folders, with the paper's numbers beside ours.
+
+``write_report([dir_vrw, dir_fca, dir_navformer], "report/README.md")`` reads each folder written by
+:func:`navformer_rl.evaluation.harness.evaluate` (``episodes.jsonl`` + ``run.json``), recomputes the
+aggregates from the per-robot-trial rows, and writes:
+
+- the combined table in the paper's Table I layout (values with 95 % intervals);
+- a combined bar plot (``metrics.png`` next to the report);
+- for setups that appear in the paper's Table I / III / IV, the paper's numbers beside ours, labelled as
+  measured in another simulator (Gazebo) on other worlds with the authors' models;
+- links to each method's top-down maps and videos, and the episode-set hash each method ran on.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from navformer_rl.evaluation._io import atomic_write_text
+from navformer_rl.evaluation.paper_results import METHOD_TO_PAPER_COLUMN, PAPER_SOURCE, TABLE1, TABLE3, TABLE4
+from navformer_rl.evaluation.plots import plot_setup_bars
+from navformer_rl.evaluation.tables import (
+    ALL_SETUPS,
+    SetupSummary,
+    format_ratio,
+    format_sr,
+    read_records,
+    summarize_by_setup,
+    table_markdown,
+)
+
+PAPER_CAVEAT = (
+    "Paper numbers come from {source}: other worlds, other robot models and the authors' fully trained "
+    "models. Ours come from this package's pybullet mazes with whatever training budget produced the "
+    "checkpoint. The two are **not directly comparable**; the paper's columns are there for orientation "
+    "(ordering of methods, rough magnitudes)."
+)
+
+
+def _paper_column(label: str) -> str | None:
+    """The paper column matching one of our method labels (``navformer``, ``navformer-...`` -> NavFormer)."""
+    base = label.split("-")[0].split("_")[0].lower()
+    return METHOD_TO_PAPER_COLUMN.get(base)
+
+
+def _paper_numbers(summary: SetupSummary, column: str) -> tuple[float, float, float] | None:
+    if summary.setup == ALL_SETUPS:
+        return None
+    if summary.setup.endswith("-unseen"):
+        return TABLE3["unseen"].get(column)
+    if summary.setup.endswith("-seen"):
+        return TABLE3["seen"].get(column)
+    return TABLE1.get((summary.size, summary.n_robots), {}).get(column)
+
+
+def paper_comparison_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str]) -> str:
+    """Side-by-side table: per setup and method, ``ours / paper`` for SR, SPL and CR (paper's Table I, or
+    Table III for the ``-seen`` / ``-unseen`` setups); empty when no method/setup has a paper value."""
+    by_key = {(s.method, s.setup): s for s in summaries if s.setup != ALL_SETUPS}
+    compared = [m for m in methods if _paper_column(m) is not None]
+    setups = list(dict.fromkeys(s.setup for s in summaries if s.setup != ALL_SETUPS))
+    header = ["Setup"]
+    for method in compared:
+        col = _paper_column(method)
+        header += [f"{method} SR (ours / paper {col})", "SPL (ours / paper)", "CR (ours / paper)"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    any_value = False
+    for setup in setups:
+        cells = [setup]
+        for method in compared:
+            s = by_key.get((method, setup))
+            paper = None if s is None else _paper_numbers(s, _paper_column(method))
+            if s is None or paper is None:
+                cells += ["-", "-", "-"]
+                continue
+            any_value = True
+            m = s.metrics
+            cells += [
+                f"{format_sr(m.sr)} / {format_sr(paper[0])}",
+                f"{format_ratio(m.spl)} / {format_ratio(paper[1])}",
+                f"{format_ratio(m.cr)} / {format_ratio(paper[2])}",
+            ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n" if any_value else ""
+
+
+def paper_table1_markdown() -> str:
+    """The paper's Table I, as published (all six methods)."""
+    methods = list(next(iter(TABLE1.values())))
+    header = ["Env size (m)", "# of robots"] + [f"{m} {k}" for m in methods for k in ("SR", "SPL", "CR")]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for (size, n), row in TABLE1.items():
+        cells = [f"{size:g} × {size:g}", str(n)]
+        for m in methods:
+            sr, spl, cr = row[m]
+            cells += [format_sr(sr), format_ratio(spl), format_ratio(cr)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def paper_table4_markdown() -> str:
+    """The paper's Table IV (ablations, 12.5 m, 4 robots)."""
+    lines = ["| Variant | SR | SPL | CR |", "|---|---|---|---|"]
+    for name, (sr, spl, cr) in TABLE4.items():
+        lines.append(f"| {name} | {format_sr(sr)} | {format_ratio(spl)} | {format_ratio(cr)} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(
+    result_dirs: Sequence[str | os.PathLike],
+    out_path: str | os.PathLike,
+    title: str = "NavFormer evaluation",
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> Path:
+    """Write the markdown report (module docstring) to ``out_path``; returns its path.
+
+    Args:
+        result_dirs: folders written by ``evaluate`` (one per method/label); order = column order.
+        out_path: the ``.md`` file; ``metrics.png`` is written beside it.
+    """
+    if not result_dirs:
+        raise ValueError("write_report needs at least one evaluation folder")
+    out_path = Path(out_path)
+    report_dir = out_path.parent
+    records, runs, labels = [], [], []
+    for folder in map(Path, result_dirs):
+        run_file = folder / "run.json"
+        if not run_file.is_file():
+            raise FileNotFoundError(f"{folder} is not an evaluation folder (no run.json)")
+        run = json.loads(run_file.read_text())
+        mine = read_records(folder / "episodes.jsonl")
+        if run["label"] in labels:
+            raise ValueError(f"two evaluation folders use the same method label {run['label']!r}")
+        labels.append(run["label"])
+        records += mine
+        runs.append((folder, run))
+    summaries = summarize_by_setup(records, confidence, seed)
+    plot = plot_setup_bars(summaries, report_dir / "metrics.png", methods=labels, title=title)
+
+    hashes = {run["episode_set"]["content_sha256"] for _, run in runs}
+    parts = [f"# {title}\n"]
+    parts.append(
+        "Measures as defined in the paper (§VII.A): SR = mean success over robot-trials (success: within "
+        "1.5 m of the target before the trial ends); SPL = mean of S·ℓ/max(℘, ℓ) (eq. 12) with ℓ the "
+        "shortest collision-free path from start to target on the true map; CR = mean over robot-trials of "
+        "collision steps / active steps. See `docs/evaluation.md`.\n"
+    )
+    if len(hashes) > 1:
+        parts.append(
+            "**Warning: these methods ran on different episode sets** (hashes "
+            + ", ".join(sorted(h[:12] for h in hashes))
+            + "), so their rows are not paired comparisons.\n"
+        )
+    parts.append("## Methods\n")
+    parts.append("| Method | Episode set | Episodes | Max steps | Checkpoint | Seconds |\n|---|---|---|---|---|---|")
+    for _, run in runs:
+        es = run["episode_set"]
+        parts.append(
+            f"| {run['label']} | {es['name']} (`{es['content_sha256'][:12]}`) | {es['episodes']} | "
+            f"{es['max_steps']} | {run.get('checkpoint') or '-'} | {run.get('seconds', '-')} |"
+        )
+    parts.append("")
+    parts.append(f"## Results (ours, {100 * confidence:g} % confidence intervals in brackets)\n")
+    parts.append(table_markdown(summaries, labels))
+    parts.append(f"![SR, SPL and CR per setup]({plot.name})\n")
+    comparison = paper_comparison_markdown(summaries, labels)
+    parts.append("## Beside the paper\n")
+    parts.append(PAPER_CAVEAT.format(source=PAPER_SOURCE) + "\n")
+    if comparison:
+        parts.append(comparison)
+    parts.append("### The paper's Table I (Gazebo, for reference)\n")
+    parts.append(paper_table1_markdown())
+    if any(s.setup == "12.5m-4r" for s in summaries) and any("-" in label for label in labels):
+        parts.append("### The paper's Table IV (ablations, Gazebo, for reference)\n")
+        parts.append(paper_table4_markdown())
+    parts.append("## Episodes\n")
+    for folder, run in runs:
+        links = []
+        for kind, items in (("map", run["files"].get("maps", [])), ("video", run["files"].get("videos", []))):
+            for item in items:
+                target = os.path.relpath(folder / item, report_dir)
+                links.append(f"[{kind} {Path(item).stem}]({target})")
+        per_episode = os.path.relpath(folder / "episodes.jsonl", report_dir)
+        parts.append(f"- **{run['label']}**: [per-robot-trial rows]({per_episode}); " + (", ".join(links) or "no visuals"))
+    parts.append("")
+    first_maps = [(folder, run["files"]["maps"][0]) for folder, run in runs if run["files"].get("maps")]
+    for folder, item in first_maps:
+        parts.append(f"![{Path(item).stem}]({os.path.relpath(folder / item, report_dir)})")
+    atomic_write_text(out_path, "\n".join(parts) + "\n")
+    return out_path

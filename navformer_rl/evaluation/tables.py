@@ -1,0 +1,151 @@
+"""Per-setup aggregates of robot-trial records: JSONL in, CSV and a Table I-layout markdown table out."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from navformer_rl.evaluation._io import atomic_write_text
+from navformer_rl.evaluation.measures import MetricSummary, RobotTrial, summarize
+
+ALL_SETUPS = "all"
+"""Setup name of the row that pools every setup of a method."""
+
+CSV_COLUMNS: tuple[str, ...] = (
+    "method", "setup", "size", "n_robots", "n_trials", "n_robot_trials",
+    "sr", "sr_low", "sr_high", "spl", "spl_low", "spl_high", "cr", "cr_low", "cr_high",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SetupSummary:
+    """The metrics of one method on one setup (``setup == "all"``: every setup pooled)."""
+
+    method: str
+    setup: str
+    size: float | None
+    n_robots: int | None
+    metrics: MetricSummary
+
+
+def read_records(path: str | os.PathLike) -> list[RobotTrial]:
+    """Load robot-trial rows from a per-episode JSONL file (one JSON object per line)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no per-episode records at {str(path)!r}")
+    records = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            records.append(RobotTrial.from_dict(json.loads(line)))
+        except (json.JSONDecodeError, KeyError, TypeError) as error:
+            raise ValueError(f"{path}:{number} is not a robot-trial record ({error})") from None
+    return records
+
+
+def records_to_jsonl(records: Sequence[RobotTrial]) -> str:
+    """One JSON object per robot-trial, newline-terminated."""
+    return "".join(json.dumps(r.to_dict(), sort_keys=True) + "\n" for r in records)
+
+
+def setup_order_key(size: float | None, n_robots: int | None, setup: str) -> tuple:
+    """Rows sort by size, then robot count, then name; the pooled row goes last."""
+    if setup == ALL_SETUPS:
+        return (1, 0.0, 0, setup)
+    return (0, size or 0.0, n_robots or 0, setup)
+
+
+def summarize_by_setup(
+    records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0
+) -> list[SetupSummary]:
+    """One :class:`SetupSummary` per (method, setup) plus a pooled ``"all"`` row per method.
+
+    Only ``measured`` robot-trials count (see :func:`~navformer_rl.evaluation.measures.summarize`).
+    """
+    measured = [r for r in records if r.measured]
+    if not measured:
+        raise ValueError("no measured robot-trials to summarise")
+    out: list[SetupSummary] = []
+    for method in sorted({r.method for r in measured}):
+        mine = [r for r in measured if r.method == method]
+        setups = sorted({(r.size, r.n_robots, r.setup) for r in mine}, key=lambda s: setup_order_key(*s))
+        for size, n_robots, setup in setups:
+            rows = [r for r in mine if r.setup == setup]
+            out.append(SetupSummary(method, setup, size, n_robots, summarize(rows, confidence, seed)))
+        if len(setups) > 1:
+            out.append(SetupSummary(method, ALL_SETUPS, None, None, summarize(mine, confidence, seed)))
+    return out
+
+
+def summaries_to_csv(summaries: Sequence[SetupSummary]) -> str:
+    """CSV text with :data:`CSV_COLUMNS` (SR as a fraction)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    for s in summaries:
+        m = s.metrics
+        writer.writerow(
+            [s.method, s.setup, "" if s.size is None else s.size, "" if s.n_robots is None else s.n_robots,
+             m.n_trials, m.n_robot_trials,
+             f"{m.sr:.6f}", f"{m.sr_ci[0]:.6f}", f"{m.sr_ci[1]:.6f}",
+             f"{m.spl:.6f}", f"{m.spl_ci[0]:.6f}", f"{m.spl_ci[1]:.6f}",
+             f"{m.cr:.6f}", f"{m.cr_ci[0]:.6f}", f"{m.cr_ci[1]:.6f}"]
+        )  # fmt: skip
+    return buffer.getvalue()
+
+
+def format_sr(value: float, ci: tuple[float, float] | None = None) -> str:
+    """``39.17%`` or ``39.17% [30.9, 48.1]`` (percent)."""
+    text = f"{100 * value:.2f}%"
+    return text if ci is None else f"{text} [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+
+
+def format_ratio(value: float, ci: tuple[float, float] | None = None) -> str:
+    """``0.287`` or ``0.287 [0.25, 0.32]``."""
+    text = f"{value:.3f}"
+    return text if ci is None else f"{text} [{ci[0]:.2f}, {ci[1]:.2f}]"
+
+
+def table_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str] | None = None) -> str:
+    """Markdown table in the paper's Table I layout: one row per setup (size x robots), and for each
+    method three columns SR / SPL / CR, each ``value [95 % CI]``."""
+    if methods is None:
+        methods = list(dict.fromkeys(s.method for s in summaries))
+    by_key = {(s.method, s.setup): s for s in summaries}
+    rows = sorted({(s.size, s.n_robots, s.setup) for s in summaries}, key=lambda k: setup_order_key(*k))
+    header = ["Setup", "Env size (m)", "# of robots"]
+    for method in methods:
+        header += [f"{method} SR", f"{method} SPL", f"{method} CR"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for size, n_robots, setup in rows:
+        cells = [setup, "all" if size is None else f"{size:g} × {size:g}", "-" if n_robots is None else str(n_robots)]
+        for method in methods:
+            s = by_key.get((method, setup))
+            if s is None:
+                cells += ["-", "-", "-"]
+                continue
+            m = s.metrics
+            cells += [format_sr(m.sr, m.sr_ci), format_ratio(m.spl, m.spl_ci), format_ratio(m.cr, m.cr_ci)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_summary_files(
+    records: Sequence[RobotTrial], out_dir: str | os.PathLike, confidence: float = 0.95, seed: int = 0
+) -> list[SetupSummary]:
+    """Write ``summary.csv`` and ``summary.md`` (Table I layout) for ``records`` into ``out_dir``."""
+    out_dir = Path(out_dir)
+    summaries = summarize_by_setup(records, confidence, seed)
+    atomic_write_text(out_dir / "summary.csv", summaries_to_csv(summaries))
+    note = (
+        f"SR / SPL / CR with {100 * confidence:g} % confidence intervals in brackets "
+        "(Wilson for SR, trial-level bootstrap for SPL and CR).\n\n"
+    )
+    atomic_write_text(out_dir / "summary.md", note + table_markdown(summaries))
+    return summaries

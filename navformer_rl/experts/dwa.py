@@ -1,0 +1,198 @@
+"""Dynamic Window Approach (Fox, Burgard, Thrun 1997) for a differential-drive robot, with recovery.
+
+Each control step samples ``(v, w)`` in the dynamic window (velocity limits intersected with what the
+acceleration limits reach in one control period), rolls each sample out as a constant-velocity arc,
+rejects samples that come closer to an obstacle than the safety distance, and picks the lowest cost:
+
+    cost = k_goal * |end - goal| + k_heading * |bearing(goal) - yaw_end| / pi
+           + k_speed * (v_max - v) / v_max + k_clear * (c_cap - min(clearance, c_cap)) / c_cap
+
+Obstacles come from a bool occupied grid (clearance = Euclidean distance transform, in metres). When no
+sample that moves forward is admissible the planner enters *recovery*: it turns in place toward the goal,
+or backs off slowly when backing increases clearance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DWAConfig:
+    """DWA parameters (SI units). Defaults suit the Jackal spec (v 1.0 m/s, w 1.5 rad/s, a 2, alpha 4)."""
+
+    v_max: float = 1.0
+    w_max: float = 1.5
+    a_max: float = 2.0
+    alpha_max: float = 4.0
+    dt: float = 0.2
+    """Control period (one env step)."""
+    predict_time: float = 1.6
+    rollout_dt: float = 0.2
+    n_v: int = 7
+    n_w: int = 15
+    robot_radius: float = 0.30
+    safety_margin: float = 0.06
+    k_goal: float = 1.0
+    k_heading: float = 0.6
+    k_speed: float = 0.3
+    k_clear: float = 0.4
+    clearance_cap: float = 0.9
+    backoff_speed: float = 0.2
+
+
+class ClearanceMap:
+    """Distance (m) from points to the nearest occupied cell, from a bool ``[H, W]`` occupied grid.
+
+    Computed in a square window around ``center`` (``half_size`` metres), which must contain every point
+    queried farther than ``cap`` from the window border; values are capped at ``cap``.
+    """
+
+    def __init__(
+        self,
+        occupied: np.ndarray,
+        resolution: float,
+        origin: tuple[float, float],
+        center: tuple[float, float],
+        half_size: float,
+        cap: float,
+    ) -> None:
+        self.resolution = resolution
+        self.cap = cap
+        h, w = occupied.shape
+        k = int(math.ceil(half_size / resolution))
+        cr = int(math.floor((center[1] - origin[1]) / resolution))
+        cc = int(math.floor((center[0] - origin[0]) / resolution))
+        self.r0, self.c0 = cr - k, cc - k
+        size = 2 * k + 1
+        window = np.zeros((size, size), dtype=bool)
+        rlo, rhi = max(0, self.r0), min(h, self.r0 + size)
+        clo, chi = max(0, self.c0), min(w, self.c0 + size)
+        if rlo < rhi and clo < chi:
+            window[rlo - self.r0 : rhi - self.r0, clo - self.c0 : chi - self.c0] = occupied[rlo:rhi, clo:chi]
+        if window.any():
+            pixels = cv2.distanceTransform((~window).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            edt = pixels.astype(np.float64) * resolution - 0.5 * resolution
+            self.field = np.clip(edt, 0.0, cap)
+        else:
+            self.field = np.full((size, size), cap)
+        self.origin = np.asarray(origin, dtype=np.float64)
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        """Clearance (float64 ``[...]``) at world points ``[..., 2]``; ``cap`` outside the window."""
+        rel = (np.asarray(xy) - self.origin) / self.resolution
+        r = np.floor(rel[..., 1]).astype(np.int64) - self.r0
+        c = np.floor(rel[..., 0]).astype(np.int64) - self.c0
+        n = self.field.shape[0]
+        inside = (r >= 0) & (r < n) & (c >= 0) & (c < n)
+        out = np.full(r.shape, self.cap)
+        out[inside] = self.field[r[inside], c[inside]]
+        return out
+
+
+def rollout(state: np.ndarray, v: np.ndarray, w: np.ndarray, horizon: float, step: float) -> np.ndarray:
+    """Unicycle rollouts at constant ``(v, w)``: float64 ``[N, S, 3]`` poses after each ``step``.
+
+    ``state = (x, y, yaw)``; ``v, w``: ``[N]``. Heading is advanced first, then position (PythonRobotics).
+    """
+    n_steps = max(1, int(round(horizon / step)))
+    k = np.arange(1, n_steps + 1)
+    yaw = state[2] + w[:, None] * step * k[None, :]  # [N, S]
+    dx = v[:, None] * np.cos(yaw) * step
+    dy = v[:, None] * np.sin(yaw) * step
+    return np.stack([state[0] + np.cumsum(dx, axis=1), state[1] + np.cumsum(dy, axis=1), yaw], axis=-1)
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
+    """Wrap angles to ``(-pi, pi]``."""
+    return (
+        np.pi - np.mod(np.pi - np.asarray(a), 2 * np.pi)
+        if isinstance(a, np.ndarray)
+        else (math.pi - (math.pi - a) % (2 * math.pi))
+    )
+
+
+@dataclass(frozen=True)
+class DWAResult:
+    """Chosen command (m/s, rad/s); ``recovering`` when no forward sample was admissible."""
+
+    v: float
+    w: float
+    recovering: bool
+
+
+class DWAPlanner:
+    """Stateless DWA step: ``plan(pose, velocity, goal_xy, clearance) -> DWAResult``."""
+
+    def __init__(self, config: DWAConfig | None = None) -> None:
+        self.config = config or DWAConfig()
+
+    def window(self, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sampled ``v`` ``[n_v]`` and ``w`` ``[n_w]`` reachable from ``velocity = (v, w)`` in one period."""
+        c = self.config
+        v0, w0 = float(velocity[0]), float(velocity[1])
+        v_lo, v_hi = max(0.0, v0 - c.a_max * c.dt), min(c.v_max, v0 + c.a_max * c.dt)
+        if v_lo > v_hi:  # currently reversing faster than one period can undo: brake as hard as allowed
+            v_lo = v_hi = min(c.v_max, v0 + c.a_max * c.dt)
+        w_lo, w_hi = max(-c.w_max, w0 - c.alpha_max * c.dt), min(c.w_max, w0 + c.alpha_max * c.dt)
+        vs = np.linspace(v_lo, v_hi, c.n_v)
+        ws = np.linspace(w_lo, w_hi, c.n_w)
+        if w_lo < 0.0 < w_hi:
+            ws = np.unique(np.append(ws, 0.0))
+        return vs, ws
+
+    def plan(
+        self, pose: np.ndarray, velocity: np.ndarray, goal: np.ndarray, clearance: ClearanceMap
+    ) -> DWAResult:
+        """One DWA decision for ``pose = (x, y, yaw)``, ``velocity = (v, w)``, ``goal = (x, y)``."""
+        c = self.config
+        pose = np.asarray(pose, dtype=np.float64)
+        vs, ws = self.window(velocity)
+        v_grid, w_grid = np.meshgrid(vs, ws, indexing="ij")
+        v, w = v_grid.ravel(), w_grid.ravel()
+        traj = rollout(pose, v, w, c.predict_time, c.rollout_dt)  # [N, S, 3]
+        clear = clearance(traj[..., :2]).min(axis=1)  # [N]
+        here = float(clearance(pose[None, :2])[0])
+        safe = c.robot_radius + c.safety_margin
+        # Already inside the safety distance: accept only samples that do not get closer.
+        admissible = clear >= min(safe, here - 1e-3)
+        moving = admissible & (v > 0.05)
+        if moving.any():
+            end = traj[:, -1, :]
+            to_goal = goal[None, :] - end[:, :2]
+            dist = np.hypot(to_goal[:, 0], to_goal[:, 1])
+            heading = np.abs(wrap_angle(np.arctan2(to_goal[:, 1], to_goal[:, 0]) - end[:, 2])) / np.pi
+            heading = np.where(dist < 0.2, 0.0, heading)
+            cost = (
+                c.k_goal * dist
+                + c.k_heading * heading
+                + c.k_speed * (c.v_max - v) / c.v_max
+                + c.k_clear * (c.clearance_cap - np.minimum(clear, c.clearance_cap)) / c.clearance_cap
+            )
+            cost[~moving] = np.inf
+            k = int(np.argmin(cost))
+            return DWAResult(float(v[k]), float(w[k]), False)
+        return self.recover(pose, velocity, goal, clearance, here)
+
+    def recover(
+        self, pose: np.ndarray, velocity: np.ndarray, goal: np.ndarray, clearance: ClearanceMap, here: float
+    ) -> DWAResult:
+        """No admissible forward motion: back off if that gains clearance, else turn toward the goal."""
+        c = self.config
+        v0, w0 = float(velocity[0]), float(velocity[1])
+        dv, dw = c.a_max * c.dt, c.alpha_max * c.dt
+        v_back = float(np.clip(-c.backoff_speed, v0 - dv, v0 + dv))
+        if v_back < 0.0 and here < c.robot_radius + c.safety_margin:
+            back = rollout(pose, np.array([v_back]), np.array([0.0]), 2 * c.dt, c.rollout_dt)[0]
+            gained = clearance(back[:, :2])
+            if gained.min() >= here - 1e-6 and gained[-1] > here + 1e-3:
+                return DWAResult(v_back, 0.0, True)
+        bearing = math.atan2(goal[1] - pose[1], goal[0] - pose[0])
+        direction = 1.0 if wrap_angle(bearing - pose[2]) >= 0 else -1.0
+        v = float(np.clip(0.0, v0 - dv, v0 + dv))
+        w = float(np.clip(direction * c.w_max, w0 - dw, w0 + dw))
+        return DWAResult(v, w, True)

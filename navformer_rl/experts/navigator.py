@@ -1,0 +1,252 @@
+"""Per-robot global navigation on a robot's own lidar map: frontier goals, A* paths, carrots, stuck handling.
+
+A :class:`FrontierNavigator` owns one robot's :class:`LogOddsGrid`. Each step it integrates a scan, then
+returns a *carrot* (a point about ``lookahead`` metres ahead on the current A* path) for a local planner
+(DWA for the exploration expert, NH-ORCA for FCA). Goals: the nearest frontier (Yamauchi, by path length),
+or the target once it is known (seen by the camera, or given to the privileged FCA).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from navformer_rl.experts.astar import astar
+from navformer_rl.experts.frontier import select_frontier
+from navformer_rl.experts.grid import nearest_true_cell
+from navformer_rl.experts.mapping import LogOddsGrid, inflate
+
+LIDAR_SOURCES = ("analytic", "pybullet")
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """Simulated 360-degree planar lidar: 180 rays (2 degrees), 6 m range.
+
+    ``source``: ``"analytic"`` (:class:`~navformer_rl.experts.lidar.StaticLidar`, closed-form rays on the
+    world's static geometry, the default for speed) or ``"pybullet"`` (``Simulator.ray_scan_all``, which also
+    sees robots; same distances on the static scene).
+    """
+
+    n_rays: int = 180
+    max_range: float = 6.0
+    source: str = "analytic"
+
+    def __post_init__(self) -> None:
+        if self.source not in LIDAR_SOURCES:
+            raise ValueError(f"unknown lidar source {self.source!r}; expected one of {LIDAR_SOURCES}")
+        if self.n_rays < 1 or not self.max_range > 0:
+            raise ValueError(f"need n_rays >= 1 and max_range > 0, got {self.n_rays}, {self.max_range}")
+
+    @property
+    def angles(self) -> np.ndarray:
+        """float64 ``[n_rays]`` ray angles relative to the heading (the simulator's convention)."""
+        return np.linspace(-math.pi, math.pi, self.n_rays, endpoint=False)
+
+
+@dataclass(frozen=True)
+class NavigatorConfig:
+    """Global-planning parameters (metres, steps of 0.2 s)."""
+
+    resolution: float = 0.1
+    robot_radius: float = 0.30
+    inflation_margin: float = 0.05
+    """Extra clearance added to the robot radius when inflating obstacles for A*."""
+    min_frontier_cells: int = 5
+    """Frontier groups smaller than this (0.5 m at 0.1 m cells) are ignored."""
+    replan_every: int = 8
+    lookahead: float = 1.0
+    goal_reached: float = 0.4
+    """A frontier goal closer than this is considered visited (the frontier is replanned)."""
+    progress_window: int = 30
+    progress_min: float = 0.3
+    """No ``progress_min`` metres of progress toward the goal within ``progress_window`` steps -> stuck."""
+    blacklist_radius: float = 0.8
+    target_approach: float = 1.0
+    """In target mode the A* goal is the free cell nearest to the target within this radius."""
+
+
+class FrontierNavigator:
+    """Map, goal and path of one robot.
+
+    Args:
+        extent: world size in metres (square ``[0, extent]^2``).
+        config: :class:`NavigatorConfig`.
+        target: float ``[2]`` target centre (used only once :meth:`set_target_known` was called, or from the
+            start when ``target_known`` is True - the privileged FCA).
+        frontier_bias: weight of the straight-line frontier-to-target distance in frontier ranking (FCA only).
+    """
+
+    def __init__(
+        self,
+        extent: float,
+        config: NavigatorConfig,
+        target: np.ndarray,
+        target_known: bool = False,
+        frontier_bias: float = 0.0,
+    ) -> None:
+        self.config = config
+        self.map = LogOddsGrid((extent, extent), resolution=config.resolution)
+        self.target = np.asarray(target, dtype=np.float64)
+        self.target_known = target_known
+        self.target_mode = False
+        self.frontier_bias = frontier_bias
+        self.goal: np.ndarray | None = None
+        self.goal_cell: tuple[int, int] | None = None
+        self.path: np.ndarray = np.zeros((0, 2))
+        self.blacklist: list[tuple[int, int]] = []
+        self.exhausted = False
+        self.stuck_events = 0
+        self.steps_since_plan = 0
+        self.best_remaining = math.inf
+        self.last_progress_step = 0
+        self.step_count = 0
+
+    # ------------------------------------------------------------------ sensing
+    def observe(
+        self, pose: np.ndarray, ranges: np.ndarray, lidar: LidarConfig, keep: np.ndarray | None = None
+    ) -> None:
+        """Integrate one scan (float ``[n_rays]``) taken at ``pose``; ``keep`` (bool ``[n_rays]``) drops rays."""
+        angles = lidar.angles
+        if keep is not None:
+            ranges, angles = ranges[keep], angles[keep]
+        self.map.update(pose, ranges, angles, lidar.max_range)
+
+    def set_target_seen(self) -> None:
+        """The target became visible: drive to it from now on (forces a replan)."""
+        if not self.target_mode:
+            self.target_mode = True
+            self.target_known = True
+            self._reset_goal()
+
+    # ------------------------------------------------------------------ planning
+    def _reset_goal(self) -> None:
+        self.goal, self.goal_cell, self.path = None, None, np.zeros((0, 2))
+        self.best_remaining = math.inf
+        self.last_progress_step = self.step_count
+
+    def _blocked(self) -> np.ndarray:
+        c = self.config
+        return inflate(self.map.occupied(), c.robot_radius + c.inflation_margin + 0.5 * c.resolution, c.resolution)
+
+    def _start_cell(self, pose: np.ndarray, traversable: np.ndarray) -> tuple[int, int] | None:
+        r, c = (int(v) for v in self.map.world_to_cell(pose[:2]))
+        r = min(max(r, 0), self.map.shape[0] - 1)
+        c = min(max(c, 0), self.map.shape[1] - 1)
+        if traversable[r, c]:
+            return r, c
+        return nearest_true_cell(traversable, (r, c), max_radius=int(round(0.6 / self.config.resolution)))
+
+    def _plan(self, pose: np.ndarray) -> None:
+        """Choose the goal (target or frontier) and an A* path to it."""
+        c = self.config
+        blocked = self._blocked()
+        self.steps_since_plan = 0
+        if self.target_mode:
+            # Optimistic about unknown cells: the target was seen, the way to it is mostly mapped.
+            passable = ~blocked
+            start = self._start_cell(pose, passable)
+            tcell = tuple(int(v) for v in self.map.world_to_cell(self.target))
+            approach = int(round(c.target_approach / c.resolution))
+            goal = nearest_true_cell(passable, tcell, max_radius=approach)
+            path = None if start is None or goal is None else astar(~passable, start, goal)
+            if path is not None:
+                self._set_path(pose, path, goal)
+                return
+            # fall through: explore until the target can be reached
+        traversable = self.map.free() & ~blocked
+        start = self._start_cell(pose, traversable)
+        if start is None:
+            self._reset_goal()
+            return
+        bias_cell = None
+        if self.target_known and self.frontier_bias > 0:
+            bias_cell = tuple(int(v) for v in self.map.world_to_cell(self.target))
+        frontier = select_frontier(
+            self.map.ternary(),
+            traversable,
+            start,
+            min_cells=c.min_frontier_cells,
+            blacklist=self.blacklist,
+            blacklist_radius=c.blacklist_radius / c.resolution,
+            bias_cell=bias_cell,
+            bias_weight=self.frontier_bias,
+        )
+        if frontier is None:
+            self.exhausted = not self.target_mode
+            self._reset_goal()
+            return
+        path = astar(~traversable, start, frontier.goal)
+        if path is None:  # cannot happen (the frontier was chosen by path length); blacklist defensively
+            self.blacklist.append(frontier.goal)
+            self._reset_goal()
+            return
+        self._set_path(pose, path, frontier.goal)
+
+    def _set_path(self, pose: np.ndarray, cells: list[tuple[int, int]], goal_cell: tuple[int, int]) -> None:
+        new_goal = self.goal_cell is None or np.hypot(*np.subtract(goal_cell, self.goal_cell)) * self.config.resolution > 0.5
+        self.goal_cell = goal_cell
+        self.goal = self.map.cell_to_world(np.array(goal_cell))
+        self.path = self.map.cell_to_world(np.array(cells))
+        if new_goal:
+            self.best_remaining = math.inf
+            self.last_progress_step = self.step_count
+
+    def _path_blocked(self, pose: np.ndarray, horizon: float = 3.0) -> bool:
+        """Whether an occupied cell now lies within the robot radius of the next ``horizon`` metres of path."""
+        if len(self.path) == 0:
+            return False
+        c = self.config
+        k = int(np.argmin(np.hypot(*(self.path - pose[:2]).T)))
+        pts = self.path[k : k + int(horizon / c.resolution) + 1]
+        lo = self.map.world_to_cell(pts.min(axis=0) - c.robot_radius)
+        hi = self.map.world_to_cell(pts.max(axis=0) + c.robot_radius)
+        r0, c0 = max(0, lo[0]), max(0, lo[1])
+        window = self.map.occupied()[r0 : hi[0] + 1, c0 : hi[1] + 1]
+        occ = np.argwhere(window)
+        if len(occ) == 0:
+            return False
+        centres = self.map.cell_to_world(occ + np.array([r0, c0]))
+        d2 = ((pts[:, None, :] - centres[None, :, :]) ** 2).sum(-1)
+        return bool(d2.min() < (c.robot_radius + 0.5 * c.resolution) ** 2)
+
+    def _remaining(self, pose: np.ndarray) -> float:
+        if len(self.path) == 0:
+            return math.inf
+        d = np.hypot(*(self.path - pose[:2]).T)
+        k = int(np.argmin(d))
+        seg = np.hypot(*np.diff(self.path[k:], axis=0).T).sum() if k + 1 < len(self.path) else 0.0
+        return float(d[k] + seg)
+
+    def carrot(self, pose: np.ndarray) -> np.ndarray | None:
+        """The point to drive toward now (float64 ``[2]``), or None when there is nothing left to do."""
+        c = self.config
+        self.step_count += 1
+        self.steps_since_plan += 1
+        pose = np.asarray(pose, dtype=np.float64)
+        need = self.goal is None or self.steps_since_plan >= c.replan_every or self._path_blocked(pose)
+        if not need and not self.target_mode and np.hypot(*(self.goal - pose[:2])) < c.goal_reached:
+            need = True
+        if need:
+            self._plan(pose)
+        if self.goal is None:
+            return None
+        remaining = self._remaining(pose)
+        if remaining < self.best_remaining - c.progress_min:
+            self.best_remaining = remaining
+            self.last_progress_step = self.step_count
+        elif self.step_count - self.last_progress_step > c.progress_window:
+            self.stuck_events += 1
+            if not self.target_mode and self.goal_cell is not None:
+                self.blacklist.append(self.goal_cell)
+            self._plan(pose)
+            self.best_remaining = math.inf
+            self.last_progress_step = self.step_count
+            if self.goal is None:
+                return None
+        d = np.hypot(*(self.path - pose[:2]).T)
+        k = int(np.argmin(d))
+        ahead = np.flatnonzero(d[k:] >= c.lookahead)
+        return self.path[k + ahead[0]] if len(ahead) else self.path[-1]

@@ -1,0 +1,111 @@
+"""``NavFormerPolicy``: closed-loop NavFormer for ``MultiRobotNavEnv`` (and other envs) with a KV cache."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from tensordict.utils import NestedKey
+from torch import Tensor
+
+from navformer_rl.modules.models.incremental import IncrementalNavFormer
+from navformer_rl.modules.models.navformer import NavFormerModel
+
+
+class NavFormerPolicy(TensorDictModuleBase):
+    """Drive every robot of a batch with one ``NavFormerModel``, one timestep per call (paper §IV, §VII).
+
+    Reads (defaults for ``MultiRobotNavEnv``, group ``"agents"``; ``R`` = robots = product of the leading
+    dims, so ``[A]``, ``[E, A]`` for batched envs, or ``[]`` for a single-robot env with root keys):
+
+    - ``("agents", "pixels")`` uint8 ``[*R, 84, 84, 3]`` - current observation o_t;
+    - ``("agents", "target_pixels")`` uint8 ``[*R, 84, 84, 3]`` - target image g;
+    - ``("agents", "step_count")`` int64 ``[*R, 1]`` (optional) - 0 right after a reset: that robot's
+      context is cleared and its R-hat restarts at ``initial_return_to_go``;
+    - ``("agents", "reward")`` float ``[*R, 1]`` (optional) - reward received at the previous step:
+      ``R-hat_t = R-hat_{t-1} - r_{t-1}`` (DT conditioning, R-hat_1 = 1). A missing key counts as 0.
+
+    Writes ``("agents", "action")`` float32 ``[*R, 2]`` in [-1, 1].
+
+    Context: the target token, then per step R-hat, e^s, e^ca, a; each call adds one timestep through the
+    KV cache (``IncrementalNavFormer``). Past ``config.context_tokens`` (1024 tokens = 256 steps) the
+    oldest whole timestep leaves the window and the target token stays (streaming window, see
+    ``docs/model.md``). Without ``step_count`` in the input, state is cleared by ``reset()``, when the
+    number of robots changes, or never otherwise.
+
+    In ``env.rollout``: TorchRL's ``step_mdp`` drops rewards from the next input, so R-hat stays at its
+    initial value there unless the env (or a transform) exposes the reward as an observation. With the
+    paper's reward (1 only on the success step, after which the robot is done) this changes nothing
+    before success. The model is put in eval mode.
+    """
+
+    def __init__(
+        self,
+        model: NavFormerModel,
+        *,
+        initial_return_to_go: float = 1.0,
+        pixels_key: NestedKey = ("agents", "pixels"),
+        target_pixels_key: NestedKey = ("agents", "target_pixels"),
+        step_count_key: NestedKey | None = ("agents", "step_count"),
+        reward_key: NestedKey | None = ("agents", "reward"),
+        action_key: NestedKey = ("agents", "action"),
+    ) -> None:
+        super().__init__()
+        self.model = model.eval()
+        self.initial_return_to_go = float(initial_return_to_go)
+        self.pixels_key, self.target_pixels_key = pixels_key, target_pixels_key
+        self.step_count_key, self.reward_key, self.action_key = step_count_key, reward_key, action_key
+        self.in_keys = [
+            k for k in (pixels_key, target_pixels_key, step_count_key, reward_key) if k is not None
+        ]
+        self.out_keys = [action_key]
+        self._decoder: IncrementalNavFormer | None = None
+        self._return_to_go: Tensor | None = None
+        self._prev_action: Tensor | None = None
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.model.parameters()).device
+
+    def reset(self) -> None:
+        """Forget every robot's episode (the next call starts new episodes)."""
+        self._decoder = None
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        pixels = tensordict.get(self.pixels_key)
+        lead = pixels.shape[:-3]
+        robots = int(torch.Size(lead).numel())
+        pixels = pixels.reshape(robots, *pixels.shape[-3:])
+        target = tensordict.get(self.target_pixels_key).reshape(robots, *pixels.shape[-3:])
+        new_episode = self._new_episode_flags(tensordict, robots)
+        if self._decoder is None or self._decoder.batch != robots:
+            self._decoder = IncrementalNavFormer(self.model, robots, device=self.device)
+            self._return_to_go = torch.full((robots, 1), self.initial_return_to_go, device=self.device)
+            self._prev_action = torch.zeros(robots, self.model.config.action_dim, device=self.device)
+            new_episode = torch.ones(robots, dtype=torch.bool, device=self.device)
+        reward = self._reward(tensordict, robots)
+        self._return_to_go = torch.where(
+            new_episode[:, None],
+            torch.full_like(self._return_to_go, self.initial_return_to_go),
+            self._return_to_go - reward,
+        )
+        self._decoder.reset(new_episode)
+        action = self._decoder.step(target, pixels, self._return_to_go, self._prev_action)
+        self._prev_action = action
+        out_device = tensordict.device if tensordict.device is not None else pixels.device
+        tensordict.set(self.action_key, action.reshape(*lead, -1).to(out_device))
+        return tensordict
+
+    def _new_episode_flags(self, tensordict: TensorDictBase, robots: int) -> Tensor:
+        if self.step_count_key is None:
+            return torch.zeros(robots, dtype=torch.bool, device=self.device)
+        step_count = tensordict.get(self.step_count_key, None)
+        if step_count is None:
+            return torch.zeros(robots, dtype=torch.bool, device=self.device)
+        return (step_count.reshape(robots) == 0).to(self.device)
+
+    def _reward(self, tensordict: TensorDictBase, robots: int) -> Tensor:
+        reward = None if self.reward_key is None else tensordict.get(self.reward_key, None)
+        if reward is None:
+            return torch.zeros(robots, 1, device=self.device)
+        return reward.reshape(robots, 1).to(self.device, torch.float32)

@@ -1,0 +1,144 @@
+"""``NavFormerConfig``: every architecture number of paper §IV and every model-level ablation switch."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch
+
+ENCODER_KINDS = ("cnn", "resnet18")
+AUTOCAST_DTYPES = {"bfloat16": torch.bfloat16, "float16": torch.float16}
+MODEL_ABLATIONS = ("navformer", "no_thsc", "no_static_encoder", "no_general_encoder", "resnet18", "dt")
+"""Model-level ablations of paper Table IV (the data/SSL ablations live in the training recipe)."""
+
+
+@dataclass(frozen=True)
+class NavFormerConfig:
+    """Hyper-parameters of the NavFormer model (paper §IV; defaults are the paper's).
+
+    Architecture:
+        d_embed: token width d_e (128).  n_blocks: GPT-2 blocks N (3).  n_heads / d_head: h = 2 heads of
+        d_k = 64 (``n_heads * d_head`` must equal ``d_embed``).  mlp_ratio: MLP hidden = 4 * d_embed.
+        context_tokens: the transformer's context (1024 tokens).  dropout: on the token embeddings, the
+        attention weights and the residual branches (0.1).  max_timestep: size of the learnable timestep
+        embedding table (512 > the 500-step episodes).  action_dim: 2 = (linear, angular).
+        image_size: side of the square uint8 images (84).
+
+    Ablation switches (Table IV):
+        encoder: ``"cnn"`` (the paper's 3-conv encoder) or ``"resnet18"`` (randomly initialised, plain torch).
+        use_static_encoder / use_general_encoder: drop f_s or f_g (and its token). Without f_g the target
+        image goes through f_s.
+        thsc: target hidden-state concatenation - the head reads ``[h_g ; h^ca_{o,t}]``; when False it reads
+        the last observation token's hidden state only (the DT baseline).
+
+    Training levers (no effect on the maths, see ``docs/model.md``):
+        detach_encoders: the DT loss does not back-propagate into the encoders (they learn from BYOL only).
+        encoder_micro_batch: run the encoders on chunks of this many frames (None: one chunk).
+        autocast_dtype: ``"bfloat16"`` / ``"float16"`` autocast around the training forward, or None (fp32).
+        channels_last: feed the convolutions channels_last tensors (free from uint8 HWC).
+    """
+
+    d_embed: int = 128
+    n_blocks: int = 3
+    n_heads: int = 2
+    d_head: int = 64
+    mlp_ratio: int = 4
+    context_tokens: int = 1024
+    dropout: float = 0.1
+    max_timestep: int = 512
+    action_dim: int = 2
+    image_size: int = 84
+    encoder: str = "cnn"
+    use_static_encoder: bool = True
+    use_general_encoder: bool = True
+    thsc: bool = True
+    detach_encoders: bool = False
+    encoder_micro_batch: int | None = None
+    autocast_dtype: str | None = None
+    channels_last: bool = True
+
+    def __post_init__(self) -> None:
+        positive = ("d_embed", "n_blocks", "n_heads", "d_head", "mlp_ratio", "max_timestep", "action_dim")
+        for name in positive:
+            value = getattr(self, name)
+            if not isinstance(value, int) or value <= 0:
+                raise ValueError(f"NavFormerConfig.{name}={value!r}: expected a positive int")
+        if self.n_heads * self.d_head != self.d_embed:
+            raise ValueError(
+                f"NavFormerConfig: n_heads * d_head = {self.n_heads} * {self.d_head} must equal "
+                f"d_embed = {self.d_embed}"
+            )
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"NavFormerConfig.dropout={self.dropout!r}: expected a float in [0, 1)")
+        if self.encoder not in ENCODER_KINDS:
+            raise ValueError(f"NavFormerConfig.encoder={self.encoder!r}: expected one of {ENCODER_KINDS}")
+        if not (self.use_static_encoder or self.use_general_encoder):
+            raise ValueError(
+                "NavFormerConfig: at least one of use_static_encoder / use_general_encoder must be True"
+            )
+        if self.context_tokens < 2 * self.tokens_per_step:
+            raise ValueError(
+                f"NavFormerConfig.context_tokens={self.context_tokens}: expected at least "
+                f"{2 * self.tokens_per_step} (two timesteps of {self.tokens_per_step} tokens)"
+            )
+        if self.image_size < 36 and self.encoder == "cnn":
+            raise ValueError(
+                f"NavFormerConfig.image_size={self.image_size}: the paper CNN needs at least 36 px"
+            )
+        if self.encoder_micro_batch is not None and self.encoder_micro_batch <= 0:
+            raise ValueError(
+                f"NavFormerConfig.encoder_micro_batch={self.encoder_micro_batch!r}: expected None or a positive int"
+            )
+        if self.autocast_dtype is not None and self.autocast_dtype not in AUTOCAST_DTYPES:
+            raise ValueError(
+                f"NavFormerConfig.autocast_dtype={self.autocast_dtype!r}: expected None or one of "
+                f"{tuple(AUTOCAST_DTYPES)}"
+            )
+
+    @property
+    def n_encoders(self) -> int:
+        """Observation tokens per timestep (1 or 2)."""
+        return int(self.use_static_encoder) + int(self.use_general_encoder)
+
+    @property
+    def tokens_per_step(self) -> int:
+        """Tokens per timestep: R-hat, the observation embeddings, a (4 for NavFormer, 3 with one encoder)."""
+        return 2 + self.n_encoders
+
+    @property
+    def window_steps(self) -> int:
+        """Timesteps that fit in the context at inference: ``context_tokens // tokens_per_step`` (256).
+
+        At a query the sequence is ``g, (R, e.., a) x (W-1), R, e..`` = ``tokens_per_step * W`` tokens.
+        """
+        return self.context_tokens // self.tokens_per_step
+
+    @property
+    def torch_autocast_dtype(self) -> torch.dtype | None:
+        return None if self.autocast_dtype is None else AUTOCAST_DTYPES[self.autocast_dtype]
+
+    def replace(self, **changes) -> NavFormerConfig:
+        """A copy with ``changes`` applied (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def dt_baseline(cls, **changes) -> NavFormerConfig:
+        """The Decision Transformer baseline: one (general) encoder, tokens ``g, (R, e, a)...``, no THSC."""
+        return cls(use_static_encoder=False, use_general_encoder=True, thsc=False, **changes)
+
+    @classmethod
+    def ablation(cls, name: str, **changes) -> NavFormerConfig:
+        """The config of a model-level ablation of Table IV, by name (see ``MODEL_ABLATIONS``)."""
+        switches = {
+            "navformer": {},
+            "no_thsc": {"thsc": False},
+            "no_static_encoder": {"use_static_encoder": False},
+            "no_general_encoder": {"use_general_encoder": False},
+            "resnet18": {"encoder": "resnet18"},
+        }
+        if name == "dt":
+            return cls.dt_baseline(**changes)
+        if name not in switches:
+            raise ValueError(f"unknown model ablation {name!r}: expected one of {MODEL_ABLATIONS}")
+        return cls(**{**switches[name], **changes})

@@ -1,0 +1,132 @@
+"""Incremental (one timestep per call) NavFormer decoding with a streaming key/value cache.
+
+Per robot ``b`` the cache holds ``S = 1 + W * tps`` slots (``W = config.window_steps``, 256 steps of 4
+tokens for the paper's 1024-token context): slot 0 is the target token, then ``W`` groups of ``tps`` slots
+used as a ring (step ``t`` lives in group ``t mod W``). ``slot_pos[b, s]`` is the token's position in the
+robot's sequence (-1 = empty); the attention mask is built from it, so slot order never matters.
+
+The call for step t feeds ``tps`` new tokens: ``[a_{t-1}, R_t, e^s_t, e^ca_t]`` (``[g, R_1, e^s_1, e^ca_1]``
+on a robot's first step). When the window is full, step t overwrites step t - W's slots and invalidates
+its action slot: the oldest whole timestep leaves, the target token stays. Keys/values of the steps that
+remain are kept as computed (a streaming window): the result equals ``NavFormerModel.forward(...,
+window_steps=W)`` on the whole episode, and plain causal ``forward`` as long as ``t < W``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from navformer_rl.modules.models.navformer import NavFormerModel
+from navformer_rl.modules.models.transformer import KVCache
+
+
+class IncrementalNavFormer:
+    """Streaming decoder state for ``batch`` robots that share one ``NavFormerModel`` (in eval mode).
+
+    Usage: ``dec = IncrementalNavFormer(model, batch)``; every control step
+    ``action = dec.step(target_pixels, pixels, return_to_go, prev_action)``; ``dec.reset(robots)`` starts
+    new episodes for the robots where ``robots`` (bool ``[batch]``) is True.
+    """
+
+    def __init__(
+        self,
+        model: NavFormerModel,
+        batch: int,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        if batch <= 0:
+            raise ValueError(f"batch={batch!r}: expected a positive number of robots")
+        config = model.config
+        self.model = model
+        self.batch = batch
+        self.device = torch.device(device) if device is not None else next(model.parameters()).device
+        self.tokens_per_step = config.tokens_per_step
+        self.window_steps = config.window_steps
+        slots = 1 + self.window_steps * self.tokens_per_step
+        self.cache = KVCache.empty(
+            config.n_blocks, batch, config.n_heads, slots, config.d_head, self.device, dtype
+        )
+        self.slot_pos = torch.full((batch, slots), -1, dtype=torch.long, device=self.device)
+        self.steps_done = torch.zeros(batch, dtype=torch.long, device=self.device)
+        self.target_hidden = torch.zeros(batch, config.d_embed, dtype=dtype, device=self.device)
+        self._offsets = torch.arange(self.tokens_per_step - 1, device=self.device)
+
+    def reset(self, robots: Tensor | None = None) -> None:
+        """Forget the episode of the robots where ``robots`` (bool ``[batch]``) is True (all if None)."""
+        if robots is None:
+            self.steps_done.zero_()
+            self.slot_pos.fill_(-1)
+        else:
+            self.steps_done[robots] = 0
+            self.slot_pos[robots] = -1
+
+    @torch.no_grad()
+    def step(
+        self, target_pixels: Tensor, pixels: Tensor, return_to_go: Tensor, prev_action: Tensor
+    ) -> Tensor:
+        """Decode one timestep for every robot.
+
+        Args:
+            target_pixels: uint8 ``[B, H, W, 3]`` (read only for robots at their first step).
+            pixels: uint8 ``[B, H, W, 3]`` - the current observation o_t.
+            return_to_go: float ``[B, 1]`` - R-hat_t.
+            prev_action: float ``[B, A]`` - a_{t-1} (ignored for robots at their first step).
+
+        Returns:
+            action: float ``[B, A]`` in [-1, 1], a-hat_t.
+        """
+        model = self.model
+        if model.training:
+            raise ValueError("IncrementalNavFormer.step: call model.eval() first (dropout must be off)")
+        if pixels.shape[0] != self.batch:
+            raise ValueError(f"pixels: expected {self.batch} robots, got shape {tuple(pixels.shape)}")
+        tps, window = self.tokens_per_step, self.window_steps
+        t = self.steps_done
+        first = t == 0
+        max_step = model.config.max_timestep - 1
+        timestep = t.clamp(max=max_step)
+        prev_timestep = (t - 1).clamp(0, max_step)
+
+        # new tokens [B, tps, d]: first token (a_{t-1}, or g on a first step), R_t, e_t...
+        first_token = model.action_token(prev_action.to(self.device), prev_timestep)
+        if bool(first.any()):
+            target = model.target_token(
+                model.encode_target(target_pixels[first.to(target_pixels.device)].to(self.device))
+            )
+            first_token = first_token.index_put((first,), target.to(first_token.dtype))
+        tokens = torch.cat(
+            [
+                first_token.unsqueeze(1),
+                model.return_token(return_to_go.to(self.device), timestep).unsqueeze(1),
+                model.observation_tokens(model.encode_observations(pixels.to(self.device)), timestep),
+            ],
+            dim=1,
+        )
+
+        # slots and sequence positions of the new tokens
+        group = 1 + (t % window) * tps
+        prev_action_slot = 1 + ((t - 1) % window) * tps + tps - 1
+        write_index = torch.cat(
+            [torch.where(first, 0, prev_action_slot)[:, None], group[:, None] + self._offsets], 1
+        )
+        new_pos = torch.cat(
+            [torch.where(first, 0, t * tps)[:, None], (1 + t * tps)[:, None] + self._offsets], 1
+        )
+        self.slot_pos[first] = -1
+        self.slot_pos.scatter_(1, (group + tps - 1)[:, None], -1)  # a_{t-W} leaves with step t-W
+        self.slot_pos.scatter_(1, write_index, new_pos)
+        valid = self.slot_pos[:, None, :] >= 0
+        attn_mask = (valid & (self.slot_pos[:, None, :] <= new_pos[:, :, None])).unsqueeze(1)
+
+        hidden, _ = model.transformer(
+            model.prepare_tokens(tokens).to(self.cache.keys[0].dtype),
+            attn_mask=attn_mask,
+            kv_cache=self.cache,
+            write_index=write_index,
+        )
+        self.target_hidden = torch.where(first[:, None], hidden[:, 0], self.target_hidden)
+        action = model.predict_action(self.target_hidden, hidden[:, tps - 1 : tps])[:, 0]
+        self.steps_done += 1
+        return action.float()

@@ -1,0 +1,162 @@
+"""GPT-2 style causal transformer (pre-LN) with an optional slot-addressed key/value cache (paper §IV.C)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+@dataclass
+class KVCache:
+    """Keys and values of every block, addressed by slot.
+
+    keys[i], values[i]: ``[B, n_heads, S, d_head]`` for block ``i``; ``S`` slots per sequence. Which slot
+    holds which token (and whether it is valid) is the caller's business: it passes the attention mask.
+    Attention is a weighted sum over keys, so slot order does not matter - a ring buffer works.
+    """
+
+    keys: list[Tensor]
+    values: list[Tensor]
+
+    @classmethod
+    def empty(
+        cls,
+        n_blocks: int,
+        batch: int,
+        n_heads: int,
+        slots: int,
+        d_head: int,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> KVCache:
+        shape = (batch, n_heads, slots, d_head)
+        return cls(
+            keys=[torch.zeros(shape, device=device, dtype=dtype) for _ in range(n_blocks)],
+            values=[torch.zeros(shape, device=device, dtype=dtype) for _ in range(n_blocks)],
+        )
+
+    @property
+    def slots(self) -> int:
+        return self.keys[0].shape[2]
+
+
+class CausalSelfAttention(nn.Module):
+    """Masked multi-head attention (MMHA) through ``F.scaled_dot_product_attention``."""
+
+    def __init__(self, d_embed: int, n_heads: int, d_head: int, dropout: float) -> None:
+        super().__init__()
+        self.n_heads, self.d_head, self.dropout = n_heads, d_head, dropout
+        self.qkv = nn.Linear(d_embed, 3 * n_heads * d_head)
+        self.proj = nn.Linear(n_heads * d_head, d_embed)
+        self.resid_dropout = nn.Dropout(dropout)
+
+    def forward(
+        self,
+        x: Tensor,
+        attn_mask: Tensor | None,
+        cache: tuple[Tensor, Tensor] | None,
+        write_index: Tensor | None,
+    ) -> Tensor:
+        """x: ``[B, L, d]``. Without ``attn_mask``: plain causal attention among the L tokens.
+
+        With ``cache = (keys, values)`` (``[B, H, S, d_head]``), the new keys/values are written at
+        ``write_index`` (long ``[B, L]``, slots) and the queries attend over all S slots under
+        ``attn_mask`` (bool ``[B, 1, L, S]``, True = may attend).
+        """
+        batch, length, _ = x.shape
+        q, k, v = self.qkv(x).view(batch, length, 3, self.n_heads, self.d_head).permute(2, 0, 3, 1, 4)
+        if cache is not None:
+            cache_k, cache_v = cache
+            index = write_index[:, None, :, None].expand(batch, self.n_heads, length, self.d_head)
+            cache_k.scatter_(2, index, k.to(cache_k.dtype))
+            cache_v.scatter_(2, index, v.to(cache_v.dtype))
+            k, v = cache_k, cache_v
+        dropout_p = self.dropout if self.training else 0.0
+        y = F.scaled_dot_product_attention(
+            q, k, v, attn_mask=attn_mask, dropout_p=dropout_p, is_causal=attn_mask is None
+        )
+        y = y.transpose(1, 2).reshape(batch, length, self.n_heads * self.d_head)
+        return self.resid_dropout(self.proj(y))
+
+
+class TransformerBlock(nn.Module):
+    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))`` with MLP = Linear(d, 4d) - GELU - Linear(4d, d)."""
+
+    def __init__(self, d_embed: int, n_heads: int, d_head: int, mlp_ratio: int, dropout: float) -> None:
+        super().__init__()
+        self.ln_attn = nn.LayerNorm(d_embed)
+        self.attn = CausalSelfAttention(d_embed, n_heads, d_head, dropout)
+        self.ln_mlp = nn.LayerNorm(d_embed)
+        self.mlp = nn.Sequential(
+            nn.Linear(d_embed, mlp_ratio * d_embed),
+            nn.GELU(approximate="tanh"),
+            nn.Linear(mlp_ratio * d_embed, d_embed),
+            nn.Dropout(dropout),
+        )
+
+    def forward(
+        self,
+        x: Tensor,
+        attn_mask: Tensor | None,
+        cache: tuple[Tensor, Tensor] | None,
+        write_index: Tensor | None,
+    ) -> Tensor:
+        x = x + self.attn(self.ln_attn(x), attn_mask, cache, write_index)
+        return x + self.mlp(self.ln_mlp(x))
+
+
+class CausalTransformer(nn.Module):
+    """N GPT-2 blocks and a final LayerNorm: ``[B, L, d] -> [B, L, d]``.
+
+    No positional embedding inside: the caller adds timestep and modality embeddings to the tokens, so
+    a token's key/value never depends on where it sits in the window (what makes the sliding KV cache valid).
+    Padding: sequences are right-padded; under causal attention padded tokens never influence valid ones.
+    """
+
+    def __init__(
+        self, d_embed: int, n_blocks: int, n_heads: int, d_head: int, mlp_ratio: int, dropout: float
+    ) -> None:
+        super().__init__()
+        self.n_blocks, self.n_heads, self.d_head = n_blocks, n_heads, d_head
+        self.blocks = nn.ModuleList(
+            TransformerBlock(d_embed, n_heads, d_head, mlp_ratio, dropout) for _ in range(n_blocks)
+        )
+        self.ln_final = nn.LayerNorm(d_embed)
+        self.apply(_init_gpt2)
+        for name, param in self.named_parameters():
+            if name.endswith("attn.proj.weight") or name.endswith("mlp.2.weight"):
+                nn.init.normal_(param, mean=0.0, std=0.02 / (2 * n_blocks) ** 0.5)
+
+    def forward(
+        self,
+        x: Tensor,
+        attn_mask: Tensor | None = None,
+        kv_cache: KVCache | None = None,
+        write_index: Tensor | None = None,
+    ) -> tuple[Tensor, KVCache | None]:
+        """x: ``[B, L, d]`` -> (hidden ``[B, L, d]``, the updated ``kv_cache``).
+
+        attn_mask: bool, True = may attend; ``[B or 1, 1, L, L]`` without a cache, ``[B, 1, L, S]`` with
+        one; None means causal among the L tokens (no cache only).
+        kv_cache / write_index: incremental mode (inference, no autograd): the L new tokens' keys and
+        values are written in place at slots ``write_index`` (long ``[B, L]``) before attending.
+        """
+        if kv_cache is not None and (write_index is None or attn_mask is None):
+            raise ValueError("CausalTransformer: a kv_cache needs both write_index and attn_mask")
+        for i, block in enumerate(self.blocks):
+            cache = None if kv_cache is None else (kv_cache.keys[i], kv_cache.values[i])
+            x = block(x, attn_mask, cache, write_index)
+        return self.ln_final(x), kv_cache
+
+
+def _init_gpt2(module: nn.Module) -> None:
+    """GPT-2 initialisation: N(0, 0.02) weights, zero biases, unit LayerNorm."""
+    if isinstance(module, nn.Linear):
+        nn.init.normal_(module.weight, mean=0.0, std=0.02)
+        nn.init.zeros_(module.bias)
+    elif isinstance(module, nn.LayerNorm):
+        nn.init.ones_(module.weight)
+        nn.init.zeros_(module.bias)

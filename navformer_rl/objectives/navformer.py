@@ -1,0 +1,89 @@
+"""``NavFormerLoss``: the Decision-Transformer action loss of NavFormer (paper eq. 10)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictParams, dispatch
+from tensordict.utils import NestedKey
+from torchrl.objectives import LossModule
+
+
+class NavFormerLoss(LossModule):
+    """Masked action MSE over the valid steps of a trajectory batch (eq. 10).
+
+    ``loss_dt = sum_{n,t valid} || a_{n,t} - a-hat_{n,t} ||^2 / #valid`` - the squared error is summed over
+    the action dimensions (eq. 10's squared norm) and averaged over every valid step of the batch.
+    (TorchRL's ``DTLoss`` averages over action dimensions too, i.e. half of this for 2-D actions, and
+    masks only through ``("collector", "mask")``; this module reads the ``mask`` key directly.)
+
+    Keys (``set_keys``): ``action_target`` (default ``"action"``, float ``[N, T, A]``), ``action_pred``
+    (default ``"action_pred"``, written by the actor), ``mask`` (default ``"mask"``, bool ``[N, T]``;
+    a tensordict without it counts every step as valid). Output: ``TensorDict(loss_dt=scalar)``.
+
+    Args:
+        actor_network: a ``TensorDictModule`` writing ``action_pred`` (``make_navformer_actor(model)``).
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys.
+
+        Attributes:
+            action_target: expert actions a_t. Defaults to ``"action"``.
+            action_pred: predicted actions a-hat_t written by the actor. Defaults to ``"action_pred"``.
+            mask: valid steps (bool). Defaults to ``"mask"``.
+        """
+
+        action_target: NestedKey = "action"
+        action_pred: NestedKey = "action_pred"
+        mask: NestedKey = "mask"
+
+    tensor_keys: _AcceptedKeys
+    default_keys = _AcceptedKeys
+    actor_network: TensorDictModule
+    actor_network_params: TensorDictParams
+    target_actor_network_params: TensorDictParams
+
+    def __init__(self, actor_network: TensorDictModule) -> None:
+        super().__init__()
+        self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        keys = set(self.actor_network.in_keys) | {self.tensor_keys.action_target, self.tensor_keys.mask}
+        return sorted(keys, key=str)
+
+    @property
+    def out_keys(self) -> list[str]:
+        return ["loss_dt"]
+
+    @dispatch
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Run the actor on (a shallow copy of) ``tensordict`` and return ``loss_dt``."""
+        tensordict = tensordict.copy()
+        target = tensordict.get(self.tensor_keys.action_target).detach()
+        with self.actor_network_params.to_module(self.actor_network):
+            prediction = self.actor_network(tensordict).get(self.tensor_keys.action_pred)
+        if prediction.shape != target.shape:
+            raise ValueError(
+                f"{self.tensor_keys.action_pred}: shape {tuple(prediction.shape)} does not match "
+                f"{self.tensor_keys.action_target}: {tuple(target.shape)}"
+            )
+        loss = masked_action_mse(prediction, target, tensordict.get(self.tensor_keys.mask, None))
+        return TensorDict({"loss_dt": loss}, batch_size=[])
+
+
+def masked_action_mse(
+    prediction: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None
+) -> torch.Tensor:
+    """Eq. 10 on tensors: ``[N, T, A] x [N, T, A] x bool [N, T] -> scalar`` (see ``NavFormerLoss``)."""
+    squared_error = (prediction.float() - target.float()).pow(2).sum(-1)
+    if mask is None:
+        return squared_error.mean()
+    return torch.where(mask, squared_error, 0.0).sum() / mask.sum().clamp_min(1)

@@ -1,0 +1,783 @@
+"""NavFormer cross-task training (paper §VI) as a library function: ``train(TrainConfig) -> TrainResult``.
+
+One iteration (eq. 11)::
+
+    task, batch = cross_task.sample()            # 25 trajectories of D_e or 150 of D_ca, alternating
+    pairs       = ssl_batcher.sample()           # 512 (o^s, o^d) pairs of D_ssl     (unless SSL is ablated)
+    L = NavFormerLoss(batch)["loss_dt"] + BYOLLoss(pairs)["loss_byol"]
+    L.backward(); AdamW.step() (NavFormer); Adam.step() (DVE: BYOL projector/predictor [+ encoders])
+    SoftUpdate.step(); tau <- cosine schedule    # BYOL's EMA target
+
+The pieces are exposed so that a recipe can show the loop top to bottom (``recipes/navformer``):
+:func:`load_train_config` (YAML/dict -> dataclasses), :func:`build_trainer` (validates everything, opens the
+datasets, builds model, losses, optimisers, logger, restores a checkpoint when resuming), ``Trainer.step()``,
+``Trainer.save_checkpoint()``, ``Trainer.log()``. :func:`train` is that loop with tqdm progress.
+
+Library code: no hydra here. Configuration comes as plain dataclasses; ``navformer train`` and the hydra
+recipe both build them from the packaged ``navformer_rl/config/train.yaml`` layout.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import random
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from navformer_rl import checkpoint as ckpt
+
+ABLATIONS: dict[str, str] = {
+    "none": "NavFormer as in the paper",
+    "no_ssl": "w/o SSL: trained with L_DT only (no BYOL, no D_ssl)",
+    "no_thsc": "w/o THSC: the action head reads h^ca_{o,t} only",
+    "no_de": "w/o tau^e: L_DT on D_ca trajectories only",
+    "no_dca": "w/o tau^ca: L_DT on D_e trajectories only",
+    "no_fs": "w/o f_s: no static encoder (and no static BYOL)",
+    "no_fg": "w/o f_g: no general encoder (target image through f_s)",
+    "resnet18": "w ResNet18: a single, randomly initialised ResNet18 replaces the DVE",
+    "dt": "DT baseline: single encoder, no THSC, trained with eq. 10 only",
+}
+"""Every value of ``TrainConfig.ablation``: the rows of paper Table IV plus the DT baseline (Table I)."""
+
+_MODEL_ABLATION = {
+    "none": "navformer",
+    "no_ssl": "navformer",
+    "no_de": "navformer",
+    "no_dca": "navformer",
+    "no_thsc": "no_thsc",
+    "no_fs": "no_static_encoder",
+    "no_fg": "no_general_encoder",
+    "resnet18": "resnet18",
+    "dt": "dt",
+}
+_MODEL_EXTRA_SWITCHES: dict[str, dict[str, Any]] = {"resnet18": {"use_static_encoder": False}}
+_NO_SSL = frozenset({"no_ssl", "dt"})
+_NO_EXPLORATION = frozenset({"no_de"})
+_NO_COLLISION = frozenset({"no_dca"})
+
+ENCODER_TRAINING = ("joint", "frozen")
+LOGGER_BACKENDS = ("csv", "tensorboard", "none")
+DEVICES = ("auto", "cpu", "cuda")
+MODEL_KEYS_SET_ELSEWHERE = {"detach_encoders": "encoder_training=frozen"}
+RESUME_MAY_CHANGE = frozenset(
+    {
+        "resume",
+        "device",
+        "output_dir",
+        "logger",
+        "checkpoint",
+        "optim.iterations",
+        "data.exploration_path",
+        "data.collision_path",
+        "data.ssl_path",
+    }
+)
+"""Settings a resumed run may change; any other difference from the checkpoint's config is refused."""
+TRAJECTORY_KEYS = [("pixels",), ("action",), ("return_to_go",), ("step",)]
+"""Keys gathered from D_e / D_ca per step (plus ``mask`` and ``target_pixels`` added by the batcher)."""
+
+
+# --------------------------------------------------------------------------------------- configuration
+@dataclass
+class DataConfig:
+    """Datasets and batch shapes (paper §VI).
+
+    Attributes:
+        exploration_path / collision_path / ssl_path: dataset folders of D_e, D_ca, D_ssl (absolute paths
+            recommended; the hydra recipe changes directory). A path may be None only when the ablation does
+            not use that dataset.
+        exploration_batch_trajs / collision_batch_trajs: trajectories per batch (25 / 150).
+        ssl_batch_pairs: D_ssl image pairs per batch (512).
+        context_steps: longest trajectory window in steps; None = what fits the model's context
+            (``NavFormerConfig.window_steps`` = 1024 // 4 = 256 steps). Longer trajectories are cut to a window
+            at a random offset.
+    """
+
+    exploration_path: str | None = None
+    collision_path: str | None = None
+    ssl_path: str | None = None
+    exploration_batch_trajs: int = 25
+    collision_batch_trajs: int = 150
+    ssl_batch_pairs: int = 512
+    context_steps: int | None = None
+
+
+@dataclass
+class SSLConfig:
+    """BYOL settings (eqs. 6-8). ``projection_dim`` / ``hidden_dim``: projector and predictor MLP sizes;
+    ``tau_base``: EMA rate at iteration 0, raised to 1 by BYOL's cosine schedule over the run."""
+
+    projection_dim: int = 128
+    hidden_dim: int = 512
+    tau_base: float = 0.996
+
+
+@dataclass
+class OptimConfig:
+    """Optimisers (paper §VI): AdamW for NavFormer, Adam for the DVE (BYOL) parameters.
+
+    Attributes:
+        iterations: training iterations (10,000).
+        lr / weight_decay: AdamW on the NavFormer parameters (2e-4 / 1e-4); includes the encoders when
+            ``encoder_training=joint``.
+        dve_lr / dve_weight_decay: Adam on the BYOL projectors and predictors, plus the encoders when
+            ``encoder_training=frozen`` (paper: "0.0004 for the learning rate and weight decay").
+        clip_grad_norm: max global gradient norm per optimiser, or None (the paper clips nothing).
+        trajectory_chunks: split each trajectory batch into this many equal chunks, backpropagated one after
+            the other (memory lever; the gradient equals the whole batch's exactly: each chunk's loss is
+            weighted by its share of valid steps). Must divide both trajectory batch sizes.
+    """
+
+    iterations: int = 10_000
+    lr: float = 2e-4
+    weight_decay: float = 1e-4
+    dve_lr: float = 4e-4
+    dve_weight_decay: float = 4e-4
+    clip_grad_norm: float | None = None
+    trajectory_chunks: int = 1
+
+
+@dataclass
+class LoggerConfig:
+    """``backend``: ``csv`` (TorchRL ``CSVLogger``), ``tensorboard`` (needs the ``tensorboard`` package) or
+    ``none``; scalars go to ``<run_dir>/logs/<exp_name>``. ``log_interval``: iterations between log writes.
+    ``progress``: tqdm progress bar."""
+
+    backend: str = "csv"
+    exp_name: str = "navformer"
+    log_interval: int = 1
+    progress: bool = True
+
+
+@dataclass
+class CheckpointConfig:
+    """``interval``: iterations between checkpoints (a final one is always written);
+    ``keep_last``: how many checkpoint folders to keep (0 = all)."""
+
+    interval: int = 500
+    keep_last: int = 3
+
+
+@dataclass
+class TrainConfig:
+    """Everything :func:`train` needs. Defaults are the paper's (§IV, §VI).
+
+    Attributes:
+        data / ssl / optim / logger / checkpoint: see the section classes.
+        model: overrides of ``NavFormerConfig`` fields (architecture and perf levers: ``autocast_dtype``,
+            ``channels_last``, ``encoder_micro_batch``), applied on top of the ablation's model.
+        ablation: one of :data:`ABLATIONS`.
+        encoder_training: ``joint`` - L = L_BYOL + L_DT trains the encoders (eq. 11, the paper);
+            ``frozen`` - L_DT does not reach the encoders, which learn from BYOL only.
+        seed: seeds torch, numpy, python and every sampler.
+        device: ``auto`` (CUDA when available), ``cpu`` or ``cuda``.
+        output_dir: the run directory (checkpoints, logs, config).
+        resume: continue from the run directory's latest checkpoint (start fresh when it has none).
+    """
+
+    data: DataConfig = field(default_factory=DataConfig)
+    model: dict[str, Any] = field(default_factory=dict)
+    ablation: str = "none"
+    encoder_training: str = "joint"
+    ssl: SSLConfig = field(default_factory=SSLConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    seed: int = 0
+    device: str = "auto"
+    output_dir: str = "runs/navformer"
+    resume: bool = False
+
+    @property
+    def uses_ssl(self) -> bool:
+        return self.ablation not in _NO_SSL
+
+    @property
+    def uses_exploration(self) -> bool:
+        return self.ablation not in _NO_EXPLORATION
+
+    @property
+    def uses_collision(self) -> bool:
+        return self.ablation not in _NO_COLLISION
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-serialisable dict (the layout of ``train.yaml``)."""
+        return dataclasses.asdict(self)
+
+
+_SECTIONS = {
+    "data": DataConfig,
+    "ssl": SSLConfig,
+    "optim": OptimConfig,
+    "logger": LoggerConfig,
+    "checkpoint": CheckpointConfig,
+}
+
+
+def default_config_path() -> Path:
+    """The packaged default configuration (``navformer_rl/config/train.yaml``)."""
+    return Path(__file__).parent / "config" / "train.yaml"
+
+
+def config_from_dict(values: Mapping[str, Any]) -> TrainConfig:
+    """Build a :class:`TrainConfig` from a nested dict (e.g. a resolved YAML / OmegaConf container).
+
+    Unknown keys raise ``ValueError`` naming them and the accepted ones; missing keys keep their defaults.
+    """
+    values = dict(values)
+    top = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(values) - top)
+    if unknown:
+        raise ValueError(f"unknown training config keys {unknown}; expected keys among {sorted(top)}")
+    kwargs: dict[str, Any] = {}
+    for name, value in values.items():
+        if name in _SECTIONS:
+            if value is None:
+                value = {}
+            if not isinstance(value, Mapping):
+                raise ValueError(f"training config section {name!r} must be a mapping, got {value!r}")
+            section = _SECTIONS[name]
+            known = {f.name for f in dataclasses.fields(section)}
+            bad = sorted(set(value) - known)
+            if bad:
+                raise ValueError(
+                    f"unknown keys {[f'{name}.{k}' for k in bad]}; {name} accepts {sorted(known)}"
+                )
+            kwargs[name] = section(**value)
+        elif name == "model":
+            kwargs[name] = dict(value or {})
+        else:
+            kwargs[name] = value
+    return TrainConfig(**kwargs)
+
+
+def load_train_config(
+    overrides: list[str] | None = None, path: str | os.PathLike | None = None
+) -> TrainConfig:
+    """Read ``train.yaml`` (packaged default, or ``path``) and apply hydra-style ``key=value`` overrides.
+
+    Overrides are parsed with OmegaConf's dotlist (``optim.lr=1e-4``, ``data.ssl_path=/data/ssl``,
+    ``model.autocast_dtype=bfloat16``); a key that is not in the file raises ``ValueError``.
+    """
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    base = OmegaConf.load(path or default_config_path())
+    OmegaConf.set_struct(base, True)
+    if "model" in base:
+        OmegaConf.set_struct(base.model, False)  # any NavFormerConfig field; NavFormerConfig checks names
+    try:
+        if overrides:
+            bad = [item for item in overrides if "=" not in item]
+            if bad:
+                raise ValueError(f"overrides must look like key=value, got {bad}")
+            base = OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))
+        container = OmegaConf.to_container(base, resolve=True)
+    except OmegaConfBaseException as err:
+        key = getattr(err, "full_key", None)
+        reason = str(err).splitlines()[0]
+        where = f" {key!r}" if key else ""
+        raise ValueError(f"bad training config override{where}: {reason} (keys: docs/training.md)") from None
+    return config_from_dict(container)
+
+
+def _positive_int(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ValueError(f"{name}={value!r}: expected a positive integer")
+
+
+def validate_config(cfg: TrainConfig) -> None:
+    """Static checks of ``cfg`` (no file is opened); :func:`build_trainer` also checks the datasets."""
+    if cfg.ablation not in ABLATIONS:
+        raise ValueError(f"unknown ablation {cfg.ablation!r}; expected one of {list(ABLATIONS)}")
+    if cfg.encoder_training not in ENCODER_TRAINING:
+        raise ValueError(
+            f"encoder_training={cfg.encoder_training!r}: expected one of {list(ENCODER_TRAINING)}"
+        )
+    if cfg.encoder_training == "frozen" and not cfg.uses_ssl:
+        raise ValueError(
+            f"encoder_training=frozen with ablation={cfg.ablation!r}: without BYOL nothing would train the "
+            "encoders; use encoder_training=joint"
+        )
+    if cfg.logger.backend not in LOGGER_BACKENDS:
+        raise ValueError(f"logger.backend={cfg.logger.backend!r}: expected one of {list(LOGGER_BACKENDS)}")
+    if cfg.device not in DEVICES:
+        raise ValueError(f"device={cfg.device!r}: expected one of {list(DEVICES)}")
+    if cfg.device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device=cuda but torch sees no CUDA device; use device=auto or device=cpu")
+    for name in ("exploration_batch_trajs", "collision_batch_trajs", "ssl_batch_pairs"):
+        _positive_int(f"data.{name}", getattr(cfg.data, name))
+    if cfg.data.ssl_batch_pairs < 2 and cfg.uses_ssl:
+        raise ValueError(
+            f"data.ssl_batch_pairs={cfg.data.ssl_batch_pairs}: BYOL's BatchNorm needs at least 2 pairs"
+        )
+    if cfg.data.context_steps is not None:
+        _positive_int("data.context_steps", cfg.data.context_steps)
+    for name in ("iterations", "trajectory_chunks"):
+        _positive_int(f"optim.{name}", getattr(cfg.optim, name))
+    for name in ("exploration_batch_trajs", "collision_batch_trajs"):
+        size = getattr(cfg.data, name)
+        if size % cfg.optim.trajectory_chunks:
+            raise ValueError(
+                f"data.{name}={size} is not divisible by optim.trajectory_chunks={cfg.optim.trajectory_chunks}"
+            )
+    for name in ("lr", "weight_decay", "dve_lr", "dve_weight_decay"):
+        value = getattr(cfg.optim, name)
+        if not isinstance(value, (int, float)) or value < 0 or not math.isfinite(value):
+            raise ValueError(f"optim.{name}={value!r}: expected a finite number >= 0")
+    if cfg.optim.lr == 0 or (cfg.uses_ssl and cfg.optim.dve_lr == 0):
+        raise ValueError("optim.lr / optim.dve_lr must be > 0")
+    if cfg.optim.clip_grad_norm is not None and not cfg.optim.clip_grad_norm > 0:
+        raise ValueError(f"optim.clip_grad_norm={cfg.optim.clip_grad_norm!r}: expected None or a number > 0")
+    _positive_int("logger.log_interval", cfg.logger.log_interval)
+    _positive_int("checkpoint.interval", cfg.checkpoint.interval)
+    if cfg.checkpoint.keep_last < 0:
+        raise ValueError(f"checkpoint.keep_last={cfg.checkpoint.keep_last}: expected >= 0 (0 keeps all)")
+    if not 0.5 <= cfg.ssl.tau_base <= 1.0:
+        raise ValueError(f"ssl.tau_base={cfg.ssl.tau_base!r}: expected a value in [0.5, 1]")
+    _positive_int("ssl.projection_dim", cfg.ssl.projection_dim)
+    _positive_int("ssl.hidden_dim", cfg.ssl.hidden_dim)
+    for key, instead in MODEL_KEYS_SET_ELSEWHERE.items():
+        if key in cfg.model:
+            raise ValueError(f"model.{key} is set by the training config; use {instead}")
+    needed = {
+        "data.exploration_path": (cfg.uses_exploration, cfg.data.exploration_path, "D_e"),
+        "data.collision_path": (cfg.uses_collision, cfg.data.collision_path, "D_ca"),
+        "data.ssl_path": (cfg.uses_ssl, cfg.data.ssl_path, "D_ssl"),
+    }
+    for key, (used, path, name) in needed.items():
+        if used and not path:
+            raise ValueError(f"{key} is not set, but ablation={cfg.ablation!r} trains on {name}")
+    model = model_config(cfg)  # NavFormerConfig validates its own fields
+    if cfg.data.context_steps is not None and cfg.data.context_steps > model.window_steps:
+        raise ValueError(
+            f"data.context_steps={cfg.data.context_steps} needs {cfg.data.context_steps * model.tokens_per_step} "
+            f"tokens; the model's context of {model.context_tokens} tokens holds at most {model.window_steps} steps"
+        )
+
+
+def model_config(cfg: TrainConfig):
+    """The ``NavFormerConfig`` of ``cfg``: the ablation's model, ``cfg.model`` overrides, encoder mode."""
+    from navformer_rl.modules import NavFormerConfig
+
+    known = {f.name for f in dataclasses.fields(NavFormerConfig)}
+    unknown = sorted(set(cfg.model) - known)
+    if unknown:
+        raise ValueError(
+            f"unknown model keys {[f'model.{k}' for k in unknown]}; NavFormerConfig has {sorted(known)}"
+        )
+    changes = {**_MODEL_EXTRA_SWITCHES.get(cfg.ablation, {}), **cfg.model}
+    changes["detach_encoders"] = cfg.encoder_training == "frozen"
+    return NavFormerConfig.ablation(_MODEL_ABLATION[cfg.ablation], **changes)
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` -> CUDA when available, else CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+# --------------------------------------------------------------------------------------------- trainer
+@dataclass
+class TrainResult:
+    """What :func:`train` returns: the run directory, completed iterations, the last iteration's metrics
+    (``loss``, ``loss_dt``, ``loss_byol``, ... floats) and the last checkpoint folder."""
+
+    run_dir: Path
+    iterations: int
+    metrics: dict[str, float]
+    checkpoint: Path | None
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and key != "model":
+            flat.update(_comparable(value, f"{name}."))
+        else:
+            flat[name] = value
+    return {
+        k: v
+        for k, v in flat.items()
+        if k not in RESUME_MAY_CHANGE and k.split(".")[0] not in RESUME_MAY_CHANGE
+    }
+
+
+class Trainer:
+    """The built training run. Use :func:`build_trainer`; then ``step()`` per iteration.
+
+    Attributes:
+        cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
+        model: ``NavFormerModel``.  dt_loss: ``NavFormerLoss``.  byol_loss: ``BYOLLoss`` or None (no SSL).
+        cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
+        optimizers: ``{"navformer": AdamW, "dve": Adam}`` ("dve" absent without SSL).
+        iteration: completed iterations.  logger: TorchRL logger or None.
+    """
+
+    def __init__(self, cfg: TrainConfig, *, datasets: dict[str, Any]) -> None:
+        from torchrl.objectives import SoftUpdate
+
+        from navformer_rl.data import CrossTaskSampler
+        from navformer_rl.modules import NavFormerModel, make_navformer_actor
+        from navformer_rl.objectives import BYOLLoss, BYOLTauSchedule, NavFormerLoss
+
+        self.cfg = cfg
+        self.run_dir = Path(cfg.output_dir)
+        self.device = resolve_device(cfg.device)
+        self.model_config = model_config(cfg)
+        self.iteration = 0
+        _seed_everything(cfg.seed)
+
+        context = cfg.data.context_steps or self.model_config.window_steps
+        batchers = {}
+        for task, key, size, seed_offset in (
+            ("exploration", "e", cfg.data.exploration_batch_trajs, 1),
+            ("collision_avoidance", "ca", cfg.data.collision_batch_trajs, 2),
+        ):
+            dataset = datasets.get(key)
+            batchers[task] = (
+                None
+                if dataset is None
+                else dataset.trajectory_batcher(
+                    size, context, seed=cfg.seed + seed_offset, keys=TRAJECTORY_KEYS
+                )
+            )
+        self.cross_task = CrossTaskSampler(batchers["exploration"], batchers["collision_avoidance"])
+        self.pairs = (
+            datasets["ssl"].pair_batcher(cfg.data.ssl_batch_pairs, seed=cfg.seed + 3)
+            if cfg.uses_ssl
+            else None
+        )
+
+        self.model = NavFormerModel(self.model_config).to(self.device)
+        self.model.train()
+        self.dt_loss = NavFormerLoss(make_navformer_actor(self.model))
+        self.byol_loss = None
+        self.updater = None
+        self.tau_schedule = None
+        if cfg.uses_ssl:
+            self.byol_loss = BYOLLoss(
+                self.model.static_encoder,
+                self.model.general_encoder,
+                projection_dim=cfg.ssl.projection_dim,
+                hidden_dim=cfg.ssl.hidden_dim,
+                seed=cfg.seed + 4,
+                autocast_dtype=self.model_config.autocast_dtype,
+            ).to(self.device)
+            self.updater = SoftUpdate(self.byol_loss, eps=cfg.ssl.tau_base)
+            self.tau_schedule = BYOLTauSchedule(self.updater, cfg.optim.iterations, cfg.ssl.tau_base)
+        self.optimizers = self._make_optimizers()
+        self.logger = None
+
+    # -- construction helpers -------------------------------------------------------------------------
+    def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
+        """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint)."""
+        encoders = [m for _, m in self.model.observation_encoders()]
+        encoder_ids = {id(p) for enc in encoders for p in enc.parameters()}
+        model_params = [p for p in self.model.parameters() if p.requires_grad]
+        frozen = self.cfg.encoder_training == "frozen"
+        navformer = [p for p in model_params if not (frozen and id(p) in encoder_ids)]
+        groups = {"navformer": navformer}
+        if self.byol_loss is not None:
+            model_ids = {id(p) for p in model_params}
+            dve = [p for p in self.byol_loss.parameters() if id(p) not in model_ids]
+            if frozen:
+                dve = [p for p in model_params if id(p) in encoder_ids] + dve
+            groups["dve"] = dve
+        return groups
+
+    def _make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        groups = self.parameter_groups()
+        optim = self.cfg.optim
+        optimizers: dict[str, torch.optim.Optimizer] = {
+            "navformer": torch.optim.AdamW(groups["navformer"], lr=optim.lr, weight_decay=optim.weight_decay)
+        }
+        if "dve" in groups:
+            optimizers["dve"] = torch.optim.Adam(
+                groups["dve"], lr=optim.dve_lr, weight_decay=optim.dve_weight_decay
+            )
+        return optimizers
+
+    # -- one iteration --------------------------------------------------------------------------------
+    def step(self) -> dict[str, float]:
+        """Run one training iteration (eq. 11) and return its metrics as floats.
+
+        Keys: ``loss`` (L), ``loss_dt``, ``loss_dt_<task>`` (task of this iteration), ``loss_byol``,
+        ``loss_byol_<encoder>``, ``projection_std_<encoder>``, ``tau``, ``lr``, ``lr_dve``, ``frames``
+        (valid trajectory steps + 2 x pairs), ``frames_per_s``, ``iteration_s``.
+        """
+        from torchrl._utils import timeit
+
+        start = time.perf_counter()
+        with timeit("sample"):
+            task, batch = self.cross_task.sample()
+            keys = ["pixels", "action", "return_to_go", "step", "mask", "target_pixels"]
+            batch = batch.select(*keys).to(self.device, non_blocking=True)
+            pairs = self.pairs.sample().to(self.device, non_blocking=True) if self.pairs is not None else None
+        for optimizer in self.optimizers.values():
+            optimizer.zero_grad(set_to_none=True)
+        with timeit("forward_backward"):
+            loss_dt, loss_byol, byol_out = self._forward_backward(batch, pairs)
+        with timeit("optimizer"):
+            if self.cfg.optim.clip_grad_norm is not None:
+                for optimizer in self.optimizers.values():
+                    params = [p for g in optimizer.param_groups for p in g["params"]]
+                    torch.nn.utils.clip_grad_norm_(params, self.cfg.optim.clip_grad_norm)
+            for optimizer in self.optimizers.values():
+                optimizer.step()
+            tau = None
+            if self.updater is not None:
+                tau = self.updater.eps
+                self.updater.step()
+                self.tau_schedule.step()
+        self.iteration += 1
+        elapsed = time.perf_counter() - start
+        frames = int(batch["mask"].sum()) + (2 * pairs.shape[0] if pairs is not None else 0)
+        metrics = {
+            "loss_dt": float(loss_dt),
+            f"loss_dt_{task}": float(loss_dt),
+            "lr": self.optimizers["navformer"].param_groups[0]["lr"],
+            "frames": float(frames),
+            "frames_per_s": frames / elapsed,
+            "iteration_s": elapsed,
+        }
+        total = float(loss_dt)
+        if byol_out is not None:
+            total += float(loss_byol.detach())
+            metrics.update({k: float(v.detach()) for k, v in byol_out.items()})
+            metrics["tau"] = float(tau)
+            metrics["lr_dve"] = self.optimizers["dve"].param_groups[0]["lr"]
+        metrics["loss"] = total
+        if not math.isfinite(total):
+            raise FloatingPointError(f"iteration {self.iteration}: the loss is {total} (metrics {metrics})")
+        return metrics
+
+    def _forward_backward(self, batch, pairs):
+        """L = L_DT + L_BYOL, one backward (or one per trajectory chunk, weighted to the same gradient)."""
+        chunks = self.cfg.optim.trajectory_chunks
+        byol_out = self.byol_loss(pairs) if pairs is not None else None
+        loss_byol = byol_out["loss_byol"] if byol_out is not None else None
+        if chunks == 1:
+            loss_dt = self.dt_loss(batch)["loss_dt"]
+            (loss_dt if loss_byol is None else loss_dt + loss_byol).backward()
+            return loss_dt.detach(), loss_byol, byol_out
+        if loss_byol is not None:
+            loss_byol.backward()
+        valid_total = batch["mask"].sum().clamp_min(1)
+        loss_dt = torch.zeros((), device=self.device)
+        for part in batch.split(batch.shape[0] // chunks):
+            # masked mean of the chunk x its share of the valid steps = its part of the batch's masked mean
+            weighted = self.dt_loss(part)["loss_dt"] * (part["mask"].sum() / valid_total)
+            weighted.backward()
+            loss_dt += weighted.detach()
+        return loss_dt, loss_byol, byol_out
+
+    # -- logging --------------------------------------------------------------------------------------
+    def make_logger(self):
+        """TorchRL logger of ``cfg.logger.backend`` writing under ``<run_dir>/logs`` (None for ``none``)."""
+        backend = self.cfg.logger.backend
+        log_dir = str(self.run_dir / "logs")
+        if backend == "csv":
+            from torchrl.record.loggers.csv import CSVLogger
+
+            return CSVLogger(self.cfg.logger.exp_name, log_dir=log_dir, video_format="pt")
+        if backend == "tensorboard":
+            from torchrl.record.loggers.tensorboard import TensorboardLogger
+
+            return TensorboardLogger(self.cfg.logger.exp_name, log_dir=log_dir)
+        return None
+
+    def log(self, metrics: Mapping[str, float]) -> None:
+        """Write ``metrics`` (plus ``timeit`` averages as ``time/<name>``) at the current iteration."""
+        from torchrl._utils import timeit
+
+        if self.logger is None:
+            return
+        row = dict(metrics)
+        row.update(timeit.todict(prefix="time"))
+        self.logger.log_metrics(row, step=self.iteration)
+
+    # -- checkpoints ----------------------------------------------------------------------------------
+    def resume_state(self) -> dict[str, Any]:
+        """Everything beyond the model weights that a bit-identical continuation needs (plain containers)."""
+        state: dict[str, Any] = {
+            "iteration": self.iteration,
+            "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
+            "cross_task": self.cross_task.state_dict(),
+            "rng": ckpt.capture_rng_state(),
+        }
+        if self.byol_loss is not None:
+            state["byol"] = self.byol_loss.state_dict()
+            state["byol_augmentation"] = self.byol_loss.augmentation.rng_state()
+            state["tau_schedule"] = self.tau_schedule.state_dict()
+            state["pairs"] = self.pairs.state_dict()
+        return state
+
+    def save_checkpoint(self) -> Path:
+        """Write the run part and the resume part at the current iteration (atomic)."""
+        return ckpt.save_checkpoint(
+            self.run_dir,
+            self.iteration,
+            model_state=self.model.state_dict(),
+            model_config=dataclasses.asdict(self.model_config),
+            train_config=self.cfg.to_dict(),
+            resume_state=self.resume_state(),
+            keep_last=self.cfg.checkpoint.keep_last,
+        )
+
+    def restore(self, folder: Path) -> None:
+        """Load a checkpoint written by :meth:`save_checkpoint` into this (freshly built) trainer."""
+        header = ckpt.read_checkpoint_config(folder)
+        before, now = _comparable(header["train_config"]), _comparable(self.cfg.to_dict())
+        changed = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
+        if changed:
+            raise ValueError(
+                f"cannot resume {folder}: the configuration differs in {changed} "
+                f"(checkpoint: {[before.get(k) for k in changed]}, now: {[now.get(k) for k in changed]})"
+            )
+        _, weights = ckpt.load_model_state(folder)
+        self.model.load_state_dict(weights)
+        state = ckpt.load_resume_state(folder)
+        for name, optimizer in self.optimizers.items():
+            optimizer.load_state_dict(state["optimizers"][name])
+        self.cross_task.load_state_dict(state["cross_task"])
+        if self.byol_loss is not None:
+            self.byol_loss.load_state_dict(state["byol"])
+            self.byol_loss.augmentation.set_rng_state(state["byol_augmentation"])
+            self.tau_schedule.load_state_dict(state["tau_schedule"])
+            self.pairs.load_state_dict(state["pairs"])
+        ckpt.restore_rng_state(state["rng"])
+        self.iteration = int(state["iteration"])
+
+
+def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
+    """Open (and validate: schema version, kind, file sizes) the datasets the configuration uses."""
+    from navformer_rl.data import open_dataset
+
+    wanted = {
+        "e": (
+            cfg.uses_exploration,
+            cfg.data.exploration_path,
+            cfg.data.exploration_batch_trajs,
+            "exploration_path",
+        ),
+        "ca": (cfg.uses_collision, cfg.data.collision_path, cfg.data.collision_batch_trajs, "collision_path"),
+        "ssl": (cfg.uses_ssl, cfg.data.ssl_path, cfg.data.ssl_batch_pairs, "ssl_path"),
+    }
+    datasets = {}
+    for kind, (used, path, batch, key) in wanted.items():
+        if not used:
+            continue
+        if not Path(path).exists():
+            raise FileNotFoundError(f"data.{key}={path!r} does not exist")
+        try:
+            dataset = open_dataset(path, kind=kind)
+        except (ValueError, FileNotFoundError) as err:
+            raise type(err)(f"data.{key}: {err}") from None
+        available = dataset.num_trajectories if kind != "ssl" else len(dataset)
+        unit = "pairs" if kind == "ssl" else "trajectories"
+        if batch > available:
+            raise ValueError(
+                f"data.{key}={path!r} holds {available} {unit}, fewer than one batch of {batch}; "
+                "lower the batch size or collect more data"
+            )
+        datasets[kind] = dataset
+    return datasets
+
+
+def build_trainer(cfg: TrainConfig) -> Trainer:
+    """Validate ``cfg``, open the datasets, build everything and (when resuming) restore the latest checkpoint.
+
+    Every configuration error is raised here, before the first iteration. A fresh run refuses an
+    output directory that already holds checkpoints (pass ``resume=True`` to continue it).
+    """
+    validate_config(cfg)
+    run_dir = Path(cfg.output_dir)
+    latest = ckpt.latest_checkpoint(run_dir) if (run_dir / ckpt.CHECKPOINTS_DIRNAME).is_dir() else None
+    if latest is not None and not cfg.resume:
+        raise FileExistsError(
+            f"output_dir={str(run_dir)!r} already holds checkpoints (latest {latest.name}); "
+            "set resume=true to continue that run or choose another output_dir"
+        )
+    if cfg.logger.backend == "tensorboard":
+        try:
+            import tensorboard  # noqa: F401
+        except ImportError:
+            raise ValueError(
+                "logger.backend=tensorboard needs the `tensorboard` package; use csv or none"
+            ) from None
+    datasets = open_datasets(cfg)
+    trainer = Trainer(cfg, datasets=datasets)
+    if latest is not None:
+        trainer.restore(latest)
+    if trainer.iteration > cfg.optim.iterations:
+        raise ValueError(
+            f"{latest} is at iteration {trainer.iteration}, beyond optim.iterations={cfg.optim.iterations}"
+        )
+    run_dir.mkdir(parents=True, exist_ok=True)
+    ckpt.atomic_write_text(run_dir / "train_config.json", json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
+    trainer.logger = trainer.make_logger()
+    if trainer.logger is not None and trainer.iteration > 0:
+        _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
+    return trainer
+
+
+def _truncate_csv_scalars(folder: Path, last_step: int) -> None:
+    """Drop CSV rows written after ``last_step`` (by a run that crashed after its last checkpoint)."""
+    if not folder.is_dir():
+        return
+    for csv in folder.rglob("*.csv"):
+        rows = csv.read_text().splitlines()
+        kept = [row for row in rows if row and int(row.split(",", 1)[0]) <= last_step]
+        if len(kept) != len(rows):
+            ckpt.atomic_write_text(csv, "".join(f"{row}\n" for row in kept))
+
+
+def train(cfg: TrainConfig) -> TrainResult:
+    """Train NavFormer as configured; see the module docstring for one iteration.
+
+    Returns a :class:`TrainResult`. Checkpoints are written every ``checkpoint.interval`` iterations and at
+    the end; with ``resume=True`` the run continues from the latest one and produces the same subsequent
+    losses and weights as an uninterrupted run.
+    """
+    from torchrl._utils import timeit
+    from tqdm import tqdm
+
+    trainer = build_trainer(cfg)
+    timeit.erase()
+    metrics: dict[str, float] = {}
+    last_checkpoint = None
+    total = cfg.optim.iterations
+    bar = tqdm(
+        total=total, initial=trainer.iteration, disable=not cfg.logger.progress, desc="navformer train"
+    )
+    with contextlib.closing(bar):
+        while trainer.iteration < total:
+            metrics = trainer.step()
+            if trainer.iteration % cfg.logger.log_interval == 0:
+                trainer.log(metrics)
+            if trainer.iteration % cfg.checkpoint.interval == 0 or trainer.iteration == total:
+                last_checkpoint = trainer.save_checkpoint()
+            bar.update(1)
+            bar.set_postfix(loss=f"{metrics['loss']:.4f}", fps=f"{metrics['frames_per_s']:.0f}")
+    if last_checkpoint is None:
+        last_checkpoint = ckpt.latest_checkpoint(trainer.run_dir)
+    return TrainResult(trainer.run_dir, trainer.iteration, metrics, last_checkpoint)

@@ -1,0 +1,144 @@
+"""Tiny real collections through the simulator and the experts (seeded), resume, and the CLI."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from navformer_rl.data import open_dataset
+from navformer_rl.data import collect as collect_module
+from navformer_rl.data.cli import main as cli_main
+from navformer_rl.data.collect import collect, settings_for
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _check_trajectories(ds, task):
+    rows, ep = ds.rows, ds.episodes
+    assert (rows["task"] == task).all()
+    ends = ep.start + ep.length - 1
+    # every stored trajectory succeeded: reward 1 exactly on its last step, RTG (eq. 3) 1 everywhere
+    assert rows["next", "reward"][:, 0].sum() == len(ep)
+    assert (rows["next", "reward"][ends] == 1).all() and (rows["next", "terminated"][ends]).all()
+    assert torch.equal(rows["return_to_go"], torch.ones_like(rows["return_to_go"]))
+    assert not rows["next", "truncated"].any()
+    assert rows["action"].abs().max() <= 1.0
+    # the last pose plus the last action's motion ends within the success radius of the target
+    final_dist = (rows["privileged", "pose"][ends, :2] - rows["privileged", "target_position"][ends]).norm(dim=-1)
+    assert (final_dist < 1.5 + 0.25).all()
+    # frames are real camera images, target images differ between different targets
+    assert rows["pixels"].float().std() > 10
+    assert ds.targets.shape == (len(ep), 84, 84, 3)
+
+
+def test_tiny_exploration_collection(tmp_path):
+    s = settings_for("e", "small", seed=0, n_trajectories=2, episodes_per_unit=1, world_sizes=(5.0,))
+    ds = open_dataset(collect("e", tmp_path / "e", s, workers=1, progress=False), kind="e")
+    assert ds.num_trajectories == 2
+    _check_trajectories(ds, task=0)
+    meta = ds.metadata
+    assert meta["settings"]["world_sizes"] == [5.0] and meta["counts"]["attempted"] >= 2
+    assert meta["seeds"]["base"] == 0
+
+
+def test_tiny_collision_avoidance_collection(tmp_path):
+    s = settings_for("ca", "small", seed=1, n_trajectories=4, other_robots=(2, 3))
+    ds = open_dataset(collect("ca", tmp_path / "ca", s, workers=1, progress=False), kind="ca")
+    assert ds.num_trajectories == 4
+    _check_trajectories(ds, task=1)
+    # several robots of one arena episode: distinct targets, each trajectory with its own image
+    assert len({ds.targets[i].numpy().tobytes() for i in range(4)}) >= 3
+
+
+def test_tiny_ssl_collection_pairs_share_the_pose(tmp_path):
+    s = settings_for("ssl", "small", seed=2, n_worlds=2, pairs_per_world=5, robots=(4, 5), world_sizes=(5.0,))
+    ds = open_dataset(collect("ssl", tmp_path / "ssl", s, workers=1, progress=False), kind="ssl")
+    assert len(ds) == 10 and ds.rows["world"].tolist() == [0] * 5 + [1] * 5
+    static, dynamic = ds.rows["pixels_static"], ds.rows["pixels_dynamic"]
+    diff = (static != dynamic).flatten(1).any(1)
+    assert ds.metadata["counts"]["pairs_with_visible_robot"] == int(diff.sum())
+    # same pose: apart from the robots, most pixels are identical in every pair
+    same = (static == dynamic).all(-1).flatten(1).float().mean(1)
+    assert (same > 0.5).all()
+
+
+def test_failed_episodes_are_dropped_and_counted():
+    # 3 steps are never enough to reach a target in a 5 m maze: every episode fails
+    s = settings_for("e", "small", seed=0, episodes_per_unit=2, world_sizes=(5.0,), max_steps=3)
+    rows, targets, counters = collect_module._exploration_unit(s, 0)
+    assert rows == [] and targets == []
+    assert counters == {"attempted": 2, "failed": 2, "collision_steps": 0}
+
+
+def test_collection_is_deterministic_and_resumes_identically(tmp_path, folder_bytes):
+    s = settings_for("ca", "small", seed=5, n_trajectories=5, other_robots=(2, 2))
+    ref = collect("ca", tmp_path / "ref", s, workers=1, progress=False)
+    # crash after the first unit (its shard is complete), then resume
+    calls = {"n": 0}
+
+    def crashing_unit(root, kind, settings, unit):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return collect_module.run_unit(root, kind, settings, unit)
+
+    with pytest.raises(KeyboardInterrupt):
+        collect("ca", tmp_path / "resumed", s, workers=1, progress=False, unit_fn=crashing_unit)
+    assert (tmp_path / "resumed" / "shards" / "unit-000000").is_dir()
+    resumed = collect("ca", tmp_path / "resumed", s, workers=1, progress=False)
+    assert folder_bytes(resumed) == folder_bytes(ref)
+
+
+@pytest.mark.slow
+def test_killed_cli_process_resumes_to_identical_dataset(tmp_path, folder_bytes):
+    """SIGKILL a real `collect` process with 2 workers after its first shard; rerun; compare bytes."""
+    cmd = [sys.executable, "-m", "navformer_rl.data.cli", "collect", "e", "--n", "6", "--seed", "3"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    out = tmp_path / "killed"
+    proc = subprocess.Popen([*cmd, "--out", str(out), "--workers", "2", "--no-progress"], cwd=REPO, env=env)
+    deadline = time.time() + 240
+    while not list((out / "shards").glob("unit-*")) and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert proc.poll() is None, "collection finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    subprocess.run([*cmd, "--out", str(out), "--workers", "2", "--no-progress"], cwd=REPO, env=env, check=True)
+    ref = tmp_path / "ref"
+    subprocess.run([*cmd, "--out", str(ref), "--workers", "1", "--no-progress"], cwd=REPO, env=env, check=True)
+    assert folder_bytes(out) == folder_bytes(ref)
+    assert open_dataset(out).num_trajectories == 6
+
+
+def test_cli_help_and_errors(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli_main(["collect", "--help"])
+    assert exit_info.value.code == 0
+    assert "--scale" in capsys.readouterr().out
+    assert cli_main(["collect", "e", "--out", str(tmp_path / "x"), "--workers", "0"]) == 2
+    assert "--workers must be >= 1, got 0" in capsys.readouterr().err
+    assert cli_main(["collect", "all", "--out", str(tmp_path / "x"), "--n", "3"]) == 2
+    assert "not to 'all'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli_main(["collect", "xyz", "--out", str(tmp_path)])
+    # a folder holding another dataset is refused with a clear message
+    collect_module.DatasetWriter(tmp_path / "other", "e", {"something": "else"}, 1)
+    assert cli_main(["collect", "e", "--out", str(tmp_path / "other"), "--no-progress"]) == 2
+    assert "already holds a dataset" in capsys.readouterr().err
+
+
+def test_settings_overrides_are_checked():
+    with pytest.raises(ValueError, match="unknown e collection setting"):
+        settings_for("e", "small", bogus=1)
+    with pytest.raises(ValueError, match="unknown scale 'huge'"):
+        settings_for("e", "huge")
+    paper = settings_for("ssl", "paper")
+    assert paper.n_worlds * paper.pairs_per_world == 98_000
+    assert settings_for("e", "paper").n_trajectories == 3496
+    assert settings_for("ca", "paper").n_trajectories == 7467
+    assert np.isclose(min(settings_for("e").world_sizes), 5.0)

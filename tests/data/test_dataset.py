@@ -1,0 +1,169 @@
+"""Writer + loader: round trip, refusals with clear messages, crash/resume == uninterrupted (byte for byte)."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from navformer_rl.data import open_dataset
+from navformer_rl.data import synthetic as syn
+from navformer_rl.data import writer as writer_module
+from navformer_rl.data.schema import SCHEMA_VERSION
+
+
+def test_round_trip_matches_generated_trajectories(e_dataset):
+    ds = open_dataset(e_dataset, kind="e")
+    meta = ds.metadata
+    assert meta["schema_version"] == SCHEMA_VERSION and meta["kind"] == "e" and meta["status"] == "complete"
+    assert meta["counts"]["items"] == ds.num_trajectories == 12
+    assert meta["statistics"]["steps"] == len(ds)
+    assert not (e_dataset / "shards").exists()
+    # regenerate unit 0 (4 trajectories) from its seed and compare with the stored rows
+    rows, targets = syn._trajectory_unit(ds.kind, syn._unit_rng(3, 0), 4, 5, 30)
+    n = rows.shape[0]
+    stored = ds.rows[:n]
+    for key in ("pixels", "action", "return_to_go", "step", ("next", "collision"), ("privileged", "pose")):
+        assert torch.equal(stored[key], rows[key]), key
+    assert torch.equal(ds.targets[:4], targets)
+    # global ids: episodes numbered 0..11, target_id == episode, steps restart at 0
+    ep = ds.rows["episode"]
+    assert ep.unique().tolist() == list(range(12))
+    assert torch.equal(ds.rows["target_id"], ep)
+    assert (ds.rows["step"][ds.episodes.start] == 0).all()
+    # the learnable structure: action[1] is a function of the target image colour only
+    for traj in range(12):
+        colour = ds.targets[traj, 42, 42].numpy()
+        c = int(np.flatnonzero((syn.PALETTE == colour).all(1))[0])
+        a1 = ds.rows["action"][ep == traj][:, 1]
+        assert torch.allclose(a1, torch.full_like(a1, 2 * c / 4 - 1))
+
+
+def test_ssl_round_trip(ssl_dataset):
+    ds = open_dataset(ssl_dataset, kind="ssl")
+    assert len(ds) == 40 and ds.targets is None
+    differs = (ds.rows["pixels_static"] != ds.rows["pixels_dynamic"]).flatten(1).any(1)
+    assert differs.all()  # every dynamic view holds at least one "robot"
+
+
+def _copy(src, tmp_path):
+    dst = tmp_path / "copy"
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_refuses_unknown_schema_version(e_dataset, tmp_path):
+    root = _copy(e_dataset, tmp_path)
+    meta = json.loads((root / "metadata.json").read_text())
+    meta["schema_version"] = 99
+    (root / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="schema_version 99 is not supported"):
+        open_dataset(root)
+
+
+def test_refuses_wrong_kind_and_missing_folder(e_dataset, tmp_path):
+    with pytest.raises(ValueError, match="holds a 'e' dataset, expected 'ca'"):
+        open_dataset(e_dataset, kind="ca")
+    with pytest.raises(FileNotFoundError, match="metadata.json is missing"):
+        open_dataset(tmp_path / "nothing")
+
+
+def test_refuses_truncated_memmap(e_dataset, tmp_path):
+    root = _copy(e_dataset, tmp_path)
+    pixels = root / "consolidated" / "rows" / "pixels.memmap"
+    with open(pixels, "r+b") as f:
+        f.truncate(pixels.stat().st_size - 100)
+    with pytest.raises(ValueError, match=r"pixels.memmap has \d+ bytes, expected \d+.*truncated"):
+        open_dataset(root)
+
+
+def test_refuses_missing_targets(e_dataset, tmp_path):
+    root = _copy(e_dataset, tmp_path)
+    (root / "consolidated" / "targets" / "target_pixels.memmap").unlink()
+    with pytest.raises(FileNotFoundError, match="target_pixels.memmap is missing"):
+        open_dataset(root)
+
+
+def test_refuses_wrong_shape(e_dataset, tmp_path):
+    root = _copy(e_dataset, tmp_path)
+    rows = root / "consolidated" / "rows"
+    meta = json.loads((rows / "meta.json").read_text())
+    n = meta["pixels"]["shape"][0]
+    meta["pixels"]["shape"] = [n, 3, 84, 84]  # same bytes, CHW instead of HWC
+    (rows / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"'pixels' is torch.uint8 \(\d+, 3, 84, 84\), expected"):
+        open_dataset(root)
+
+
+def test_refuses_unfinished_collection(tmp_path):
+    writer_module.DatasetWriter(tmp_path / "d", "ca", {"a": 1}, target_count=3)
+    with pytest.raises(ValueError, match="collection is not finished"):
+        open_dataset(tmp_path / "d")
+
+
+def test_writer_refuses_other_settings_in_same_folder(tmp_path):
+    writer_module.DatasetWriter(tmp_path / "d", "e", {"seed": 1}, target_count=3)
+    with pytest.raises(ValueError, match="already holds a dataset with settings"):
+        writer_module.DatasetWriter(tmp_path / "d", "e", {"seed": 2}, target_count=3)
+
+
+class _Crash(Exception):
+    pass
+
+
+def test_resume_after_crashes_is_byte_identical(tmp_path, monkeypatch, folder_bytes):
+    """Crash between shards, inside a shard, and inside consolidation; rerunning gives the same bytes."""
+    reference = syn.make_synthetic_dataset(tmp_path / "ref", "e", 10, 3, 9, seed=11, items_per_shard=3)
+    target = tmp_path / "resumed"
+    real_write_shard = writer_module.write_shard
+    calls = {"n": 0}
+
+    def crash_on_third_shard(root, kind, unit, rows, targets, counters):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            # die half-way through a shard: a partial temp folder is left behind
+            partial = writer_module.shard_dir(root, unit).with_name(f".tmp-unit-{unit:06d}-999")
+            partial.mkdir(parents=True)
+            (partial / "garbage").write_bytes(b"x" * 10)
+            raise _Crash
+        return real_write_shard(root, kind, unit, rows, targets, counters)
+
+    monkeypatch.setattr(writer_module, "write_shard", crash_on_third_shard)
+    with pytest.raises(_Crash):
+        syn.make_synthetic_dataset(target, "e", 10, 3, 9, seed=11, items_per_shard=3)
+    assert sorted(p.name for p in (target / "shards").iterdir()) == [
+        ".tmp-unit-000002-999",
+        "unit-000000",
+        "unit-000001",
+    ]
+    monkeypatch.setattr(writer_module, "write_shard", real_write_shard)
+
+    # second crash: during consolidation (after part of the flat memmap was written)
+    real_rename = writer_module.os.rename
+
+    def crash_on_consolidated_rename(src, dst):
+        if str(dst).endswith("consolidated"):
+            raise _Crash
+        return real_rename(src, dst)
+
+    monkeypatch.setattr(writer_module.os, "rename", crash_on_consolidated_rename)
+    with pytest.raises(_Crash):
+        syn.make_synthetic_dataset(target, "e", 10, 3, 9, seed=11, items_per_shard=3)
+    assert (target / "consolidated.tmp").exists()
+    assert json.loads((target / "metadata.json").read_text())["status"] == "collecting"
+    monkeypatch.setattr(writer_module.os, "rename", real_rename)
+
+    syn.make_synthetic_dataset(target, "e", 10, 3, 9, seed=11, items_per_shard=3)
+    assert folder_bytes(target) == folder_bytes(reference)
+    # a finished folder reopened by the same command stays unchanged
+    syn.make_synthetic_dataset(target, "e", 10, 3, 9, seed=11, items_per_shard=3)
+    assert folder_bytes(target) == folder_bytes(reference)
+
+
+def test_last_shard_is_cut_to_the_requested_count(tmp_path):
+    root = syn.make_synthetic_dataset(tmp_path / "d", "ca", 5, 2, 4, seed=0, items_per_shard=4)
+    ds = open_dataset(root)
+    assert ds.num_trajectories == 5 and ds.targets.shape == (5, 84, 84, 3)
+    assert ds.metadata["counts"]["units"] == 2
+    assert ds.rows["task"].unique().tolist() == [1]

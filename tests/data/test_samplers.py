@@ -1,0 +1,188 @@
+"""Trajectory / pair samplers and cross-task alternation, on synthetic datasets with known contents."""
+
+import io
+
+import pytest
+import torch
+
+from navformer_rl.data import CrossTaskSampler, open_dataset
+from navformer_rl.data.samplers import EpochPermutation
+
+
+def _drain(batcher, n):
+    return [batcher.sample().clone() for _ in range(n)]
+
+
+def test_epoch_without_replacement(e_dataset):
+    ds = open_dataset(e_dataset)
+    batcher = ds.trajectory_batcher(4, context_steps=255, seed=0)
+    seen = torch.cat([b["trajectory"] for b in _drain(batcher, 3)])
+    assert sorted(seen.tolist()) == list(range(12))  # one epoch = every trajectory exactly once
+    assert batcher.sampler.epoch == 0
+    batcher.sample()
+    assert batcher.sampler.epoch == 1
+
+
+def test_epoch_drops_the_short_tail():
+    perm = EpochPermutation(10, seed=0)
+    first = [perm.draw(4) for _ in range(2)]
+    assert len(torch.cat(first).unique()) == 8
+    third = perm.draw(4)  # only 2 left in epoch 0: a new epoch starts, no id repeats inside the batch
+    assert perm.epoch == 1 and len(third.unique()) == 4
+    with pytest.raises(ValueError, match="batch of 11 items requested from a set of 10"):
+        perm.draw(11)
+
+
+def test_windows_mask_padding_and_targets(e_dataset):
+    ds = open_dataset(e_dataset)
+    lengths = ds.episodes.length
+    batcher = ds.trajectory_batcher(6, context_steps=10, seed=1)
+    for batch in _drain(batcher, 6):
+        traj = batch["trajectory"]
+        N, T = batch["mask"].shape
+        window = lengths[traj].clamp(max=10)
+        assert T == int(window.max())
+        assert torch.equal(batch["mask"].sum(1), window)
+        assert torch.equal(batch["mask"], torch.arange(T)[None] < window[:, None])  # right padding only
+        for i in range(N):
+            L = int(window[i])
+            # never crosses an episode (padding included) and steps are consecutive in the valid part
+            assert (batch["episode"][i] == traj[i]).all()
+            steps = batch["step"][i, :L]
+            assert torch.equal(steps, steps[0] + torch.arange(L))
+            assert 0 <= steps[0] and steps[-1] < lengths[traj[i]]
+            # padding repeats the last valid step
+            assert (batch["step"][i, L:] == steps[-1]).all()
+            assert torch.equal(batch["pixels"][i, L:], batch["pixels"][i, L - 1 : L].expand(T - L, 84, 84, 3))
+            # rows are exactly the stored rows
+            rows = ds.rows[ds.episodes.start[traj[i]] + steps]
+            assert torch.equal(batch["pixels"][i, :L], rows["pixels"])
+            assert torch.equal(batch["action"][i, :L], rows["action"])
+            # the target image is the trajectory's own
+            assert torch.equal(batch["target_pixels"][i], ds.targets[batch["target_id"][i, 0]])
+            assert (batch["target_id"][i] == ds.episodes.target_id[traj[i]]).all()
+
+
+def test_long_trajectories_get_random_windows(e_dataset):
+    ds = open_dataset(e_dataset)
+    long = int(torch.argmax(ds.episodes.length))
+    assert ds.episodes.length[long] > 12
+    batcher = ds.trajectory_batcher(12, context_steps=4, seed=2)
+    starts = set()
+    for _ in range(20):
+        b = batcher.sample()
+        i = int((b["trajectory"] == long).nonzero()[0, 0])
+        assert b["mask"][i].all()
+        starts.add(int(b["step"][i, 0]))
+    assert len(starts) > 3 and max(starts) <= ds.episodes.length[long] - 4
+
+
+def test_deterministic_for_a_seed_and_differs_across_seeds(e_dataset):
+    ds = open_dataset(e_dataset)
+    a = _drain(ds.trajectory_batcher(5, 8, seed=7), 4)
+    b = _drain(ds.trajectory_batcher(5, 8, seed=7), 4)
+    c = _drain(ds.trajectory_batcher(5, 8, seed=8), 4)
+    assert all((x == y).all() for x, y in zip(a, b))
+    assert any(not torch.equal(x["trajectory"], y["trajectory"]) for x, y in zip(a, c))
+
+
+def test_state_dict_resume_gives_identical_next_batches(e_dataset):
+    ds = open_dataset(e_dataset)
+    batcher = ds.trajectory_batcher(5, 8, seed=3)
+    _drain(batcher, 3)  # crosses an epoch boundary (12 // 5 = 2 batches per epoch)
+    buf = io.BytesIO()
+    torch.save(batcher.state_dict(), buf)
+    expected = _drain(batcher, 5)
+    resumed = ds.trajectory_batcher(5, 8, seed=999)
+    buf.seek(0)
+    resumed.load_state_dict(torch.load(buf, weights_only=True))
+    got = _drain(resumed, 5)
+    assert all((x == y).all() for x, y in zip(expected, got))
+
+
+def test_reused_buffers_are_overwritten_and_copies_are_not(e_dataset):
+    ds = open_dataset(e_dataset)
+    reuse = ds.trajectory_batcher(2, 6, seed=0)
+    first = reuse.sample()
+    keep = first["pixels"].clone()
+    reuse.sample()
+    assert first["pixels"].data_ptr() == reuse.sample()["pixels"].data_ptr()
+    fresh = ds.trajectory_batcher(2, 6, seed=0, reuse_buffers=False)
+    a = fresh.sample()
+    assert torch.equal(a["pixels"], keep)
+    fresh.sample()
+    assert torch.equal(a["pixels"], keep)
+
+
+def test_torchrl_replay_buffer_path_matches_fast_path(e_dataset):
+    ds = open_dataset(e_dataset)
+    rb = ds.trajectory_buffer(4, context_steps=7, seed=5)
+    fast = ds.trajectory_batcher(4, context_steps=7, seed=5)
+    for _ in range(3):
+        flat = rb.sample()
+        batch = fast.sample()
+        N, T = batch["mask"].shape
+        padded = flat.reshape(N, -1)
+        assert padded.shape == (N, T)
+        assert torch.equal(padded["collector", "mask"], batch["mask"])
+        assert torch.equal(padded["pixels"], batch["pixels"])
+        assert torch.equal(padded["target_pixels"][:, 0], batch["target_pixels"])
+
+
+def test_trajectory_sampling_refuses_ssl(ssl_dataset):
+    with pytest.raises(ValueError, match="is a 'ssl' dataset"):
+        open_dataset(ssl_dataset).trajectory_batcher(4)
+
+
+def test_pairs_without_replacement_and_resume(ssl_dataset):
+    ds = open_dataset(ssl_dataset)
+    pairs = ds.pair_batcher(batch_size=8, seed=0)
+    epoch = [pairs.sample().clone() for _ in range(5)]
+    assert sorted(torch.cat([b["index"] for b in epoch]).tolist()) == list(range(40))
+    b = epoch[0]
+    assert torch.equal(b["pixels_static"], ds.rows["pixels_static"][b["index"]])
+    assert torch.equal(b["pixels_dynamic"], ds.rows["pixels_dynamic"][b["index"]])
+    state = pairs.state_dict()
+    expected = [pairs.sample().clone() for _ in range(3)]
+    other = ds.pair_batcher(batch_size=8, seed=1)
+    other.load_state_dict(state)
+    assert all((x == y).all() for x, y in zip(expected, [other.sample().clone() for _ in range(3)]))
+    with pytest.raises(ValueError, match="batch_size must be in"):
+        ds.pair_batcher(batch_size=41)
+    assert ds.pair_buffer(batch_size=8).sample()["pixels_static"].shape == (8, 84, 84, 3)
+
+
+def test_cross_task_alternation_and_ablations(e_dataset, ca_dataset):
+    e, ca = open_dataset(e_dataset, "e"), open_dataset(ca_dataset, "ca")
+    sampler = CrossTaskSampler(e.trajectory_batcher(3, seed=0), ca.trajectory_batcher(5, seed=0))
+    seq = []
+    for _ in range(6):
+        task, batch = sampler.sample()
+        seq.append((task, batch.shape[0], int(batch["task"][0, 0])))
+    assert seq == [("exploration", 3, 0), ("collision_avoidance", 5, 1)] * 3
+    only_ca = CrossTaskSampler(None, ca.trajectory_batcher(5, seed=0))
+    assert [only_ca.sample()[0] for _ in range(3)] == ["collision_avoidance"] * 3
+    only_e = CrossTaskSampler(e.trajectory_batcher(3, seed=0), None)
+    assert only_e.tasks == ["exploration"]
+    with pytest.raises(ValueError, match="at least one"):
+        CrossTaskSampler(None, None)
+
+
+def test_cross_task_resume(e_dataset, ca_dataset):
+    e, ca = open_dataset(e_dataset), open_dataset(ca_dataset)
+
+    def make():
+        return CrossTaskSampler(e.trajectory_batcher(3, seed=0), ca.trajectory_batcher(5, seed=1))
+
+    sampler = make()
+    for _ in range(3):
+        sampler.sample()
+    state = sampler.state_dict()
+    expected = [(t, b.clone()) for t, b in (sampler.sample() for _ in range(4))]
+    resumed = make()
+    resumed.load_state_dict(state)
+    got = [(t, b.clone()) for t, b in (resumed.sample() for _ in range(4))]
+    assert [t for t, _ in expected] == [t for t, _ in got] == ["collision_avoidance", "exploration"] * 2
+    assert all((x == y).all() for (_, x), (_, y) in zip(expected, got))
+    with pytest.raises(ValueError, match="lacks"):
+        make().load_state_dict({"iteration": 0, "exploration": {}})

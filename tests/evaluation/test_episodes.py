@@ -1,0 +1,113 @@
+"""Episode sets: deterministic generation, protocol layout, round trip and refusal of bad files."""
+
+import json
+
+import numpy as np
+import pytest
+
+from navformer_rl.evaluation.episodes import (
+    FORMAT_VERSION,
+    Setup,
+    load_episode_set,
+    make_episode_set,
+    protocol_setups,
+    save_episode_set,
+)
+
+SETUP = Setup("7.5m-2r", 7.5, ("jackal", "jackal"), (True, True))
+
+
+@pytest.fixture(scope="module")
+def small_set():
+    return make_episode_set([SETUP], trials_per_setup=3, trials_per_world=2, seed=5, name="t", max_steps=30)
+
+
+def test_generation_is_deterministic_and_groups_trials_by_world(small_set):
+    again = make_episode_set([SETUP], trials_per_setup=3, trials_per_world=2, seed=5, name="t", max_steps=30)
+    assert again == small_set
+    assert [e.episode_id for e in small_set.episodes] == ["7.5m-2r/w00t00", "7.5m-2r/w00t01", "7.5m-2r/w01t02"]
+    a, b, c = small_set.episodes
+    # Trials 0 and 1 share a maze, with new starts and targets; trial 2 is in a new maze.
+    assert a.world_seed == b.world_seed != c.world_seed
+    assert a.starts != b.starts and a.targets != b.targets
+    other = make_episode_set([SETUP], trials_per_setup=3, trials_per_world=2, seed=6)
+    assert other.episodes[0].world_seed != a.world_seed
+
+
+def test_episode_content_is_consistent_with_the_world(small_set):
+    for episode in small_set.episodes:
+        world = episode.world_spec().build()
+        episode.check_world(world)
+        np.testing.assert_allclose(world.starts, np.array(episode.starts, dtype=np.float32))
+        for i in range(episode.n_robots):
+            xy = np.array(episode.starts[i][:2])
+            # l: start -> target on the map inflated by the Jackal radius; the disc path is shorter.
+            assert world.shortest_path_length(xy, i, clearance=0.30) == pytest.approx(episode.shortest_paths[i])
+            assert episode.shortest_paths_to_disc[i] < episode.shortest_paths[i]
+            assert np.hypot(*(xy - world.targets[i].position)) > 1.5
+        assert len({(t["shape"], t["color"]) for t in episode.targets}) == episode.n_robots
+
+
+def test_round_trip(tmp_path, small_set):
+    path = save_episode_set(small_set, tmp_path / "set.json")
+    loaded = load_episode_set(path)
+    assert loaded == small_set
+    assert loaded.max_steps == 30
+
+
+def _write(path, document):
+    path.write_text(json.dumps(document))
+    return path
+
+
+def test_refuses_corrupt_foreign_and_wrong_version(tmp_path, small_set):
+    path = save_episode_set(small_set, tmp_path / "set.json")
+    document = json.loads(path.read_text())
+
+    edited = json.loads(json.dumps(document))
+    edited["episodes"][0]["starts"][0][0] += 0.5
+    with pytest.raises(ValueError, match="corrupt or was edited"):
+        load_episode_set(_write(tmp_path / "edited.json", edited))
+
+    truncated = tmp_path / "truncated.json"
+    truncated.write_text(path.read_text()[:200])
+    with pytest.raises(ValueError, match="not JSON"):
+        load_episode_set(truncated)
+
+    with pytest.raises(ValueError, match="format"):
+        load_episode_set(_write(tmp_path / "foreign.json", {"format": "something.else", "episodes": []}))
+
+    old = dict(document, version=FORMAT_VERSION + 1)
+    with pytest.raises(ValueError, match="version"):
+        load_episode_set(_write(tmp_path / "old.json", old))
+
+    with pytest.raises(FileNotFoundError):
+        load_episode_set(tmp_path / "missing.json")
+
+
+def test_walls_check_detects_another_maze(small_set):
+    a, _, c = small_set.episodes
+    with pytest.raises(ValueError, match="different maze"):
+        a.check_world(c.world_spec().build())
+
+
+def test_protocols():
+    table1 = protocol_setups("table1")
+    assert [(s.size, s.n_robots) for s in table1] == [(z, n) for z in (7.5, 12.5, 17.5) for n in (2, 4, 6)]
+    seen, unseen = protocol_setups("table3")
+    assert unseen.robots == ("jackal", "turtlebot3", "turtlebot3", "turtlebot3")
+    assert unseen.measured == (True, False, False, False) and all(seen.measured)
+    with pytest.raises(ValueError, match="unknown protocol"):
+        protocol_setups("table9")
+
+
+def test_same_size_and_robot_count_share_episodes_across_protocols():
+    seen, unseen = protocol_setups("table3")
+    a = make_episode_set([seen], trials_per_setup=1, seed=0)
+    b = make_episode_set([unseen], trials_per_setup=1, seed=0)
+    c = make_episode_set(protocol_setups("table4"), trials_per_setup=1, seed=0)
+    ea, eb, ec = a.episodes[0], b.episodes[0], c.episodes[0]
+    assert ea.starts == eb.starts == ec.starts and ea.targets == eb.targets == ec.targets
+    # Robot 0 is a Jackal in both; the TurtleBot3s' paths use their own (smaller) clearance.
+    assert ea.shortest_paths[0] == eb.shortest_paths[0]
+    assert ea.shortest_paths[1:] != eb.shortest_paths[1:]

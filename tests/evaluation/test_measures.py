@@ -1,0 +1,135 @@
+"""SR / SPL / CR and their intervals on hand-computed cases."""
+
+import numpy as np
+import pytest
+
+from navformer_rl.evaluation.measures import (
+    RobotTrial,
+    TrialTracker,
+    bootstrap_mean_interval,
+    collision_rate,
+    collision_rate_terms,
+    spl,
+    spl_terms,
+    success_rate,
+    summarize,
+    wilson_interval,
+)
+
+
+def test_spl_by_hand_caps_and_failures():
+    # success l=4 p=5 -> 0.8; success with p < l (stopped in the 1.5 m disc) -> capped at 1;
+    # failure -> 0 whatever it drove.  Mean = (0.8 + 1 + 0) / 3 = 0.6.
+    success = np.array([True, True, False])
+    shortest = np.array([4.0, 3.0, 5.0])
+    driven = np.array([5.0, 2.0, 1.0])
+    np.testing.assert_allclose(spl_terms(success, shortest, driven), [0.8, 1.0, 0.0])
+    assert spl(success, shortest, driven) == pytest.approx(0.6)
+
+
+def test_two_trial_spl():
+    # Two successes: 6/8 and 10/20 -> (0.75 + 0.5) / 2 = 0.625.
+    assert spl(np.array([1, 1], bool), np.array([6.0, 10.0]), np.array([8.0, 20.0])) == pytest.approx(0.625)
+
+
+def test_spl_rejects_bad_lengths():
+    with pytest.raises(ValueError, match="shortest"):
+        spl(np.array([True]), np.array([0.0]), np.array([1.0]))
+    with pytest.raises(ValueError, match="shortest"):
+        spl(np.array([True]), np.array([np.inf]), np.array([1.0]))
+    with pytest.raises(ValueError, match="same length"):
+        spl(np.array([True, False]), np.array([1.0]), np.array([1.0]))
+
+
+def test_collision_rate_is_per_trial_then_mean():
+    # 10 collisions in 50 steps (0.2) and 0 in 500 (0.0): mean 0.1, not the pooled 10/550.
+    collisions = np.array([10, 0])
+    steps = np.array([50, 500])
+    np.testing.assert_allclose(collision_rate_terms(collisions, steps), [0.2, 0.0])
+    assert collision_rate(collisions, steps) == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="collision counts"):
+        collision_rate(np.array([3]), np.array([2]))
+
+
+def test_success_rate():
+    assert success_rate(np.array([True, False, False, True])) == 0.5
+
+
+def test_wilson_known_values():
+    # 0/10: upper = (z^2/n) / (1 + z^2/n) = 0.27754 with z = 1.95996.
+    low, high = wilson_interval(0, 10)
+    assert low == pytest.approx(0.0, abs=1e-12)
+    assert high == pytest.approx(0.277535, abs=1e-5)
+    # 47/120 (paper Table I, VRW 7.5 m / 2 robots = 39.17 %), by hand: (0.30899, 0.48106).
+    low, high = wilson_interval(47, 120)
+    assert low == pytest.approx(0.30899, abs=1e-4)
+    assert high == pytest.approx(0.48106, abs=1e-4)
+    with pytest.raises(ValueError, match="successes"):
+        wilson_interval(3, 2)
+
+
+def test_bootstrap_is_seeded_and_brackets_the_mean():
+    values = np.array([0.0, 0.2, 0.4, 1.0, 0.9, 0.1])
+    groups = np.array([0, 0, 1, 1, 2, 2])
+    a = bootstrap_mean_interval(values, groups, seed=3)
+    b = bootstrap_mean_interval(values, groups, seed=3)
+    assert a == b
+    assert a[0] <= values.mean() <= a[1]
+    # Constant values: a degenerate interval.
+    assert bootstrap_mean_interval(np.full(5, 0.25)) == (0.25, 0.25)
+
+
+def _trial(episode, robot, success, steps, collisions, p, l):
+    return RobotTrial(
+        method="m",
+        episode_id=episode,
+        setup="s",
+        size=7.5,
+        n_robots=2,
+        world_seed=0,
+        trial=0,
+        robot=robot,
+        robot_style="jackal",
+        measured=True,
+        success=success,
+        success_step=steps if success else None,
+        steps=steps,
+        collisions=collisions,
+        path_length=p,
+        shortest_path=l,
+        shortest_path_to_disc=max(l - 1.5, 0.1),
+        final_distance=1.0 if success else 4.0,
+    )
+
+
+def test_summarize_and_record_round_trip():
+    records = [
+        _trial("e0", 0, True, 40, 4, 5.0, 4.0),  # spl 0.8, cr 0.1
+        _trial("e0", 1, False, 500, 50, 12.0, 6.0),  # spl 0, cr 0.1
+        _trial("e1", 0, True, 20, 0, 2.0, 3.0),  # spl 1, cr 0
+        _trial("e1", 1, True, 100, 40, 10.0, 5.0),  # spl 0.5, cr 0.4
+    ]
+    s = summarize(records)
+    assert s.n_robot_trials == 4 and s.n_trials == 2
+    assert s.sr == pytest.approx(0.75)
+    assert s.spl == pytest.approx((0.8 + 0 + 1 + 0.5) / 4)
+    assert s.cr == pytest.approx((0.1 + 0.1 + 0 + 0.4) / 4)
+    assert s.sr_ci == wilson_interval(3, 4)
+    row = records[0].to_dict()
+    assert row["spl"] == pytest.approx(0.8) and row["collision_rate"] == pytest.approx(0.1)
+    assert RobotTrial.from_dict(row) == records[0]
+
+
+def test_trial_tracker_counts_only_active_steps():
+    tracker = TrialTracker(np.array([[0.0, 0.0], [5.0, 5.0]]))
+    # step 1: robot 0 moves 1 m and collides; robot 1 moves 0.5 m.
+    tracker.update(np.array([[1.0, 0.0], [5.0, 5.5]]), np.array([True, False]), np.array([False, False]))
+    # step 2: robot 0 moves (3,4) -> 5 m and succeeds; robot 1 collides, no motion.
+    tracker.update(np.array([[4.0, 4.0], [5.0, 5.5]]), np.array([False, True]), np.array([True, False]))
+    # step 3: robot 0 is done (motion and contact ignored); robot 1 moves 1 m.
+    tracker.update(np.array([[9.0, 9.0], [6.0, 5.5]]), np.array([True, False]), np.array([True, False]))
+    np.testing.assert_allclose(tracker.path_length, [6.0, 1.5])
+    np.testing.assert_array_equal(tracker.steps, [2, 3])
+    np.testing.assert_array_equal(tracker.collisions, [1, 1])
+    np.testing.assert_array_equal(tracker.success, [True, False])
+    np.testing.assert_array_equal(tracker.success_step, [2, -1])

@@ -1,0 +1,230 @@
+"""NavFormerModel: config validation, encoders, causality, THSC, padding, gradients, ablations, overfitting."""
+
+import pytest
+import torch
+
+from navformer_rl.modules import ConvEncoder, NavFormerConfig, NavFormerModel, ResNet18Encoder
+from navformer_rl.modules.models import MODEL_ABLATIONS
+from navformer_rl.objectives import masked_action_mse
+
+KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
+
+
+def run(model, batch, **kwargs):
+    return model(*(batch[k] for k in KEYS), **kwargs)
+
+
+def eval_model(seed=0, **config):
+    torch.manual_seed(seed)
+    return NavFormerModel(NavFormerConfig(**config)).eval()
+
+
+# ------------------------------------------------------------------------------------------- config
+@pytest.mark.parametrize(
+    "changes, match",
+    [
+        ({"n_heads": 3}, "n_heads \\* d_head"),
+        ({"use_static_encoder": False, "use_general_encoder": False}, "at least one"),
+        ({"encoder": "vit"}, "encoder='vit'"),
+        ({"dropout": 1.0}, "dropout"),
+        ({"autocast_dtype": "int8"}, "autocast_dtype"),
+        ({"encoder_micro_batch": 0}, "encoder_micro_batch"),
+        ({"context_tokens": 5}, "context_tokens"),
+    ],
+)
+def test_config_rejects_bad_values(changes, match):
+    with pytest.raises(ValueError, match=match):
+        NavFormerConfig(**changes)
+
+
+def test_config_defaults_are_the_papers():
+    c = NavFormerConfig()
+    assert (c.d_embed, c.n_blocks, c.n_heads, c.d_head, c.context_tokens, c.dropout) == (128, 3, 2, 64, 1024, 0.1)
+    assert c.tokens_per_step == 4 and c.window_steps == 256
+    dt = NavFormerConfig.dt_baseline()
+    assert (dt.use_static_encoder, dt.use_general_encoder, dt.thsc, dt.tokens_per_step) == (False, True, False, 3)
+    with pytest.raises(ValueError, match="unknown model ablation"):
+        NavFormerConfig.ablation("no_ssl")
+
+
+# ----------------------------------------------------------------------------------------- encoders
+def test_conv_encoder_shapes_microbatches_and_layouts():
+    torch.manual_seed(0)
+    enc = ConvEncoder()
+    pixels = torch.randint(0, 256, (2, 5, 84, 84, 3), dtype=torch.uint8)
+    out = enc(pixels)
+    assert out.shape == (2, 5, 128)
+    enc.micro_batch = 3
+    torch.testing.assert_close(enc(pixels), out, rtol=1e-5, atol=1e-5)
+    enc.channels_last = False
+    torch.testing.assert_close(enc(pixels), out, rtol=1e-5, atol=1e-5)
+    # the float path on the same images gives the same embeddings
+    floats = pixels.reshape(-1, 84, 84, 3).permute(0, 3, 1, 2).float() / 255
+    torch.testing.assert_close(enc.forward_float(floats).reshape(2, 5, 128), out, rtol=1e-5, atol=1e-5)
+
+
+def test_encoder_rejects_bad_images():
+    enc = ConvEncoder()
+    with pytest.raises(ValueError, match="uint8"):
+        enc(torch.zeros(2, 84, 84, 3))
+    with pytest.raises(ValueError, match="84, 84, 3"):
+        enc(torch.zeros(2, 3, 84, 84, dtype=torch.uint8))
+
+
+def test_resnet18_encoder_forward_shape_and_size():
+    torch.manual_seed(0)
+    enc = ResNet18Encoder().eval()
+    out = enc(torch.randint(0, 256, (3, 84, 84, 3), dtype=torch.uint8))
+    assert out.shape == (3, 128) and torch.isfinite(out).all()
+    # ResNet-18 body: 11.18M parameters (torchvision's resnet18 without its fc layer) + Linear 512 -> 128
+    assert sum(p.numel() for p in enc.parameters()) == 11_176_512 + 512 * 128 + 128
+
+
+# ---------------------------------------------------------------------------------------- causality
+def test_perturbing_step_t_plus_1_leaves_outputs_up_to_t_unchanged(batch_factory):
+    model = eval_model()
+    batch = batch_factory(2, 6)
+    base = run(model, batch)
+    t = 2
+    perturbed = {k: v.clone() for k, v in batch.items()}
+    gen = torch.Generator().manual_seed(1)
+    perturbed["pixels"][:, t + 1 :] = torch.randint(0, 256, perturbed["pixels"][:, t + 1 :].shape, dtype=torch.uint8, generator=gen)
+    perturbed["return_to_go"][:, t + 1 :] += torch.randn(2, 6 - t - 1, 1, generator=gen)
+    perturbed["action"][:, t + 1 :] = torch.rand(2, 6 - t - 1, 2, generator=gen) * 2 - 1
+    out = run(model, perturbed)
+    torch.testing.assert_close(out[:, : t + 1], base[:, : t + 1], rtol=0, atol=1e-6)
+    assert (out[:, t + 1] - base[:, t + 1]).abs().max() > 1e-4
+
+
+def test_action_t_never_influences_its_own_prediction(batch_factory):
+    model = eval_model()
+    batch = batch_factory(2, 5)
+    base = run(model, batch)
+    t = 2
+    changed = dict(batch, action=batch["action"].clone())
+    changed["action"][:, t] = -changed["action"][:, t] + 0.5
+    out = run(model, changed)
+    torch.testing.assert_close(out[:, : t + 1], base[:, : t + 1], rtol=0, atol=1e-6)
+    assert (out[:, t + 1 :] - base[:, t + 1 :]).abs().max() > 1e-4  # later steps do read a_t
+
+
+# --------------------------------------------------------------------------------------------- THSC
+def test_changing_the_target_image_changes_the_actions(batch_factory):
+    for thsc in (True, False):  # without THSC g still reaches the actions through attention
+        model = eval_model(thsc=thsc)
+        batch = batch_factory(2, 4)
+        other = dict(batch, target_pixels=torch.flip(batch["target_pixels"], dims=[0]))
+        assert (run(model, batch) - run(model, other)).abs().min() > 0
+
+
+def test_thsc_head_is_a_linear_map_of_target_and_observation_hidden_states():
+    model = eval_model()
+    d = model.config.d_embed
+    assert model.head.weight.shape == (2, 2 * d)
+    gen = torch.Generator().manual_seed(0)
+    h_g, h_obs = torch.randn(3, d, generator=gen), torch.randn(3, 4, d, generator=gen)
+    w, b = model.head.weight, model.head.bias
+    expected = torch.tanh(h_g[:, None] @ w[:, :d].T + h_obs @ w[:, d:].T + b)
+    torch.testing.assert_close(model.predict_action(h_g, h_obs), expected)
+    # without THSC the head reads h_obs only, so h_g has no direct path
+    plain = eval_model(thsc=False)
+    assert plain.head.weight.shape == (2, d)
+    torch.testing.assert_close(plain.predict_action(h_g, h_obs), plain.predict_action(torch.zeros_like(h_g), h_obs))
+
+
+# ------------------------------------------------------------------------------------------ padding
+def test_right_padding_changes_neither_valid_outputs_nor_the_loss(batch_factory):
+    model = eval_model()
+    batch = batch_factory(2, 6)
+    mask = batch["mask"].clone()
+    mask[1, 3:] = False
+    batch["mask"] = mask
+    out = run(model, batch)
+    assert (out[1, 3:] == 0).all()
+    # the short trajectory alone (no padding) gives the same valid outputs
+    alone = {k: v[1:2, :3] if v.dim() > 1 and k != "target_pixels" else v[1:2] for k, v in batch.items()}
+    torch.testing.assert_close(run(model, alone)[0], out[1, :3], rtol=0, atol=1e-6)
+    # garbage in the padding (including out-of-range timesteps) changes nothing
+    junk = {k: v.clone() for k, v in batch.items()}
+    junk["pixels"][1, 3:] = 255
+    junk["action"][1, 3:] = 7.0
+    junk["return_to_go"][1, 3:] = -50.0
+    junk["step"][1, 3:] = 10_000
+    out_junk = run(model, junk)
+    torch.testing.assert_close(out_junk, out, rtol=0, atol=1e-6)
+    target = batch["action"]
+    torch.testing.assert_close(
+        masked_action_mse(out_junk, target, mask), masked_action_mse(out, target, mask), rtol=0, atol=1e-7
+    )
+
+
+# ---------------------------------------------------------------------------------------- gradients
+@pytest.mark.parametrize("detach", [False, True])
+def test_gradient_reaches_every_parameter_unless_encoders_are_detached(batch_factory, detach):
+    torch.manual_seed(0)
+    model = NavFormerModel(NavFormerConfig(detach_encoders=detach))
+    batch = batch_factory(2, 4)
+    loss = masked_action_mse(run(model, batch), batch["action"], batch["mask"])
+    loss.backward()
+    for name, param in model.named_parameters():
+        is_encoder = name.startswith(("static_encoder", "general_encoder"))
+        if detach and is_encoder:
+            assert param.grad is None, name
+        else:
+            assert param.grad is not None and param.grad.abs().sum() > 0, name
+
+
+# ---------------------------------------------------------------------------------------- ablations
+@pytest.mark.parametrize("name", MODEL_ABLATIONS)
+def test_every_model_ablation_builds_and_runs(batch_factory, name):
+    torch.manual_seed(0)
+    model = NavFormerModel(NavFormerConfig.ablation(name)).eval()
+    batch = batch_factory(2, 3)
+    out = run(model, batch)
+    assert out.shape == (2, 3, 2) and out.abs().max() <= 1
+    config = model.config
+    assert (model.static_encoder is not None) == config.use_static_encoder
+    assert (model.general_encoder is not None) == config.use_general_encoder
+    if not config.use_general_encoder:
+        assert model.target_encoder is model.static_encoder
+
+
+def test_bad_inputs_get_value_errors(batch_factory):
+    model = eval_model()
+    batch = batch_factory(1, 3)
+    with pytest.raises(ValueError, match="step"):
+        run(model, dict(batch, step=batch["step"] + 600))
+    with pytest.raises(ValueError, match="return_to_go"):
+        run(model, dict(batch, return_to_go=batch["return_to_go"][..., 0]))
+    with pytest.raises(ValueError, match="context_tokens"):
+        small = eval_model(context_tokens=8)
+        run(small, batch)
+    with pytest.raises(ValueError, match="mask"):
+        run(model, dict(batch, mask=batch["mask"].long()))
+
+
+def test_bf16_autocast_forward_is_close_to_fp32(batch_factory):
+    model = eval_model()
+    batch = batch_factory(2, 4)
+    fp32 = run(model, batch)
+    model.config = model.config.replace(autocast_dtype="bfloat16")
+    bf16 = run(model, batch)
+    assert bf16.dtype == torch.float32
+    torch.testing.assert_close(bf16, fp32, rtol=0, atol=0.05)
+
+
+# --------------------------------------------------------------------------------------- overfitting
+def test_overfits_a_tiny_synthetic_batch(batch_factory):
+    torch.manual_seed(0)
+    model = NavFormerModel(NavFormerConfig(dropout=0.0))
+    batch = batch_factory(2, 6, seed=3)
+    batch["action"] = batch["action"] * 0.8  # reachable by tanh
+    optimizer = torch.optim.AdamW(model.parameters(), lr=2e-4, weight_decay=1e-4)  # the paper's optimiser
+    losses = []
+    for _ in range(40):
+        loss = masked_action_mse(run(model, batch), batch["action"], batch["mask"])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert losses[-1] < losses[0] / 10, (losses[0], losses[-1])

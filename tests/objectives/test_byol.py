@@ -1,0 +1,157 @@
+"""BYOLLoss (eqs. 6-8): loss values, EMA target, tau schedule, shared encoders, augmentations."""
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.objectives import SoftUpdate
+
+from navformer_rl.augment import BYOLAugmentation
+from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
+from navformer_rl.objectives import BYOLLoss, BYOLTauSchedule, NavFormerLoss, byol_tau, joint_parameters, normalized_mse
+
+
+def pairs(n=8, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    shape = (n, 84, 84, 3)
+    return TensorDict(
+        {
+            "pixels_static": torch.randint(0, 256, shape, dtype=torch.uint8, generator=gen),
+            "pixels_dynamic": torch.randint(0, 256, shape, dtype=torch.uint8, generator=gen),
+        },
+        batch_size=[n],
+    )
+
+
+def make_byol(seed=0, **kwargs):
+    torch.manual_seed(seed)
+    model = NavFormerModel(NavFormerConfig(dropout=0.0))  # deterministic DT loss for gradient comparisons
+    return model, BYOLLoss(model.static_encoder, model.general_encoder, seed=seed, **kwargs)
+
+
+def test_normalized_mse_known_values():
+    x = torch.tensor([[1.0, 0.0], [1.0, 0.0], [1.0, 0.0], [3.0, 4.0]])
+    y = torch.tensor([[2.0, 0.0], [0.0, 5.0], [-1.0, 0.0], [0.6, 0.8]])
+    # identical directions -> 0, orthogonal -> 2, opposite -> 4, scale does not matter
+    torch.testing.assert_close(normalized_mse(x, y), torch.tensor([0.0, 2.0, 4.0, 0.0]))
+
+
+def test_tau_schedule_follows_the_cosine_formula():
+    assert byol_tau(0, 100) == pytest.approx(0.996)
+    assert byol_tau(50, 100) == pytest.approx(0.998)
+    assert byol_tau(100, 100) == pytest.approx(1.0)
+    assert byol_tau(25, 100) == pytest.approx(1 - 0.004 * (math.cos(math.pi / 4) + 1) / 2)
+    _, loss = make_byol()
+    updater = SoftUpdate(loss, eps=0.9)
+    schedule = BYOLTauSchedule(updater, total_steps=100)
+    assert updater.eps == pytest.approx(0.996)
+    schedule.step()
+    assert updater.eps == pytest.approx(byol_tau(1, 100))
+    restored = BYOLTauSchedule(updater, total_steps=100)
+    restored.load_state_dict({"step_count": 50})
+    assert updater.eps == pytest.approx(0.998)
+
+
+def test_loss_value_equals_the_symmetric_normalised_mse_of_its_branches():
+    model, loss = make_byol()
+    batch = pairs()
+    out = loss(batch)
+    # recompute by hand with an augmentation replaying the same seeds
+    replay = BYOLAugmentation(seed=0)
+    v_s, v_d1 = replay(batch["pixels_static"]), replay(batch["pixels_dynamic"])
+    v_g1, v_g2 = replay(batch["pixels_dynamic"]), replay(batch["pixels_dynamic"])
+    total = 0.0
+    for name, (a, b) in {"static": (v_s, v_d1), "general": (v_g1, v_g2)}.items():
+        both = torch.cat([a, b])
+        online = loss.online_network[name]
+        projection = online(both)
+        prediction = loss.predictor[name](projection)
+        with torch.no_grad(), loss.target_online_network_params.to_module(loss.online_network):
+            target = online(both)
+        p_a, p_b = prediction.chunk(2)
+        t_a, t_b = target.chunk(2)
+        expected = (normalized_mse(p_a, t_b) + normalized_mse(p_b, t_a)).mean()
+        torch.testing.assert_close(out[f"loss_byol_{name}"], expected, rtol=1e-5, atol=1e-6)
+        total = total + expected
+    torch.testing.assert_close(out["loss_byol"], total, rtol=1e-5, atol=1e-6)
+    assert 0 <= out["loss_byol_static"] <= 8 and out["projection_std_general"] > 0
+
+
+def test_target_gets_no_gradient_and_is_not_a_parameter():
+    _, loss = make_byol()
+    loss(pairs())["loss_byol"].backward()
+    parameter_ids = {id(p) for p in loss.parameters()}
+    targets = list(loss.target_online_network_params.values(True, True))
+    assert targets and all(id(t) not in parameter_ids for t in targets)
+    assert all(t.grad is None for t in targets)
+    online = list(loss.online_network_params.values(True, True))
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in online if p.requires_grad)
+
+
+def test_ema_target_follows_the_formula_after_one_update():
+    _, loss = make_byol()
+    updater = SoftUpdate(loss, eps=0.99)
+    before = loss.target_online_network_params.clone()
+    optimizer = torch.optim.SGD(loss.parameters(), lr=0.5)
+    loss(pairs())["loss_byol"].backward()
+    optimizer.step()
+    updater.step()
+    online = loss.online_network_params
+    checked = 0
+    for key, new_target in loss.target_online_network_params.items(True, True):
+        if not isinstance(online[key], torch.nn.Parameter):
+            continue  # BatchNorm running statistics move with the forward passes themselves
+        checked += 1
+        expected = 0.99 * before[key] + 0.01 * online[key].detach()
+        torch.testing.assert_close(new_target, expected, rtol=1e-6, atol=1e-7)
+    assert checked == len(list(loss.online_network.parameters()))
+    weight = ("static", "encoder", "linear", "weight")
+    assert not torch.equal(loss.target_online_network_params[weight], before[weight])  # it moved
+    assert not torch.equal(loss.target_online_network_params[weight], online[weight].detach())  # not a copy
+
+
+def test_encoders_are_shared_with_the_model_and_one_step_trains_both_losses(td_factory):
+    model, byol = make_byol()
+    assert byol.online_network["static"].encoder is model.static_encoder
+    assert byol.online_network["general"].encoder is model.general_encoder
+    dt = NavFormerLoss(make_navformer_actor(model))
+    params = joint_parameters(dt, byol)
+    assert len({id(p) for p in params}) == len(params)
+    assert {id(p) for p in model.parameters()} <= {id(p) for p in params}
+    td, batch = td_factory(2, 3), pairs()
+    weight = model.static_encoder.linear.weight
+    dt(td)["loss_dt"].backward()
+    grad_dt = weight.grad.clone()
+    weight.grad = None
+    byol(batch)["loss_byol"].backward()
+    grad_byol = weight.grad.clone()
+    weight.grad = None
+    byol.augmentation.set_rng_state(BYOLAugmentation(seed=0).rng_state())  # replay the same views
+    (dt(td)["loss_dt"] + byol(batch)["loss_byol"]).backward()  # eq. 11
+    torch.testing.assert_close(weight.grad, grad_dt + grad_byol, rtol=1e-4, atol=1e-7)
+
+
+def test_single_encoder_byol_and_bad_arguments():
+    torch.manual_seed(0)
+    model = NavFormerModel(NavFormerConfig.dt_baseline())
+    loss = BYOLLoss(None, model.general_encoder)
+    out = loss(TensorDict({"pixels_dynamic": pairs()["pixels_dynamic"]}, batch_size=[8]))
+    assert set(out.keys()) == {"loss_byol", "loss_byol_general", "projection_std_general"}
+    torch.testing.assert_close(out["loss_byol"], out["loss_byol_general"])
+    with pytest.raises(ValueError, match="at least one"):
+        BYOLLoss(None, None)
+
+
+def test_augmentation_draws_parameters_per_sample_and_is_seeded():
+    image = torch.randint(0, 256, (1, 84, 84, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(0))
+    batch = image.expand(6, 84, 84, 3).contiguous()
+    global_state = torch.get_rng_state()
+    views = BYOLAugmentation(seed=3)(batch)
+    assert torch.equal(torch.get_rng_state(), global_state)  # the global RNG is untouched
+    assert views.shape == (6, 3, 84, 84) and views.dtype == torch.float32
+    assert 0 <= views.min() and views.max() <= 1
+    for i in range(1, 6):  # the same image gets a different view in every row
+        assert (views[i] - views[0]).abs().max() > 1e-3
+    torch.testing.assert_close(BYOLAugmentation(seed=3)(batch), views)
+    assert (BYOLAugmentation(seed=4)(batch) - views).abs().max() > 1e-3

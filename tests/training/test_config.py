@@ -1,0 +1,172 @@
+"""Configuration: packaged defaults are the paper's, overrides, ablation mapping, and clear errors for bad
+configurations - raised before any training starts (nothing is written)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from navformer_rl.training import ABLATIONS, TrainConfig, build_trainer, load_train_config, model_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_packaged_defaults_are_the_papers():
+    cfg = load_train_config()
+    assert cfg == TrainConfig(model=cfg.model)
+    assert (cfg.optim.lr, cfg.optim.weight_decay) == (2e-4, 1e-4)  # AdamW, §VI
+    assert (cfg.optim.dve_lr, cfg.optim.dve_weight_decay) == (4e-4, 4e-4)  # Adam, §VI
+    assert cfg.optim.iterations == 10_000
+    batches = (cfg.data.exploration_batch_trajs, cfg.data.collision_batch_trajs, cfg.data.ssl_batch_pairs)
+    assert batches == (25, 150, 512)
+    model = model_config(cfg)
+    assert (model.d_embed, model.n_blocks, model.n_heads, model.d_head, model.context_tokens) == (
+        128,
+        3,
+        2,
+        64,
+        1024,
+    )
+    assert model.dropout == 0.1 and model.thsc and model.use_static_encoder and model.use_general_encoder
+    assert not model.detach_encoders  # eq. 11: L_DT trains the encoders too
+
+
+def test_recipe_config_has_the_packaged_keys_and_values():
+    packaged = yaml.safe_load((ROOT / "navformer_rl/config/train.yaml").read_text())
+    recipe = yaml.safe_load((ROOT / "recipes/navformer/config.yaml").read_text())
+    recipe.pop("hydra")
+    assert recipe.pop("output_dir") == "${hydra:runtime.output_dir}"
+    packaged.pop("output_dir")
+    assert recipe == packaged
+
+
+def test_overrides_reach_the_dataclasses():
+    cfg = load_train_config(
+        ["optim.lr=1e-3", "ablation=no_thsc", "model.autocast_dtype=bfloat16", "model.thsc=false"]
+    )
+    assert cfg.optim.lr == 1e-3 and cfg.ablation == "no_thsc"
+    assert cfg.model["autocast_dtype"] == "bfloat16"
+    assert model_config(cfg).thsc is False
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["optim.lrr=1"], "optim.lrr"),
+        (["nonsense=1"], "nonsense"),
+        (["optim.lr"], "key=value"),
+        (["model.not_a_field=3"], "model.not_a_field"),
+    ],
+)
+def test_unknown_keys_are_named(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        cfg = load_train_config(overrides)
+        model_config(cfg)
+
+
+@pytest.mark.parametrize(
+    "ablation, switches, ssl, tasks",
+    [
+        (
+            "none",
+            {"thsc": True, "use_static_encoder": True, "use_general_encoder": True, "encoder": "cnn"},
+            True,
+            2,
+        ),
+        ("no_ssl", {"thsc": True, "use_static_encoder": True, "use_general_encoder": True}, False, 2),
+        ("no_thsc", {"thsc": False, "use_static_encoder": True, "use_general_encoder": True}, True, 2),
+        ("no_de", {"thsc": True}, True, 1),
+        ("no_dca", {"thsc": True}, True, 1),
+        ("no_fs", {"use_static_encoder": False, "use_general_encoder": True}, True, 2),
+        ("no_fg", {"use_static_encoder": True, "use_general_encoder": False}, True, 2),
+        (
+            "resnet18",
+            {"encoder": "resnet18", "use_static_encoder": False, "use_general_encoder": True},
+            True,
+            2,
+        ),
+        ("dt", {"thsc": False, "use_static_encoder": False, "use_general_encoder": True}, False, 2),
+    ],
+)
+def test_ablation_switches(ablation, switches, ssl, tasks):
+    cfg = load_train_config([f"ablation={ablation}"])
+    model = model_config(cfg)
+    assert {k: getattr(model, k) for k in switches} == switches
+    assert cfg.uses_ssl is ssl
+    assert int(cfg.uses_exploration) + int(cfg.uses_collision) == tasks
+    assert set(ABLATIONS) == {
+        "none",
+        "no_ssl",
+        "no_thsc",
+        "no_de",
+        "no_dca",
+        "no_fs",
+        "no_fg",
+        "resnet18",
+        "dt",
+    }
+
+
+def _corrupt_schema(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    meta = json.loads((dst / "metadata.json").read_text())
+    meta["schema_version"] = 999
+    (dst / "metadata.json").write_text(json.dumps(meta))
+    return dst
+
+
+BAD_CONFIGS = [
+    (["ablation=no_attention"], ValueError, "unknown ablation 'no_attention'"),
+    (["data.exploration_batch_trajs=0"], ValueError, "data.exploration_batch_trajs=0"),
+    (["data.ssl_batch_pairs=-4"], ValueError, "data.ssl_batch_pairs=-4"),
+    (["optim.trajectory_chunks=3"], ValueError, "not divisible by optim.trajectory_chunks=3"),
+    (["data.collision_path=null"], ValueError, "data.collision_path is not set"),
+    (["ablation=no_de", "data.collision_path=null"], ValueError, "data.collision_path is not set"),
+    (
+        ["data.ssl_path=/nonexistent/ssl"],
+        FileNotFoundError,
+        "data.ssl_path='/nonexistent/ssl' does not exist",
+    ),
+    (["data.collision_batch_trajs=40"], ValueError, "holds 8 trajectories, fewer than one batch of 40"),
+    (["encoder_training=frozen", "ablation=no_ssl"], ValueError, "nothing would train the encoders"),
+    (["encoder_training=sometimes"], ValueError, "encoder_training='sometimes'"),
+    (["logger.backend=wandb"], ValueError, "logger.backend='wandb'"),
+    (["model.d_head=5"], ValueError, "n_heads \\* d_head"),
+    (["data.context_steps=300"], ValueError, "at most 256 steps"),
+    (["model.detach_encoders=true"], ValueError, "use encoder_training=frozen"),
+    (["optim.iterations=0"], ValueError, "optim.iterations=0"),
+]
+
+
+@pytest.mark.parametrize("overrides, error, message", BAD_CONFIGS)
+def test_bad_configs_fail_before_training(tiny_config, overrides, error, message):
+    cfg = tiny_config(*overrides)
+    with pytest.raises(error, match=message):
+        build_trainer(cfg)
+    assert not Path(cfg.output_dir).exists()  # nothing was written
+
+
+def test_dataset_of_the_wrong_kind_is_refused(tiny_config, datasets):
+    cfg = tiny_config(f"data.exploration_path={datasets['ca']}")
+    with pytest.raises(ValueError, match="data.exploration_path: .* holds a 'ca' dataset, expected 'e'"):
+        build_trainer(cfg)
+    assert not Path(cfg.output_dir).exists()
+
+
+def test_dataset_with_an_unknown_schema_is_refused(tiny_config, datasets, tmp_path):
+    broken = _corrupt_schema(datasets["ssl"], tmp_path / "ssl_v999")
+    cfg = tiny_config(f"data.ssl_path={broken}")
+    with pytest.raises(ValueError, match="data.ssl_path: .*schema_version 999 is not supported"):
+        build_trainer(cfg)
+
+
+def test_a_fresh_run_refuses_a_directory_with_checkpoints(tiny_config):
+    from navformer_rl.training import train
+
+    train(tiny_config("optim.iterations=1"))
+    with pytest.raises(FileExistsError, match="resume=true"):
+        build_trainer(tiny_config("optim.iterations=1"))

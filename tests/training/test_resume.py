@@ -1,0 +1,79 @@
+"""Resume equality: 6 iterations straight == 3 iterations, checkpoint, a new process-like trainer, 3 more."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from navformer_rl.checkpoint import load_resume_state
+from navformer_rl.training import build_trainer, train
+
+
+def scalars(run_dir: Path, name: str) -> dict[int, float]:
+    path = run_dir / "logs" / "navformer" / "scalars" / f"{name}.csv"
+    with open(path) as handle:
+        return {int(step): float(value) for step, value in csv.reader(handle)}
+
+
+def weights(run_dir: Path, iteration: int) -> dict[str, torch.Tensor]:
+    return load_file(str(run_dir / "checkpoints" / f"iter_{iteration:06d}" / "model.safetensors"))
+
+
+@pytest.mark.parametrize("encoder_training", ["joint", "frozen"])
+def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_training):
+    common = [f"encoder_training={encoder_training}", "optim.iterations=6", "checkpoint.keep_last=0"]
+    straight = train(tiny_config(*common, f"output_dir={tmp_path / 'straight'}", "checkpoint.interval=6"))
+
+    # First process: checkpoint at iteration 3, one more iteration, then a "crash" (the trainer is dropped).
+    interrupted_dir = tmp_path / "interrupted"
+    cfg = tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3")
+    trainer = build_trainer(cfg)
+    for _ in range(3):
+        trainer.log(trainer.step())
+    trainer.save_checkpoint()
+    trainer.log(trainer.step())  # logged after the checkpoint: the resumed run must drop this row
+    del trainer
+
+    resumed = train(
+        tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3", "resume=true")
+    )
+    assert resumed.iterations == straight.iterations == 6
+
+    for name in ("loss", "loss_dt", "loss_byol"):
+        a, b = scalars(straight.run_dir, name), scalars(interrupted_dir, name)
+        assert sorted(b) == [1, 2, 3, 4, 5, 6]  # the post-checkpoint row of the crashed run was dropped
+        assert [a[i] for i in range(1, 7)] == [b[i] for i in range(1, 7)], name
+    assert scalars(interrupted_dir, "loss_dt_exploration").keys() == {1, 3, 5}  # D_e on odd iterations
+    assert scalars(interrupted_dir, "loss_dt_collision_avoidance").keys() == {2, 4, 6}
+
+    wa, wb = weights(straight.run_dir, 6), weights(interrupted_dir, 6)
+    assert wa.keys() == wb.keys()
+    for key in wa:
+        assert torch.equal(wa[key], wb[key]), key
+    ra, rb = load_resume_state(straight.checkpoint), load_resume_state(resumed.checkpoint)
+    for key, value in ra["byol"].items():  # EMA target params, BatchNorm statistics
+        assert torch.equal(value, rb["byol"][key]), key
+    assert straight.metrics == {
+        **resumed.metrics,
+        "frames_per_s": straight.metrics["frames_per_s"],
+        "iteration_s": straight.metrics["iteration_s"],
+    }
+
+
+def test_resume_refuses_a_changed_configuration(tiny_config, tmp_path):
+    run = tmp_path / "run"
+    train(tiny_config("optim.iterations=2", f"output_dir={run}"))
+    with pytest.raises(ValueError, match=r"differs in \['optim.lr'\]"):
+        train(tiny_config("optim.iterations=4", f"output_dir={run}", "resume=true", "optim.lr=1e-3"))
+
+
+def test_resume_without_checkpoint_starts_fresh_and_finished_run_is_a_no_op(tiny_config, tmp_path):
+    run = tmp_path / "run"
+    result = train(tiny_config("optim.iterations=2", f"output_dir={run}", "resume=true"))
+    assert result.iterations == 2
+    again = train(tiny_config("optim.iterations=2", f"output_dir={run}", "resume=true"))
+    assert again.iterations == 2 and again.metrics == {} and again.checkpoint == result.checkpoint
