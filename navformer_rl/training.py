@@ -734,9 +734,9 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
         )
     run_dir.mkdir(parents=True, exist_ok=True)
     ckpt.atomic_write_text(run_dir / "train_config.json", json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
-    trainer.logger = trainer.make_logger()
-    if trainer.logger is not None and trainer.iteration > 0:
+    if trainer.iteration > 0:
         _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
+    trainer.logger = trainer.make_logger()
     return trainer
 
 

@@ -24,7 +24,7 @@ Interrupted? Run the same command again: finished work units are kept and the re
 
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add the ``collect`` subcommand to ``subparsers``; it sets ``func`` to the handler."""
+    """Add the ``collect`` subcommand to ``subparsers``; it sets ``run`` to the handler."""
     parser = subparsers.add_parser(
         "collect",
         help="collect the offline datasets (D_e, D_ca, D_ssl)",
@@ -51,7 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="override the size: trajectories for e/ca, worlds for ssl (not with 'all')",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.set_defaults(func=run_collect)
+    parser.set_defaults(run=run_collect)
     return parser
 
 
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="navformer")
     register(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
-    return args.func(args)
+    return args.run(args)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -149,21 +150,19 @@ def _reached(sim, world) -> np.ndarray:
     return d <= SUCCESS_RADIUS
 
 
-def run_episode(
-    world, sim, expert, max_steps: int, record: bool = True
-) -> tuple[list[RobotTrajectory], dict[str, int]]:
+def run_episode(world, sim, expert, max_steps: int, record: bool = True) -> list[RobotTrajectory]:
     """Drive every robot of ``sim`` with ``expert`` until each reached its target or ``max_steps``.
 
     ``expert`` follows ``navformer_rl.experts.policies``: ``act(sim, active) -> float32 [R, 2]`` and a bool
     ``[R]`` ``failed`` flag. At step t each still-active robot renders o_t, the expert gives a_t, the simulator
     moves; a robot that ends the step within ``SUCCESS_RADIUS`` of its target finishes its trajectory
     (reward 1 on that step) and stays in place. An expert that flags a robot ``failed`` ends that robot's
-    trajectory as a failure. Returns the per-robot trajectories and counters.
+    trajectory as a failure. ``record=False`` skips the cameras (to time the planners alone; such
+    trajectories have no frames). Returns one :class:`RobotTrajectory` per robot.
     """
     R = sim.n_robots
     trajs = [RobotTrajectory([], [], [], []) for _ in range(R)]
     active = ~_reached(sim, world)
-    steps = 0
     for _ in range(max_steps):
         if not active.any():
             break
@@ -185,37 +184,57 @@ def run_episode(
             if reached[i]:
                 t.succeeded = True
         active &= ~reached & ~failed
-        steps += 1
-    counters = {"episodes": 1, "episode_steps": steps}
-    return trajs, counters
+    return trajs
 
 
 # ------------------------------------------------------------------------------------------- units
+def exploration_world(settings: ExplorationSettings, unit: int, k: int):
+    """``(world, rng)`` of episode ``k`` of D_e unit ``unit``: a single-robot maze of a size drawn from
+    ``settings.world_sizes``; ``rng`` (numpy Generator) then seeds the expert."""
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.world import WorldConfig, generate_world
+
+    seed = unit_seed(settings.seed, DatasetKind.EXPLORATION, unit, k)
+    rng = np.random.default_rng(seed)
+    size = float(settings.world_sizes[int(rng.integers(len(settings.world_sizes)))])
+    radius = get_robot_spec(settings.robot).radius
+    return generate_world(WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=radius), seed), rng
+
+
+def collision_avoidance_world(settings: CollisionAvoidanceSettings, unit: int):
+    """``(world, rng)`` of D_ca unit ``unit``: the arena with the ego robot plus a drawn number of others."""
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.world import WorldConfig, generate_world
+
+    seed = unit_seed(settings.seed, DatasetKind.COLLISION_AVOIDANCE, unit)
+    rng = np.random.default_rng(seed)
+    lo, hi = settings.other_robots
+    n_robots = 1 + int(rng.integers(lo, hi + 1))
+    radius = get_robot_spec(settings.robot).radius
+    config = WorldConfig(size=settings.arena_size, kind="arena", n_robots=n_robots, robot_radius=radius)
+    return generate_world(config, seed), rng
+
+
 def _exploration_unit(settings: ExplorationSettings, unit: int):
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.envs.target_image import render_target_image
-    from navformer_rl.envs.world import WorldConfig, generate_world
     from navformer_rl.experts.policies import ExplorationExpert
 
     spec = get_robot_spec(settings.robot)
     rows, targets = [], []
-    counters = {"attempted": 0, "failed": 0, "collision_steps": 0}
+    counters = {"attempted": 0, "failed": 0, "collision_steps": 0, "robot_steps": 0}
     for k in range(settings.episodes_per_unit):
-        seed = unit_seed(settings.seed, DatasetKind.EXPLORATION, unit, k)
-        rng = np.random.default_rng(seed)
-        size = float(settings.world_sizes[int(rng.integers(len(settings.world_sizes)))])
-        world = generate_world(
-            WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=spec.radius), seed
-        )
+        world, rng = exploration_world(settings, unit, k)
         sim = Simulator(world, spec)
         try:
             expert = ExplorationExpert()
             expert.reset(world, sim, rng)
-            (traj,), _ = run_episode(world, sim, expert, settings.max_steps)
+            (traj,) = run_episode(world, sim, expert, settings.max_steps)
         finally:
             sim.close()
         counters["attempted"] += 1
+        counters["robot_steps"] += len(traj.actions)
         if not traj.succeeded:
             counters["failed"] += 1
             continue
@@ -230,22 +249,16 @@ def _collision_avoidance_unit(settings: CollisionAvoidanceSettings, unit: int):
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.envs.target_image import render_target_image
-    from navformer_rl.envs.world import WorldConfig, generate_world
     from navformer_rl.experts.policies import NHORCAExpert
 
     spec = get_robot_spec(settings.robot)
-    seed = unit_seed(settings.seed, DatasetKind.COLLISION_AVOIDANCE, unit)
-    rng = np.random.default_rng(seed)
-    lo, hi = settings.other_robots
-    n_robots = 1 + int(rng.integers(lo, hi + 1))
-    world = generate_world(
-        WorldConfig(size=settings.arena_size, kind="arena", n_robots=n_robots, robot_radius=spec.radius), seed
-    )
+    world, rng = collision_avoidance_world(settings, unit)
+    n_robots = world.n_robots
     sim = Simulator(world, spec)
     try:
         expert = NHORCAExpert()
         expert.reset(world, sim, rng)
-        trajs, _ = run_episode(world, sim, expert, settings.max_steps)
+        trajs = run_episode(world, sim, expert, settings.max_steps)
     finally:
         sim.close()
     rows, targets = [], []
@@ -255,6 +268,7 @@ def _collision_avoidance_unit(settings: CollisionAvoidanceSettings, unit: int):
         "failed": 0,
         "collision_steps": 0,
         "robot_robot_collision_episodes": int(any(t.robot_collisions for t in trajs)),
+        "robot_steps": sum(len(t.actions) for t in trajs),
     }
     for i, traj in enumerate(trajs):
         if not traj.succeeded:
@@ -372,14 +386,23 @@ def collect(
         items[done] = writer.shard_stats(done)["items"]
     bar = _progress_bar(kind, target, progress)
     bar.update(min(covered(), target))
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_spawn()) if workers > 1 else None
+    pool = (
+        ProcessPoolExecutor(
+            max_workers=workers, mp_context=_spawn(), initializer=_exit_with_parent, initargs=(os.getpid(),)
+        )
+        if workers > 1
+        else None
+    )
     pending: dict[Future, int] = {}
     try:
         while covered() < target:
             # keep 2 units per worker in flight, in unit order, skipping finished ones
-            while len(pending) < 2 * workers and not _enough_in_flight(items, pending, target):
+            while len(pending) < 2 * workers:
                 while unit in items:
                     unit += 1
+                fills_gap = unit < max(items, default=-1)
+                if not fills_gap and _enough_in_flight(items, pending, target):
+                    break
                 if pool is None:
                     _record(items, unit, unit_fn(str(out), kind.value, settings, unit), bar, covered)
                 else:
@@ -406,7 +429,8 @@ _SEED_DOC = (
 
 
 def _enough_in_flight(items: dict[int, int], pending: dict[Future, int], target: int) -> bool:
-    """True when the units finished or running are expected to cover ``target`` items (mean yield)."""
+    """True when the units finished or running are expected to cover ``target`` items (mean yield, 5 %
+    margin); units below the highest finished one are always scheduled (gaps left by an interruption)."""
     if not items:
         return False
     mean = max(sum(items.values()) / len(items), 1e-3)
@@ -418,6 +442,19 @@ def _record(items: dict[int, int], unit: int, result: dict[str, int], bar, cover
     bar.n = min(covered(), bar.total)
     bar.set_postfix(units=len(items), rows=result.get("rows", 0), refresh=False)
     bar.refresh()
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """Worker initializer: end this worker when the collecting process dies (e.g. SIGKILL), so no orphan
+    keeps running; a shard it was writing stays a temp folder that the next run deletes."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def _spawn():

@@ -212,10 +212,9 @@ class MultiRobotNavEnv(EnvBase):
         action = tensordict.get(("agents", "action"))
         actions = validate_actions(action.detach().cpu().numpy(), self.n_agents)
         active = ~self._success
-        before = self.simulator.poses[:, :2].astype(np.float64)
         contacts = self.simulator.step(actions, active)
         after = self.simulator.poses[:, :2].astype(np.float64)
-        self._path_length += np.hypot(*(after - before).T)
+        self._path_length += np.abs(self.simulator.velocities[:, 0]) * self.simulator.dt  # arc length driven
         self._collisions += contacts.collided
         arrived = active & (np.hypot(*(after - self._target_xy).T) <= SUCCESS_RADIUS)
         self._success |= arrived

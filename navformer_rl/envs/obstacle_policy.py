@@ -29,34 +29,38 @@ class ObstaclePolicy(Protocol):
     def act(self, sim: Simulator, robot_indices: Sequence[int]) -> np.ndarray: ...
 
 
-def coarsen(occupancy: OccupancyMap, factor: int) -> OccupancyMap:
-    """A coarser map whose cell is occupied when any of the ``factor x factor`` fine cells it covers is."""
-    if factor == 1:
-        return occupancy
-    h, w = occupancy.shape
-    grid = np.zeros((-(-h // factor) * factor, -(-w // factor) * factor), dtype=bool)
-    grid[:h, :w] = occupancy.grid
-    blocks = grid.reshape(grid.shape[0] // factor, factor, grid.shape[1] // factor, factor)
-    return OccupancyMap(blocks.any(axis=(1, 3)), occupancy.resolution * factor, occupancy.origin)
+def coarsen(occupancy: OccupancyMap, factor: int, clearance: float = 0.0) -> OccupancyMap:
+    """A map ``factor`` times coarser, sampled from ``occupancy.inflate(clearance)``: a coarse cell is
+    blocked when the fine cell at its centre is. Plan on it with clearance 0 (the inflation is built in);
+    sampling (rather than "any fine cell blocked") keeps narrow but passable corridors open."""
+    blocked = occupancy.inflate(clearance)
+    h, w = blocked.shape
+    rows = np.minimum(np.arange(-(-h // factor)) * factor + factor // 2, h - 1)
+    cols = np.minimum(np.arange(-(-w // factor)) * factor + factor // 2, w - 1)
+    return OccupancyMap(blocked[np.ix_(rows, cols)], occupancy.resolution * factor, occupancy.origin)
+
+
+_TARGET, _DETOUR, _WANDER = "target", "detour", "wander"
 
 
 class GoalSeekingPolicy:
-    """Each robot follows the geodesic distance field (occupancy map inflated by its radius plus
-    ``margin``) toward its own target; once within the success radius, or when it makes no progress for
-    ``patience`` steps, it wanders to random free goals in turn.
+    """Each robot follows a geodesic distance field toward its own target; once within the success radius
+    it wanders to random free goals in turn. When it makes no progress for ``patience`` steps (e.g.
+    blocked by a parked robot) it takes a detour to a random free goal, then heads for its target again.
 
-    Steering: it walks ``lookahead`` metres down the distance field from its cell (steepest descent over
-    the 8 neighbours, so the waypoint is always reachable), turns toward that waypoint with a
-    proportional gain, slows down for large heading errors, and yields (slows, veers right) when another
-    robot is close ahead.
+    Planning: on the occupancy map inflated by the robot's radius plus ``margin`` (or by the radius alone
+    where the margin closes a gap), sampled ``coarsening`` times coarser. Steering: it walks
+    ``lookahead`` metres down the distance field from its cell (steepest descent over the 8 neighbours, so
+    the waypoint is always reachable), turns toward that waypoint with a proportional gain, slows down
+    for large heading errors, and yields (slows, veers right) when another robot is close ahead.
 
     Args:
         lookahead: metres of steepest descent to the waypoint.
         margin: extra clearance from walls in metres.
-        patience: steps without getting 0.1 m closer before a robot picks a new random goal.
+        patience: steps without getting 0.1 m closer before a robot changes goal.
         speed: fraction of ``v_max`` used when cruising.
-        coarsening: the map is planned on at ``coarsening`` times the occupancy resolution (0.2 m cells
-            by default: a new goal's distance field then costs well under a millisecond).
+        coarsening: planning cells are ``coarsening`` occupancy cells wide (0.2 m by default: a new goal's
+            distance field then costs well under a millisecond).
     """
 
     def __init__(
@@ -74,31 +78,55 @@ class GoalSeekingPolicy:
         self.speed = speed
 
     def reset(self, world: WorldSpec, sim: Simulator, rng: np.random.Generator) -> None:
-        self._world = world
         self._rng = rng
-        self._occupancy = coarsen(world.occupancy, self.coarsening)
-        self._clearance = [float(r) + self.margin for r in sim.radii]
+        radii = [float(r) for r in sim.radii]
+        maps = {c: coarsen(world.occupancy, self.coarsening, c) for r in radii for c in (r + self.margin, r)}
+        self._maps = [(maps[r + self.margin], maps[r]) for r in radii]  # (with margin, tight) per robot
+        self._free_cells = {id(m): np.argwhere(m.largest_free_component(0.0)) for m in maps.values()}
+        self._descent_steps = max(1, int(round(self.lookahead / self._maps[0][0].resolution)))
         n = sim.n_robots
-        self._goals = [
-            (world.targets[i].position.astype(np.float64), True) if i < len(world.targets) else None
-            for i in range(n)
+        self._targets = [
+            world.targets[i].position.astype(np.float64) if i < len(world.targets) else None for i in range(n)
         ]
+        self._goals: list[tuple[np.ndarray, str]] = [(np.zeros(2), _WANDER)] * n
+        self._fields: list[dict[int, np.ndarray]] = [{} for _ in range(n)]
         self._best = np.full(n, np.inf)
         self._stalled = np.zeros(n, dtype=np.int64)
-        self._descent_steps = max(1, int(round(self.lookahead / self._occupancy.resolution)))
-        self._free_cells = {
-            c: np.argwhere(self._occupancy.largest_free_component(c)) for c in set(self._clearance)
-        }
         for i in range(n):
-            if self._goals[i] is None:
-                self._new_wander_goal(i)
+            if self._targets[i] is None:
+                self._set_goal(i, self._random_goal(i), _WANDER)
+            else:
+                self._set_goal(i, self._targets[i], _TARGET)
 
-    def _new_wander_goal(self, i: int) -> None:
-        free = self._free_cells[self._clearance[i]]
-        cell = free[int(self._rng.integers(len(free)))]
-        self._goals[i] = (self._occupancy.cell_to_world(cell), False)
+    def _random_goal(self, i: int) -> np.ndarray:
+        occ = self._maps[i][0]
+        free = self._free_cells[id(occ)]
+        return occ.cell_to_world(free[int(self._rng.integers(len(free)))])
+
+    def _field(self, i: int, occ: OccupancyMap) -> np.ndarray:
+        """Distance field of robot ``i``'s current goal on ``occ`` (computed once per goal and map)."""
+        key = id(occ)
+        if key not in self._fields[i]:
+            self._fields[i][key] = occ.distance_field(self._goals[i][0], 0.0)
+        return self._fields[i][key]
+
+    def _set_goal(self, i: int, goal: np.ndarray, kind: str) -> None:
+        self._goals[i] = (goal, kind)
+        self._fields[i] = {}
         self._best[i] = np.inf
         self._stalled[i] = 0
+
+    def _next_goal(self, i: int, reached: bool) -> None:
+        """Target reached: wander from now on. Stuck on the way to the target: a random detour, then back."""
+        kind = self._goals[i][1]
+        if kind == _TARGET and reached:
+            self._targets[i] = None
+        if kind == _TARGET and not reached:
+            self._set_goal(i, self._random_goal(i), _DETOUR)
+        elif kind == _DETOUR and self._targets[i] is not None:
+            self._set_goal(i, self._targets[i], _TARGET)
+        else:
+            self._set_goal(i, self._random_goal(i), _WANDER)
 
     def act(self, sim: Simulator, robot_indices: Sequence[int]) -> np.ndarray:
         poses = sim.poses.astype(np.float64)
@@ -109,16 +137,22 @@ class GoalSeekingPolicy:
 
     def _act_one(self, sim: Simulator, i: int, poses: np.ndarray) -> tuple[float, float]:
         x, y, yaw = poses[i]
-        goal, is_target = self._goals[i]
-        reach = SUCCESS_RADIUS if is_target else 0.5
-        if math.hypot(goal[0] - x, goal[1] - y) <= reach:
-            self._new_wander_goal(i)
-            goal, is_target = self._goals[i]
-        occ = self._occupancy
-        field = occ.distance_field(goal, self._clearance[i])
-        cell = occ.snap_to_free((x, y), self._clearance[i])  # its own cell, or the nearest free one
-        start_value = field[cell]
-        h, w = field.shape
+        goal, kind = self._goals[i]
+        if math.hypot(goal[0] - x, goal[1] - y) <= (SUCCESS_RADIUS if kind == _TARGET else 0.5):
+            self._next_goal(i, reached=True)
+            goal, kind = self._goals[i]
+        for occ in self._maps[i]:  # with the wall margin if that connects robot and goal, else tight
+            field = self._field(i, occ)
+            h, w = field.shape
+            cell = (
+                min(max(int(y // occ.resolution), 0), h - 1),
+                min(max(int(x // occ.resolution), 0), w - 1),
+            )
+            if not np.isfinite(field[cell]):
+                cell = occ.snap_to_free((x, y), 0.0)  # inside the inflated walls: the nearest free cell
+            start_value = field[cell]
+            if np.isfinite(start_value):
+                break
         for _ in range(self._descent_steps):  # walk down the distance field: never across a wall
             r, c = cell
             r0, c0 = max(r - 1, 0), max(c - 1, 0)
@@ -136,13 +170,12 @@ class GoalSeekingPolicy:
         else:
             self._stalled[i] += 1
             if self._stalled[i] > self.patience:  # blocked (or the goal is unreachable): go elsewhere
-                self._new_wander_goal(i)
+                self._next_goal(i, reached=False)
         heading_error = wrap_angle(math.atan2(waypoint[1] - y, waypoint[0] - x) - yaw)
         spec = sim.robot_specs[i]
         w_cmd = float(np.clip(2.0 * heading_error / spec.w_max, -1.0, 1.0))
         v_cmd = self.speed * max(0.0, math.cos(heading_error)) ** 2
-        v_cmd, w_cmd = self._yield_to_robots(i, poses, spec.radius, v_cmd, w_cmd)
-        return v_cmd, w_cmd
+        return self._yield_to_robots(i, poses, spec.radius, v_cmd, w_cmd)
 
     @staticmethod
     def _yield_to_robots(i: int, poses: np.ndarray, radius: float, v: float, w: float) -> tuple[float, float]:

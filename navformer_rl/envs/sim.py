@@ -142,6 +142,7 @@ class Simulator:
         self._velocities = np.zeros((self.n_robots, 2), dtype=np.float64)
         self._visible = np.ones(self.n_robots, dtype=bool)
         self._dirty = np.ones(self.n_robots, dtype=bool)
+        self._broadphase_stale = True
         self._circle_list = [tuple(float(v) for v in c) for c in self._circles]
         self._build_box_buckets()
         self._textured = textured
@@ -364,8 +365,8 @@ class Simulator:
             z = 0.0 if self._visible[i] else _HIDDEN_Z
             orn = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
             p.resetBasePositionAndOrientation(self._robot_bodies[i], (x, y, z), orn, physicsClientId=c)
-        p.performCollisionDetection(physicsClientId=c)  # refresh broadphase AABBs for ray tests
         self._dirty[:] = False
+        self._broadphase_stale = True
 
     def _projection(self, fov_deg: float) -> list[float]:
         if fov_deg not in self._projections:
@@ -418,6 +419,9 @@ class Simulator:
         if n_rays < 1 or not fov > 0 or not max_range > 0:
             raise ValueError(f"need n_rays >= 1, fov > 0, max_range > 0; got {n_rays}, {fov}, {max_range}")
         self._sync()
+        if self._broadphase_stale:  # moved bodies need fresh AABBs before ray tests (not for rendering)
+            self._p.performCollisionDetection(physicsClientId=self._client)
+            self._broadphase_stale = False
         if fov >= 2 * math.pi - 1e-9:
             offsets = np.linspace(-math.pi, math.pi, n_rays, endpoint=False)
         else:

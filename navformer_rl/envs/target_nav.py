@@ -160,10 +160,9 @@ class TargetNavEnv(gym.Env):
         actions[0] = own[0]
         if n > 1:
             actions[1:] = self.obstacle_policy.act(self.simulator, range(1, n))
-        before = self.simulator.poses[0, :2].astype(np.float64)
         contacts = self.simulator.step(actions)
         after = self.simulator.poses[0, :2].astype(np.float64)
-        self._path_length += float(np.hypot(*(after - before)))
+        self._path_length += abs(float(self.simulator.velocities[0, 0])) * self.simulator.dt  # arc length
         self._trajectory.append(after)
         self._step += 1
         collided = bool(contacts.collided[0])

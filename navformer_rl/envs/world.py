@@ -440,6 +440,33 @@ def _build_occupancy(size: float, walls: np.ndarray, targets: list[TargetSpec]) 
     )
 
 
+def world_from_layout(
+    size: float,
+    walls,
+    targets: list[TargetSpec],
+    starts,
+    seed: int = 0,
+    config: WorldConfig | None = None,
+) -> WorldSpec:
+    """A :class:`WorldSpec` from a hand-made layout: ``walls`` float ``[W, 4]`` boxes ``(cx, cy, hx, hy)``,
+    one target and one start ``(x, y, yaw)`` per robot. The occupancy map is rasterised from them; starts
+    are checked as in :func:`replace_layout`. ``kind`` is ``"custom"``."""
+    config = config or WorldConfig(size=size, n_robots=len(targets))
+    walls = np.asarray(walls, dtype=np.float32).reshape(-1, 4)
+    placeholder = WorldSpec(
+        size=float(size),
+        kind="custom",
+        walls=walls,
+        wall_height=float(config.wall_height),
+        occupancy=_build_occupancy(size, walls, []),
+        starts=np.zeros((0, 3), dtype=np.float32),
+        targets=[],
+        seed=int(seed),
+        config=config,
+    )
+    return replace_layout(placeholder, starts, targets)
+
+
 def _targets_reachable(occupancy: OccupancyMap, targets: list[TargetSpec], clearance: float) -> bool:
     """True when the free space at ``clearance`` is one component and touches every target."""
     labels, n = occupancy.free_components(clearance)

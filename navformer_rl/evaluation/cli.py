@@ -32,15 +32,21 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "top-down maps and videos into --out.",
     )
     parser.add_argument("--method", help=f"one of: {', '.join(METHODS)}")
-    parser.add_argument("--checkpoint", help="run dir, checkpoint folder or model.safetensors (navformer, dt)")
+    parser.add_argument(
+        "--checkpoint", help="run dir, checkpoint folder or model.safetensors (navformer, dt)"
+    )
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--episodes", type=Path, help="episode-set JSON file (from `evaluate make-episodes`)")
     source.add_argument("--protocol", help=f"generate the episodes of a protocol: {', '.join(PROTOCOLS)}")
     _add_generation_options(parser)
     parser.add_argument("--out", type=Path, help="output folder")
     parser.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
-    parser.add_argument("--videos", type=int, default=1, help="episodes per setup recorded as mp4 (default 1)")
-    parser.add_argument("--maps", type=int, default=2, help="episodes per setup drawn as top-down maps (default 2)")
+    parser.add_argument(
+        "--videos", type=int, default=1, help="episodes per setup recorded as mp4 (default 1)"
+    )
+    parser.add_argument(
+        "--maps", type=int, default=2, help="episodes per setup drawn as top-down maps (default 2)"
+    )
     parser.add_argument("--label", help="method name in tables (default: --method), e.g. navformer-no_thsc")
     parser.add_argument("--seed", type=int, default=0, help="seed of stochastic policies (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -53,7 +59,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Generate the episodes of a protocol (seeded, deterministic) and save them as JSON.",
     )
     make.add_argument("--protocol", dest="make_protocol", required=True, help=", ".join(PROTOCOLS))
-    make.add_argument("--out", dest="make_out", type=Path, required=True, help="episode-set JSON file to write")
+    make.add_argument(
+        "--out", dest="make_out", type=Path, required=True, help="episode-set JSON file to write"
+    )
     _add_generation_options(make)
     make.set_defaults(run=_run_make_episodes)
 
@@ -63,7 +71,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Combine evaluation folders (one per method) into one markdown report with tables, "
         "plots, links to maps/videos and the paper's Table I.",
     )
-    report.add_argument("folders", nargs="+", type=Path, help="evaluation folders (from `navformer evaluate`)")
+    report.add_argument(
+        "folders", nargs="+", type=Path, help="evaluation folders (from `navformer evaluate`)"
+    )
     report.add_argument("--out", dest="report_out", type=Path, required=True, help="report .md file to write")
     report.add_argument("--title", default="NavFormer evaluation")
     report.set_defaults(run=_run_report)
@@ -81,7 +91,10 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--episode-seed", type=int, default=0, help="with --protocol: generation seed")
     parser.add_argument(
-        "--max-steps", type=int, default=MAX_EPISODE_STEPS, help="with --protocol: steps per trial (paper: 500)"
+        "--max-steps",
+        type=int,
+        default=MAX_EPISODE_STEPS,
+        help="with --protocol: steps per trial (paper: 500)",
     )
 
 

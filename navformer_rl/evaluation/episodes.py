@@ -124,7 +124,11 @@ class Episode:
             "n_robots": self.n_robots,
             "world_index": self.world_index,
             "trial": self.trial,
-            "world": {"config": self.world_config, "seed": self.world_seed, "walls_sha256": self.walls_sha256},
+            "world": {
+                "config": self.world_config,
+                "seed": self.world_seed,
+                "walls_sha256": self.walls_sha256,
+            },
             "robots": list(self.robots),
             "measured": list(self.measured),
             "starts": [list(s) for s in self.starts],
@@ -154,7 +158,11 @@ class Episode:
                 measured=tuple(bool(m) for m in row["measured"]),
                 starts=tuple(tuple(float(v) for v in s) for s in row["starts"]),
                 targets=tuple(
-                    {"position": [float(v) for v in t["position"]], "shape": str(t["shape"]), "color": str(t["color"])}
+                    {
+                        "position": [float(v) for v in t["position"]],
+                        "shape": str(t["shape"]),
+                        "color": str(t["color"]),
+                    }
                     for t in row["targets"]
                 ),
                 shortest_paths=tuple(float(v) for v in row["shortest_paths"]),
@@ -171,9 +179,13 @@ class Episode:
         }  # fmt: skip
         for name, values in per_robot.items():
             if len(values) != n:
-                raise ValueError(f"episode {episode.episode_id}: {name} has {len(values)} entries, expected n_robots={n}")
+                raise ValueError(
+                    f"episode {episode.episode_id}: {name} has {len(values)} entries, expected n_robots={n}"
+                )
         if any(len(s) != 3 for s in episode.starts) or any(len(t["position"]) != 2 for t in episode.targets):
-            raise ValueError(f"episode {episode.episode_id}: starts must be [x, y, yaw], target positions [x, y]")
+            raise ValueError(
+                f"episode {episode.episode_id}: starts must be [x, y, yaw], target positions [x, y]"
+            )
         if not all(np.isfinite(episode.shortest_paths)) or min(episode.shortest_paths) <= 0:
             raise ValueError(f"episode {episode.episode_id}: shortest paths must be finite and > 0")
         return episode
@@ -187,7 +199,9 @@ class Episode:
             world_seed=self.world_seed,
             starts=np.array(self.starts, dtype=np.float32),
             targets=[
-                TargetSpec(position=np.array(t["position"], dtype=np.float32), shape=t["shape"], color=t["color"])
+                TargetSpec(
+                    position=np.array(t["position"], dtype=np.float32), shape=t["shape"], color=t["color"]
+                )
                 for t in self.targets
             ],
         )
@@ -256,7 +270,9 @@ def make_episode_set(
     from navformer_rl import __version__
 
     if trials_per_setup < 1 or trials_per_world < 1:
-        raise ValueError(f"trials_per_setup and trials_per_world must be >= 1, got {trials_per_setup}, {trials_per_world}")
+        raise ValueError(
+            f"trials_per_setup and trials_per_world must be >= 1, got {trials_per_setup}, {trials_per_world}"
+        )
     if max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
     episodes: list[Episode] = []
@@ -368,7 +384,9 @@ def _make_world(setup: Setup, world_index: int, seed: int):
 
     radius = max(get_robot_spec(style).radius for style in setup.robots)
     config = WorldConfig(size=setup.size, kind="maze", n_robots=setup.n_robots, robot_radius=radius)
-    world_rng = np.random.default_rng(np.random.SeedSequence([seed, round(setup.size * 100), setup.n_robots, world_index]))
+    world_rng = np.random.default_rng(
+        np.random.SeedSequence([seed, round(setup.size * 100), setup.n_robots, world_index])
+    )
     return generate_world(config, int(world_rng.integers(2**31)))
 
 
@@ -401,7 +419,9 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
     holder = dataclasses.replace(base, targets=targets)  # the base starts are replaced below
     holder = dataclasses.replace(
         holder,
-        occupancy=OccupancyMap.from_shapes(config.size, OCCUPANCY_RESOLUTION, holder.obstacle_boxes, holder.obstacle_circles),
+        occupancy=OccupancyMap.from_shapes(
+            config.size, OCCUPANCY_RESOLUTION, holder.obstacle_boxes, holder.obstacle_circles
+        ),
     )
     starts = sample_start_poses(holder, setup.n_robots, rng)
     world = replace_layout(base, starts=starts, targets=targets)
@@ -427,7 +447,8 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
         measured=tuple(setup.measured),
         starts=tuple(tuple(round(float(v), 6) for v in s) for s in starts),
         targets=tuple(
-            {"position": [round(float(v), 6) for v in t.position], "shape": t.shape, "color": t.color} for t in targets
+            {"position": [round(float(v), 6) for v in t.position], "shape": t.shape, "color": t.color}
+            for t in targets
         ),
         shortest_paths=tuple(round(float(v), 6) for v in shortest),
         shortest_paths_to_disc=tuple(round(float(v), 6) for v in to_disc),

@@ -10,7 +10,10 @@ every robot driven by the evaluated method (paper §VII.A), measures each robot-
 - ``maps/<episode>.png``: top-down maps with every robot's trajectory (first ``maps_per_setup`` episodes
   of each setup); ``videos/<episode>.mp4``: the robots' cameras beside the top-down map (first
   ``videos_per_setup`` episodes of each setup);
-- ``episode_set.json``: the episode set that was run; ``run.json``: method, checkpoint, settings, hashes.
+- ``episode_set.json``: the episode set that was run; ``run.json``: method, checkpoint, settings, hashes;
+- ``per_episode/<episode>.json``: each finished episode's rows, written as soon as it ends, so that an
+  interrupted run resumes where it stopped (``resume=True``, the default, reuses the rows whose method,
+  label, checkpoint weights, seed, trial length, episode and visuals are the same).
 
 Episodes run in ``workers`` spawned processes (one env per robot line-up and one policy per process);
 each episode's result depends only on the episode (its world, layout and seed) and the method, never on
@@ -19,11 +22,12 @@ which worker ran it or in which order, so any worker count gives the same record
 
 from __future__ import annotations
 
+import hashlib
 import json
 import multiprocessing
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,10 +38,13 @@ from navformer_rl.evaluation._io import atomic_write_text
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
+from navformer_rl.evaluation.video import VideoWriter, compose_frame, draw_map, save_map_png
 
 METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
 """Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
 CHECKPOINT_METHODS = ("navformer", "dt")
+PARTIAL_DIRNAME = "per_episode"
+"""Sub-folder of the output folder holding one result file per finished episode (for resuming)."""
 
 
 @dataclass(frozen=True)
@@ -61,8 +68,14 @@ class PolicySpec:
         if self.method in CHECKPOINT_METHODS:
             if self.checkpoint is None:
                 raise ValueError(f"method {self.method!r} needs a checkpoint (--checkpoint PATH)")
+            from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
+
             _, config = self.build_with_config()
-            return {"model_config": {k: getattr(config, k) for k in config.__dataclass_fields__}}
+            weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
+            return {
+                "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
+                "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
+            }
         if self.checkpoint is not None:
             raise ValueError(f"method {self.method!r} takes no checkpoint (got {self.checkpoint!r})")
         return {}
@@ -98,6 +111,9 @@ class EpisodeTask:
     save_video: bool
     out_dir: str
     label: str
+    key: str
+    """Identifies the work (method, checkpoint, seed, episode, visuals): a stored result with this key is
+    reused on resume."""
 
 
 @dataclass
@@ -124,6 +140,7 @@ def evaluate(
     video_fps: float = 10.0,
     confidence: float = 0.95,
     progress: bool = True,
+    resume: bool = True,
 ) -> EvaluationResult:
     """Run ``method`` on every episode of ``episode_set`` and write the outputs (module docstring).
 
@@ -140,6 +157,9 @@ def evaluate(
         video_fps: frames per second of the videos (one frame per 0.2 s step).
         confidence: level of the intervals.
         progress: show a tqdm progress bar.
+        resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
+            the same method, label, checkpoint weights, seed and trial length (an interrupted run picks
+            up where it stopped); False recomputes everything.
     """
     if isinstance(episode_set, str | os.PathLike):
         episode_set = load_episode_set(episode_set)
@@ -156,9 +176,17 @@ def evaluate(
     out_dir.mkdir(parents=True, exist_ok=True)
     save_episode_set(episode_set, out_dir / "episode_set.json")
 
-    tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup)
+    identity = {
+        "method": method,
+        "label": label,
+        "seed": int(seed),
+        "max_steps": episode_set.max_steps,
+        "checkpoint_sha256": description.get("checkpoint_sha256"),
+        "record_fields": sorted(RobotTrial.__dataclass_fields__),
+    }
+    tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup, identity)
     started = time.perf_counter()
-    outputs = _run_tasks(tasks, spec, episode_set.max_steps, video_fps, workers, progress, label)
+    outputs = _run_tasks(tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume)
     elapsed = time.perf_counter() - started
 
     records = [record for output in outputs for record in output["records"]]
@@ -201,24 +229,56 @@ def evaluate(
 
 
 def _make_tasks(
-    episode_set: EpisodeSet, out_dir: Path, label: str, maps_per_setup: int, videos_per_setup: int
+    episode_set: EpisodeSet,
+    out_dir: Path,
+    label: str,
+    maps_per_setup: int,
+    videos_per_setup: int,
+    identity: dict[str, Any],
 ) -> list[EpisodeTask]:
     seen: dict[str, int] = {}
     tasks = []
     for index, episode in enumerate(episode_set.episodes):
         rank = seen.get(episode.setup, 0)
         seen[episode.setup] = rank + 1
-        tasks.append(
-            EpisodeTask(
-                index=index,
-                episode=episode.to_json(),
-                save_map=rank < maps_per_setup,
-                save_video=rank < videos_per_setup,
-                out_dir=str(out_dir),
-                label=label,
-            )
-        )
+        save_map, save_video = rank < maps_per_setup, rank < videos_per_setup
+        content = {**identity, "episode": episode.to_json(), "map": save_map, "video": save_video}
+        key = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+        tasks.append(EpisodeTask(index, episode.to_json(), save_map, save_video, str(out_dir), label, key))
     return tasks
+
+
+def _partial_path(task: EpisodeTask) -> Path:
+    return Path(task.out_dir) / PARTIAL_DIRNAME / f"{_file_stem(task.episode['episode_id'])}.json"
+
+
+def _store_partial(task: EpisodeTask, output: dict[str, Any]) -> None:
+    document = {
+        "key": task.key,
+        "records": [r.to_dict() for r in output["records"]],
+        "maps": output["maps"],
+        "videos": output["videos"],
+    }
+    atomic_write_text(_partial_path(task), json.dumps(document, sort_keys=True) + "\n")
+
+
+def _load_partial(task: EpisodeTask) -> dict[str, Any] | None:
+    """The stored output of ``task`` when its key matches and its visuals still exist, else None."""
+    path = _partial_path(task)
+    try:
+        document = json.loads(path.read_text())
+        if document["key"] != task.key:
+            return None
+        output = {
+            "records": [RobotTrial.from_dict(r) for r in document["records"]],
+            "maps": list(document["maps"]),
+            "videos": list(document["videos"]),
+        }
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not all((Path(task.out_dir) / f).is_file() for f in output["maps"] + output["videos"]):
+        return None
+    return output
 
 
 def _run_tasks(
@@ -229,34 +289,53 @@ def _run_tasks(
     workers: int,
     progress: bool,
     label: str,
+    resume: bool,
 ) -> list[dict[str, Any]]:
     from tqdm.auto import tqdm
 
     results: list[dict[str, Any] | None] = [None] * len(tasks)
-    bar = tqdm(total=len(tasks), desc=f"evaluate {label}", unit="episode", disable=not progress)
+    if resume:
+        for task in tasks:
+            results[task.index] = _load_partial(task)
+    todo = [task for task in tasks if results[task.index] is None]
+    bar = tqdm(
+        total=len(tasks),
+        initial=len(tasks) - len(todo),
+        desc=f"evaluate {label}",
+        unit="episode",
+        disable=not progress,
+    )
+
+    def finish(task: EpisodeTask, output: dict[str, Any]) -> None:
+        _store_partial(task, output)
+        results[task.index] = output
+        bar.update(1)
+
     try:
-        if workers == 1:
+        if not todo:
+            pass
+        elif workers == 1:
+            import torch
+
+            threads = torch.get_num_threads()
+            torch.set_num_threads(1)  # as in the workers, so the worker count cannot change float results
             runner = EpisodeRunner(spec, max_steps, video_fps)
             try:
-                for task in tasks:
-                    results[task.index] = runner.run(task)
-                    bar.update(1)
+                for task in todo:
+                    finish(task, runner.run(task))
             finally:
                 runner.close()
+                torch.set_num_threads(threads)
         else:
-            context = multiprocessing.get_context("spawn")
             with ProcessPoolExecutor(
-                max_workers=min(workers, len(tasks)),
-                mp_context=context,
+                max_workers=min(workers, len(todo)),
+                mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_worker,
                 initargs=(spec, max_steps, video_fps),
             ) as pool:
-                futures = {pool.submit(_run_in_worker, task): task.index for task in tasks}
-                from concurrent.futures import as_completed
-
+                futures = {pool.submit(_run_in_worker, task): task for task in todo}
                 for future in as_completed(futures):
-                    results[futures[future]] = future.result()
-                    bar.update(1)
+                    finish(futures[future], future.result())
     finally:
         bar.close()
     return [r for r in results if r is not None]
@@ -309,8 +388,6 @@ class EpisodeRunner:
         """Run one episode; returns ``{"records": [RobotTrial], "maps": [...], "videos": [...]}``."""
         import torch
 
-        from navformer_rl.evaluation.video import VideoWriter, compose_frame, draw_map, save_map_png
-
         episode = Episode.from_json(task.episode)
         env = self._env(episode.robots)
         env.set_next_episode(episode.world_spec())
@@ -326,11 +403,15 @@ class EpisodeRunner:
             keep_path = task.save_map or task.save_video
             paths = [[p[:2].copy()] for p in poses] if keep_path else None
             name = _file_stem(episode.episode_id)
-            video = VideoWriter(Path(task.out_dir) / "videos" / f"{name}.mp4", self.video_fps) if task.save_video else None
+            video = (
+                VideoWriter(Path(task.out_dir) / "videos" / f"{name}.mp4", self.video_fps)
+                if task.save_video
+                else None
+            )
             title = f"{task.label} | {episode.episode_id} | {episode.size:g} m, {episode.n_robots} robots"
             try:
                 if video is not None:
-                    video.write(self._frame(world, paths, poses, specs, td, tracker, title, 0, compose_frame, draw_map))
+                    video.write(self._frame(world, paths, poses, specs, td, tracker, title, 0))
                 for t in range(1, self.max_steps + 1):
                     td = self.policy(td)
                     td = env.step(td)
@@ -339,12 +420,14 @@ class EpisodeRunner:
                     collided = nxt.get(("agents", "collision")).numpy().reshape(-1)
                     success = nxt.get(("privileged", "success")).numpy().reshape(-1)
                     was_active = tracker.active.copy()
-                    tracker.update(poses[:, :2], collided, success)
+                    # the arc length driven on this step: |executed linear velocity| * dt
+                    driven = np.abs(nxt.get(("privileged", "velocity"))[:, 0].numpy()) * env.simulator.dt
+                    tracker.update(poses[:, :2], collided, success, driven)
                     if paths is not None:
                         for i in np.flatnonzero(was_active):
                             paths[i].append(poses[i, :2].copy())
                     if video is not None:
-                        video.write(self._frame(world, paths, poses, specs, nxt, tracker, title, t, compose_frame, draw_map))
+                        video.write(self._frame(world, paths, poses, specs, nxt, tracker, title, t))
                     if bool(nxt.get("done").any()):
                         break
                     td = _next_input(td)
@@ -356,9 +439,7 @@ class EpisodeRunner:
         maps = []
         if task.save_map:
             image = draw_map(world, [np.array(p) for p in paths], poses, specs)
-            outcome = ", ".join(
-                f"{i}:{'ok' if s else 'fail'}" for i, s in enumerate(tracker.success)
-            )
+            outcome = ", ".join(f"{i}:{'ok' if s else 'fail'}" for i, s in enumerate(tracker.success))
             path = save_map_png(image, Path(task.out_dir) / "maps" / f"{name}.png", f"{title} | {outcome}")
             maps.append(str(path.relative_to(task.out_dir)))
         final_distance = np.hypot(*(poses[:, :2] - world.target_positions.astype(np.float64)).T)
@@ -388,20 +469,26 @@ class EpisodeRunner:
         return {"records": records, "maps": maps, "videos": videos}
 
     @staticmethod
-    def _frame(world, paths, poses, specs, td, tracker, title, t, compose_frame, draw_map) -> np.ndarray:
+    def _frame(world, paths, poses, specs, td, tracker, title, t) -> np.ndarray:
         from navformer_rl.envs.topdown import ROBOT_COLORS
 
         cameras = td.get(("agents", "pixels")).numpy()
-        collided = td.get(("agents", "collision"), None)
-        collided = np.zeros(len(poses), bool) if collided is None else collided.numpy().reshape(-1)
+        targets = td.get(("agents", "target_pixels")).numpy()
+        collided = td.get(("agents", "collision")).numpy().reshape(-1)
+        distance = np.hypot(*(poses[:, :2] - world.target_positions).T)
         status = []
         for i in range(len(poses)):
             if tracker.success[i]:
-                status.append(f"found target (step {tracker.success_step[i]})")
+                status.append(f"found target at step {tracker.success_step[i]}")
             else:
-                status.append(f"collisions {tracker.collisions[i]}" + (" - contact!" if collided[i] else ""))
+                status.append(
+                    f"{distance[i]:.1f} m to go, {tracker.collisions[i]} coll."
+                    + (" HIT" if collided[i] else "")
+                )
         map_image = draw_map(world, [np.array(p) for p in paths], poses, specs)
-        return compose_frame(map_image, cameras, ROBOT_COLORS, status, f"{title} | step {t}")
+        if len({spec.name for spec in specs}) > 1:  # mixed line-up (Table III): name each robot's style
+            status = [f"{spec.name}, {text}" for spec, text in zip(specs, status)]
+        return compose_frame(map_image, cameras, targets, ROBOT_COLORS, status, f"{title} | step {t}")
 
 
 def make_eval_env(robots: tuple[str, ...], max_steps: int):

@@ -11,13 +11,19 @@ Definitions (``i`` runs over the ``N_tau`` robot-trials):
   ``l_i`` the shortest collision-free path length on the true map from the robot's start to its target
   position (8-connected grid path on the map inflated by the robot radius, see
   :meth:`navformer_rl.envs.occupancy.OccupancyMap.shortest_path_length`) and ``p_i`` the path the robot
-  actually drove: the sum of ``||xy_t - xy_{t-1}||`` of its real pose over the steps it was active.
+  actually drove over the steps it was active: the harness sums the arc length ``|v_t| * dt`` of each
+  executed unicycle step (the env's own ``path_length`` counter); :class:`TrialTracker` falls back to the
+  straight-line displacement ``||xy_t - xy_{t-1}||`` of the real pose when no step lengths are given.
   Failed robot-trials contribute 0; a successful robot that stopped inside the 1.5 m disc with
   ``p_i < l_i`` contributes exactly 1 (the ``max`` caps the ratio).
 - **CR** = ``(1 / N_tau) * sum_i N_c,i / N_e,i`` with ``N_c,i`` the number of steps on which robot ``i``
   was in contact (wall or robot) and ``N_e,i`` the number of steps robot ``i`` was active: from the reset
   up to and including the step it succeeded, or to the end of the trial if it never did. A ratio is taken
   per robot-trial first, then averaged (not pooled).
+
+Secondary measure: **SPL-disc**, eq. 12 with ``l_i`` replaced by the shortest path to the 1.5 m success
+disc around the target (``RobotTrial.shortest_path_to_disc``); it does not give the 1.5 m of slack that
+``l_i`` to the target gives a robot that stops at the disc's edge. Reported in the CSV only.
 
 Confidence intervals (95 % by default): Wilson score interval for SR; a percentile bootstrap for SPL and
 CR that resamples whole trials (the robots of one trial share a world, so they are not independent),
@@ -198,6 +204,8 @@ class MetricSummary:
     spl_ci: tuple[float, float]
     cr: float
     cr_ci: tuple[float, float]
+    spl_disc: float
+    spl_disc_ci: tuple[float, float]
 
 
 def summarize(records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0) -> MetricSummary:
@@ -214,6 +222,11 @@ def summarize(records: Sequence[RobotTrial], confidence: float = 0.95, seed: int
         np.array([r.shortest_path for r in records]),
         np.array([r.path_length for r in records]),
     )
+    spl_disc_values = spl_terms(
+        success,
+        np.array([r.shortest_path_to_disc for r in records]),
+        np.array([r.path_length for r in records]),
+    )
     cr_values = collision_rate_terms(
         np.array([r.collisions for r in records]), np.array([r.steps for r in records])
     )
@@ -227,6 +240,8 @@ def summarize(records: Sequence[RobotTrial], confidence: float = 0.95, seed: int
         spl_ci=bootstrap_mean_interval(spl_values, groups, confidence, seed=seed),
         cr=float(cr_values.mean()),
         cr_ci=bootstrap_mean_interval(cr_values, groups, confidence, seed=seed + 1),
+        spl_disc=float(spl_disc_values.mean()),
+        spl_disc_ci=bootstrap_mean_interval(spl_disc_values, groups, confidence, seed=seed + 2),
     )
 
 
@@ -258,13 +273,18 @@ class TrialTracker:
         """bool ``[R]``: robots that have not succeeded yet."""
         return ~self.success
 
-    def update(self, xy: np.ndarray, collided: np.ndarray, succeeded: np.ndarray) -> None:
+    def update(
+        self, xy: np.ndarray, collided: np.ndarray, succeeded: np.ndarray, driven: np.ndarray | None = None
+    ) -> None:
         """Record one env step.
 
         Args:
             xy: float ``[R, 2]`` positions after the step.
             collided: bool ``[R]``, in contact on this step.
             succeeded: bool ``[R]``, within the success radius after this step (sticky or not).
+            driven: optional float ``[R]``, the length each robot drove on this step (e.g. the arc length
+                ``|v| * dt`` of its executed unicycle motion); default: the straight-line displacement
+                ``||xy_t - xy_{t-1}||``.
         """
         xy = np.asarray(xy, dtype=np.float64)
         collided = np.asarray(collided, dtype=bool).reshape(-1)
@@ -275,7 +295,12 @@ class TrialTracker:
         active = self.active
         self.steps += active
         self.collisions += active & collided
-        self.path_length += np.where(active, np.linalg.norm(xy - self._last_xy, axis=1), 0.0)
+        if driven is None:
+            driven = np.linalg.norm(xy - self._last_xy, axis=1)
+        driven = np.asarray(driven, dtype=np.float64).reshape(-1)
+        if driven.shape != self.success.shape or np.any(driven < 0):
+            raise ValueError(f"driven must be [{len(self.success)}] lengths >= 0, got {driven}")
+        self.path_length += np.where(active, driven, 0.0)
         newly = active & succeeded
         self.success_step[newly] = self._t
         self.success |= newly

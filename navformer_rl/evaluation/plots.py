@@ -11,7 +11,11 @@ import numpy as np
 from navformer_rl.evaluation._io import atomic_path
 from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, setup_order_key
 
-_METRICS = (("sr", "SR (success rate)", "sr_ci"), ("spl", "SPL", "spl_ci"), ("cr", "CR (collision rate)", "cr_ci"))
+_METRICS = (
+    ("sr", "SR (success rate)", "sr_ci"),
+    ("spl", "SPL", "spl_ci"),
+    ("cr", "CR (collision rate)", "cr_ci"),
+)
 
 
 def plot_setup_bars(
@@ -55,8 +59,9 @@ def plot_setup_bars(
                 values.append(value)
                 low.append(value - ci[0])
                 high.append(ci[1] - value)
+            positions = x + (k - (len(methods) - 1) / 2) * width
             ax.bar(
-                x + (k - (len(methods) - 1) / 2) * width,
+                positions,
                 values,
                 width,
                 yerr=np.array([low, high]),
@@ -64,9 +69,21 @@ def plot_setup_bars(
                 label=method,
                 color=colors[k % len(colors)],
             )
+            for position, value in zip(positions, values):
+                if np.isfinite(value):
+                    text = f"{100 * value:.0f}%" if attr == "sr" else f"{value:.2f}"
+                    ax.text(
+                        position,
+                        value + 0.01,
+                        text,
+                        ha="center",
+                        va="bottom",
+                        fontsize=7,
+                        rotation=90 if len(methods) > 2 else 0,
+                    )
         ax.set_title(name)
         ax.set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
-        ax.set_ylim(0, 1)
+        ax.set_ylim(0, 1.05)
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(fontsize=8)
     if title:

@@ -155,7 +155,9 @@ def write_report(
             + "), so their rows are not paired comparisons.\n"
         )
     parts.append("## Methods\n")
-    parts.append("| Method | Episode set | Episodes | Max steps | Checkpoint | Seconds |\n|---|---|---|---|---|---|")
+    parts.append(
+        "| Method | Episode set | Episodes | Max steps | Checkpoint | Seconds |\n|---|---|---|---|---|---|"
+    )
     for _, run in runs:
         es = run["episode_set"]
         parts.append(
@@ -184,7 +186,10 @@ def write_report(
                 target = os.path.relpath(folder / item, report_dir)
                 links.append(f"[{kind} {Path(item).stem}]({target})")
         per_episode = os.path.relpath(folder / "episodes.jsonl", report_dir)
-        parts.append(f"- **{run['label']}**: [per-robot-trial rows]({per_episode}); " + (", ".join(links) or "no visuals"))
+        parts.append(
+            f"- **{run['label']}**: [per-robot-trial rows]({per_episode}); "
+            + (", ".join(links) or "no visuals")
+        )
     parts.append("")
     first_maps = [(folder, run["files"]["maps"][0]) for folder, run in runs if run["files"].get("maps")]
     for folder, item in first_maps:

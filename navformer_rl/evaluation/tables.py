@@ -19,6 +19,7 @@ ALL_SETUPS = "all"
 CSV_COLUMNS: tuple[str, ...] = (
     "method", "setup", "size", "n_robots", "n_trials", "n_robot_trials",
     "sr", "sr_low", "sr_high", "spl", "spl_low", "spl_high", "cr", "cr_low", "cr_high",
+    "spl_disc", "spl_disc_low", "spl_disc_high",
 )  # fmt: skip
 
 
@@ -95,7 +96,8 @@ def summaries_to_csv(summaries: Sequence[SetupSummary]) -> str:
              m.n_trials, m.n_robot_trials,
              f"{m.sr:.6f}", f"{m.sr_ci[0]:.6f}", f"{m.sr_ci[1]:.6f}",
              f"{m.spl:.6f}", f"{m.spl_ci[0]:.6f}", f"{m.spl_ci[1]:.6f}",
-             f"{m.cr:.6f}", f"{m.cr_ci[0]:.6f}", f"{m.cr_ci[1]:.6f}"]
+             f"{m.cr:.6f}", f"{m.cr_ci[0]:.6f}", f"{m.cr_ci[1]:.6f}",
+             f"{m.spl_disc:.6f}", f"{m.spl_disc_ci[0]:.6f}", f"{m.spl_disc_ci[1]:.6f}"]
         )  # fmt: skip
     return buffer.getvalue()
 
@@ -124,7 +126,11 @@ def table_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str] | N
         header += [f"{method} SR", f"{method} SPL", f"{method} CR"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for size, n_robots, setup in rows:
-        cells = [setup, "all" if size is None else f"{size:g} × {size:g}", "-" if n_robots is None else str(n_robots)]
+        cells = [
+            setup,
+            "all" if size is None else f"{size:g} × {size:g}",
+            "-" if n_robots is None else str(n_robots),
+        ]
         for method in methods:
             s = by_key.get((method, setup))
             if s is None:

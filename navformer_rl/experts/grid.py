@@ -37,26 +37,29 @@ def _check_grid(traversable: np.ndarray) -> np.ndarray:
 def grid_graph(traversable: np.ndarray) -> csr_matrix:
     """Sparse adjacency of the traversable cells of a bool ``[H, W]`` grid (True = traversable).
 
-    Node ``r * W + c``; edge weights in cells (1 or sqrt 2); no corner cutting.
+    Node ``r * W + c``; edge weights in cells (1 or sqrt 2); no corner cutting. Built directly in CSR
+    order (row-major nodes, moves in :data:`MOVES` order), without a COO sort.
     """
     free = _check_grid(traversable)
     h, w = free.shape
     padded = np.zeros((h + 2, w + 2), dtype=bool)
     padded[1:-1, 1:-1] = free
-    rows_all, cols_all = np.nonzero(free)
-    src_list, dst_list, cost_list = [], [], []
-    for dr, dc, cost in MOVES:
-        ok = padded[1 + rows_all + dr, 1 + cols_all + dc]
+    valid = np.empty((h, w, len(MOVES)), dtype=bool)
+    target = np.empty((h, w, len(MOVES)), dtype=np.int64)
+    node = np.arange(h * w, dtype=np.int64).reshape(h, w)
+    for k, (dr, dc, _cost) in enumerate(MOVES):
+        ok = free & padded[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
         if dr != 0 and dc != 0:
-            ok &= padded[1 + rows_all + dr, 1 + cols_all] & padded[1 + rows_all, 1 + cols_all + dc]
-        r, c = rows_all[ok], cols_all[ok]
-        src_list.append(r * w + c)
-        dst_list.append((r + dr) * w + (c + dc))
-        cost_list.append(np.full(r.shape, cost))
-    src = np.concatenate(src_list)
-    dst = np.concatenate(dst_list)
-    cost = np.concatenate(cost_list)
-    return csr_matrix((cost, (src, dst)), shape=(h * w, h * w))
+            ok &= padded[1 + dr : 1 + dr + h, 1 : 1 + w] & padded[1 : 1 + h, 1 + dc : 1 + dc + w]
+        valid[:, :, k] = ok
+        target[:, :, k] = node + dr * w + dc
+    costs = np.array([m[2] for m in MOVES])
+    flat_valid = valid.reshape(h * w, len(MOVES))
+    indptr = np.zeros(h * w + 1, dtype=np.int64)
+    np.cumsum(flat_valid.sum(axis=1), out=indptr[1:])
+    indices = target.reshape(h * w, len(MOVES))[flat_valid]
+    data = np.broadcast_to(costs, flat_valid.shape)[flat_valid]
+    return csr_matrix((data, indices, indptr), shape=(h * w, h * w))
 
 
 def distance_field(traversable: np.ndarray, sources: list[tuple[int, int]]) -> np.ndarray:

@@ -36,6 +36,43 @@ def inflate(occupied: np.ndarray, radius: float, resolution: float) -> np.ndarra
     return cv2.dilate(occupied.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
 
 
+def trace_rays(
+    shape: tuple[int, int],
+    origin: np.ndarray,
+    resolution: float,
+    pose: np.ndarray,
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    max_range: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cells crossed by rays and cells just behind their hits, as flat bool masks ``[H * W]``.
+
+    Each ray from ``pose[:2]`` along ``pose[2] + angles[k]`` is sampled every 0.75 cell up to
+    ``ranges[k] - 0.75`` cell (crossed cells); a ray with ``ranges[k] < max_range`` also marks the cell
+    0.3 cell behind its hit point (the obstacle's surface cell). Cells outside the grid are dropped.
+    """
+    x, y, yaw = (float(v) for v in pose)
+    h, w = shape
+    cos, sin = np.cos(yaw + angles), np.sin(yaw + angles)
+    cx, cy = (x - origin[0]) / resolution, (y - origin[1]) / resolution  # robot in cell units
+    t = np.arange(0.0, max_range, 0.75 * resolution)  # [S] metres
+    ray, sample = np.nonzero(t[None, :] < ranges[:, None] - 0.75 * resolution)
+    ts = t[sample] / resolution
+    cols = np.floor(cx + cos[ray] * ts).astype(np.int64)
+    rows = np.floor(cy + sin[ray] * ts).astype(np.int64)
+    ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    crossed = np.zeros(h * w, dtype=bool)
+    crossed[rows[ok] * w + cols[ok]] = True
+    hit = ranges < max_range - 1e-3
+    reach = (ranges[hit] + 0.3 * resolution) / resolution
+    cols = np.floor(cx + cos[hit] * reach).astype(np.int64)
+    rows = np.floor(cy + sin[hit] * reach).astype(np.int64)
+    ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    behind = np.zeros(h * w, dtype=bool)
+    behind[rows[ok] * w + cols[ok]] = True
+    return crossed, behind
+
+
 class LogOddsGrid:
     """Occupancy grid with log-odds cells (prior 0 = p 0.5), clamped to ``[l_min, l_max]``.
 
@@ -98,32 +135,22 @@ class LogOddsGrid:
         angles = np.asarray(angles, dtype=np.float64)
         if ranges.shape != angles.shape or ranges.ndim != 1:
             raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must be equal 1-D shapes")
-        x, y, yaw = (float(v) for v in pose)
-        res = self.resolution
-        h, w = self.shape
-        cos, sin = np.cos(yaw + angles), np.sin(yaw + angles)
-        # Robot position and ray directions in cell units.
-        cx, cy = (x - self.origin[0]) / res, (y - self.origin[1]) / res
-        t = np.arange(0.0, max_range, 0.75 * res)  # [S] metres
-        ray, sample = np.nonzero(t[None, :] < ranges[:, None] - 0.75 * res)
-        ts = t[sample] / res
-        cols = np.floor(cx + cos[ray] * ts).astype(np.int64)
-        rows = np.floor(cy + sin[ray] * ts).astype(np.int64)
-        ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        free_flat = np.zeros(h * w, dtype=bool)
-        free_flat[rows[ok] * w + cols[ok]] = True
-        hit = ranges < max_range - 1e-3
-        reach = (ranges[hit] + 0.3 * res) / res
-        cols = np.floor(cx + cos[hit] * reach).astype(np.int64)
-        rows = np.floor(cy + sin[hit] * reach).astype(np.int64)
-        ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        occ_flat = np.zeros(h * w, dtype=bool)
-        occ_flat[rows[ok] * w + cols[ok]] = True
+        free_flat, occ_flat = trace_rays(self.shape, self.origin, self.resolution, pose, ranges, angles, max_range)
         free_flat &= ~occ_flat
         flat = self.logodds.reshape(-1)
         flat[free_flat] += self.l_free
         flat[occ_flat] += self.l_occ
         np.clip(self.logodds, self.l_min, self.l_max, out=self.logodds)
+
+    def mark_viewed(
+        self, viewed: np.ndarray, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, max_range: float
+    ) -> None:
+        """Set ``viewed`` (bool ``[H, W]``, in place) on the cells seen by rays clipped to ``max_range``
+        (e.g. the camera's part of a scan): crossed cells and hit surface cells."""
+        clipped = np.minimum(np.asarray(ranges, dtype=np.float64), max_range)
+        crossed, behind = trace_rays(self.shape, self.origin, self.resolution, pose, clipped, angles, max_range)
+        flat = viewed.reshape(-1)
+        flat |= crossed | behind
 
     def ternary(self) -> np.ndarray:
         """int8 ``[H, W]``: ``UNKNOWN`` (-1), ``FREE`` (0) or ``OCCUPIED`` (1)."""

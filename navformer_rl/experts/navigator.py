@@ -15,8 +15,8 @@ import numpy as np
 
 from navformer_rl.experts.astar import astar
 from navformer_rl.experts.frontier import select_frontier
-from navformer_rl.experts.grid import nearest_true_cell
-from navformer_rl.experts.mapping import LogOddsGrid, inflate
+from navformer_rl.experts.grid import distance_field, nearest_true_cell
+from navformer_rl.experts.mapping import FREE, UNKNOWN, LogOddsGrid, inflate
 
 LIDAR_SOURCES = ("analytic", "pybullet")
 
@@ -77,6 +77,10 @@ class FrontierNavigator:
         target: float ``[2]`` target centre (used only once :meth:`set_target_known` was called, or from the
             start when ``target_known`` is True - the privileged FCA).
         frontier_bias: weight of the straight-line frontier-to-target distance in frontier ranking (FCA only).
+        camera: ``(fov, range)`` of the camera looking for the target. When given, frontiers bound the area
+            the *camera* has viewed (free cells the lidar mapped but the camera never looked at count as
+            unexplored): exploring lidar frontiers alone ends with unseen corners, as the camera sees 90
+            degrees and the lidar 360.
     """
 
     def __init__(
@@ -86,6 +90,7 @@ class FrontierNavigator:
         target: np.ndarray,
         target_known: bool = False,
         frontier_bias: float = 0.0,
+        camera: tuple[float, float] | None = None,
     ) -> None:
         self.config = config
         self.map = LogOddsGrid((extent, extent), resolution=config.resolution)
@@ -93,6 +98,9 @@ class FrontierNavigator:
         self.target_known = target_known
         self.target_mode = False
         self.frontier_bias = frontier_bias
+        self.camera = camera
+        self.viewed = np.zeros(self.map.shape, dtype=bool)
+        self.discs = np.zeros((0, 3))
         self.goal: np.ndarray | None = None
         self.goal_cell: tuple[int, int] | None = None
         self.path: np.ndarray = np.zeros((0, 2))
@@ -113,6 +121,18 @@ class FrontierNavigator:
         if keep is not None:
             ranges, angles = ranges[keep], angles[keep]
         self.map.update(pose, ranges, angles, lidar.max_range)
+        if self.camera is not None:
+            fov, view_range = self.camera
+            in_view = np.abs(angles) <= fov / 2
+            self.map.mark_viewed(self.viewed, pose, ranges[in_view], angles[in_view], view_range)
+
+    def exploration_map(self) -> np.ndarray:
+        """int8 ``[H, W]`` ternary map whose frontiers are explored: the lidar map, where free cells the
+        camera never viewed are unknown (with a camera), else the lidar map itself."""
+        t = self.map.ternary()
+        if self.camera is not None:
+            t[(t == FREE) & ~self.viewed] = UNKNOWN
+        return t
 
     def set_target_seen(self) -> None:
         """The target became visible: drive to it from now on (forces a replan)."""
@@ -127,9 +147,29 @@ class FrontierNavigator:
         self.best_remaining = math.inf
         self.last_progress_step = self.step_count
 
+    def set_static_discs(self, discs: np.ndarray) -> None:
+        """Obstacles known from outside the map, float ``[K, 3] = (x, y, r)`` (e.g. parked robots for the
+        privileged FCA); they block planning like occupied cells. A change that cuts the path forces a
+        re-plan."""
+        discs = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
+        changed = discs.shape != self.discs.shape or not np.array_equal(discs, self.discs)
+        self.discs = discs
+        if changed and len(self.path) and len(discs):
+            gap = np.hypot(
+                self.path[:, None, 0] - discs[None, :, 0], self.path[:, None, 1] - discs[None, :, 1]
+            ) - discs[None, :, 2]
+            if gap.min() < self.config.robot_radius + self.config.inflation_margin:
+                self.steps_since_plan = self.config.replan_every
+
     def _blocked(self) -> np.ndarray:
         c = self.config
-        return inflate(self.map.occupied(), c.robot_radius + c.inflation_margin + 0.5 * c.resolution, c.resolution)
+        occupied = self.map.occupied()
+        if len(self.discs):
+            h, w = occupied.shape
+            centres = self.map.cell_to_world(np.stack(np.mgrid[0:h, 0:w], axis=-1))
+            for x, y, r in self.discs:
+                occupied |= (centres[..., 0] - x) ** 2 + (centres[..., 1] - y) ** 2 <= r * r
+        return inflate(occupied, c.robot_radius + c.inflation_margin + 0.5 * c.resolution, c.resolution)
 
     def _start_cell(self, pose: np.ndarray, traversable: np.ndarray) -> tuple[int, int] | None:
         r, c = (int(v) for v in self.map.world_to_cell(pose[:2]))
@@ -165,7 +205,7 @@ class FrontierNavigator:
         if self.target_known and self.frontier_bias > 0:
             bias_cell = tuple(int(v) for v in self.map.world_to_cell(self.target))
         frontier = select_frontier(
-            self.map.ternary(),
+            self.exploration_map(),
             traversable,
             start,
             min_cells=c.min_frontier_cells,
@@ -174,16 +214,46 @@ class FrontierNavigator:
             bias_cell=bias_cell,
             bias_weight=self.frontier_bias,
         )
-        if frontier is None:
+        goal = None if frontier is None else frontier.goal
+        if goal is None and self.camera is not None:
+            goal = self._unviewed_goal(traversable, start)
+        if goal is None:
             self.exhausted = not self.target_mode
             self._reset_goal()
             return
-        path = astar(~traversable, start, frontier.goal)
-        if path is None:  # cannot happen (the frontier was chosen by path length); blacklist defensively
-            self.blacklist.append(frontier.goal)
+        path = astar(~traversable, start, goal)
+        if path is None:  # cannot happen (the goal was chosen by path length); blacklist defensively
+            self.blacklist.append(goal)
             self._reset_goal()
             return
-        self._set_path(pose, path, frontier.goal)
+        self._set_path(pose, path, goal)
+
+    def _explored_around(self, cell: tuple[int, int]) -> bool:
+        """Whether ``cell`` and its 4-neighbours are all explored (the goal no longer borders unexplored space)."""
+        r, c = cell
+        h, w = self.map.shape
+        r0, r1, c0, c1 = max(0, r - 1), min(h, r + 2), max(0, c - 1), min(w, c + 2)
+        lo = self.map.logodds[r0:r1, c0:c1]
+        known = (lo < self.map.free_below) | (lo > self.map.occupied_above)
+        if self.camera is not None:
+            known &= (lo > self.map.occupied_above) | self.viewed[r0:r1, c0:c1]
+        cross = np.zeros_like(known)
+        cross[r - r0, :] = True
+        cross[:, c - c0] = True
+        return bool(known[cross].all())
+
+    def _unviewed_goal(self, traversable: np.ndarray, start: tuple[int, int]) -> tuple[int, int] | None:
+        """No camera frontier is reachable: the nearest (by path) reachable free cell the camera has not
+        viewed yet, outside blacklisted areas, else None."""
+        dist = distance_field(traversable, [start])
+        candidates = np.isfinite(dist) & ~self.viewed & traversable
+        for r, c in self.blacklist:
+            rr, cc = np.ogrid[: dist.shape[0], : dist.shape[1]]
+            candidates &= (rr - r) ** 2 + (cc - c) ** 2 > (self.config.blacklist_radius / self.config.resolution) ** 2
+        if not candidates.any():
+            return None
+        k = int(np.argmin(np.where(candidates, dist, np.inf)))
+        return divmod(k, dist.shape[1])
 
     def _set_path(self, pose: np.ndarray, cells: list[tuple[int, int]], goal_cell: tuple[int, int]) -> None:
         new_goal = self.goal_cell is None or np.hypot(*np.subtract(goal_cell, self.goal_cell)) * self.config.resolution > 0.5
@@ -229,6 +299,8 @@ class FrontierNavigator:
         need = self.goal is None or self.steps_since_plan >= c.replan_every or self._path_blocked(pose)
         if not need and not self.target_mode and np.hypot(*(self.goal - pose[:2])) < c.goal_reached:
             need = True
+        if not need and not self.target_mode and self.goal_cell is not None and self.steps_since_plan >= 4:
+            need = self._explored_around(self.goal_cell)
         if need:
             self._plan(pose)
         if self.goal is None:

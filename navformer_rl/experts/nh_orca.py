@@ -163,7 +163,8 @@ class NHORCAConfig:
     """A robot whose chosen ``|u|`` stays below this while it wants to move (``|pref| > 0.3``) is blocked."""
     deadlock_turn: float = 0.5
     """Blocked robots rotate their preferred velocity clockwise by this many radians per blocked step (up to
-    pi/2, a right-hand rule shared by all robots) and turn in place toward it - breaks symmetric jams."""
+    pi/2, a right-hand rule shared by all robots) and turn in place toward it - breaks symmetric jams; after
+    12 blocked steps they try the other side, alternating every 12 steps."""
 
 
 class NHORCA:
@@ -194,11 +195,13 @@ class NHORCA:
         preferred: np.ndarray,
         active: np.ndarray,
         walls: np.ndarray,
+        circles: np.ndarray | None = None,
     ) -> np.ndarray:
         """Commands ``(v, w)`` float64 ``[N, 2]`` (zeros for inactive robots).
 
         ``poses`` ``[N, 3]``, ``velocities`` ``[N, 2]`` executed ``(v, w)``, ``preferred`` holonomic
-        ``[N, 2]``, ``active`` bool ``[N]``, ``walls`` ``[W, 4]`` boxes ``(cx, cy, half_x, half_y)``.
+        ``[N, 2]``, ``active`` bool ``[N]``, ``walls`` ``[W, 4]`` boxes ``(cx, cy, half_x, half_y)``,
+        ``circles`` ``[C, 3]`` static discs ``(cx, cy, r)``.
         """
         c = self.config
         poses = np.asarray(poses, dtype=np.float64)
@@ -218,13 +221,16 @@ class NHORCA:
             soft = orca_lines(
                 i, poses[:, :2], u_prev, radii, active, c.tau, c.dt, c.neighbor_dist, c.max_neighbors
             )
-            walls_i = box_lines(poses[i, :2], radius, walls, c.tau_obst, c.dt, obst_range, c.radius)
+            walls_i = box_lines(poses[i, :2], radius, walls, c.tau_obst, c.dt, obst_range, c.radius, circles)
             ahv = polygon_lines(
                 ahv_polygon(yaw, c.time_to_holo, c.tracking_error, c.v_max, c.w_max, c.n_chords)
             )
             pref = np.asarray(preferred[i], dtype=np.float64)
             if self.blocked_steps[i] > 0:
-                turn = -min(math.pi / 2, c.deadlock_turn * self.blocked_steps[i])
+                # Right-hand rule first; a robot still blocked after 12 steps alternates sides.
+                k = int(self.blocked_steps[i]) - 1
+                side = -1.0 if (k // 12) % 2 == 0 else 1.0
+                turn = side * min(math.pi / 2, c.deadlock_turn * (k % 12 + 1))
                 cs, sn = math.cos(turn), math.sin(turn)
                 pref = np.array([cs * pref[0] - sn * pref[1], sn * pref[0] + cs * pref[1]])
             u, _ = self._solve(walls_i, ahv, soft, pref)

@@ -96,34 +96,45 @@ def box_lines(
     dt: float,
     max_range: float,
     physical_radius: float | None = None,
+    circles: np.ndarray | None = None,
 ) -> list[Line]:
-    """Hard half-planes for walls ``float [W, 4] = (cx, cy, half_x, half_y)`` within ``max_range``.
+    """Hard half-planes for static obstacles within ``max_range``: boxes ``float [W, 4] = (cx, cy, half_x,
+    half_y)`` and optional discs ``float [C, 3] = (cx, cy, r)``.
 
-    For each box, with closest point ``q``, ``n = (p - q)/|p - q|`` and gap ``g = |p - q| - radius``:
+    For each obstacle, with closest point ``q``, ``n = (p - q)/|p - q|`` and gap ``g = |p - q| - radius``:
     ``v . n >= -g / tau_obst``; when the *physical* disc (``physical_radius``, default ``radius``) overlaps,
     ``v . n >= -g / dt`` (leave the overlap in one step). With a safety-inflated ``radius`` a robot inside
     the inflation only is pushed out gently (at ``-g / tau_obst``).
     """
     physical_radius = radius if physical_radius is None else physical_radius
-    if len(walls) == 0:
-        return []
     p = np.asarray(position, dtype=np.float64)
-    lo = walls[:, :2] - walls[:, 2:]
-    hi = walls[:, :2] + walls[:, 2:]
-    q = np.clip(p, lo, hi)
-    diff = p - q
-    dist = np.hypot(diff[:, 0], diff[:, 1])
+    normals, dists = [], []
+    if len(walls):
+        lo = walls[:, :2] - walls[:, 2:]
+        hi = walls[:, :2] + walls[:, 2:]
+        diff = p - np.clip(p, lo, hi)
+        dist = np.hypot(diff[:, 0], diff[:, 1])
+        for k in np.flatnonzero(dist < max_range):
+            d = float(dist[k])
+            if d < 1e-9:  # centre inside the box: push out along the shallowest axis
+                pen = np.concatenate([p - lo[k], hi[k] - p])
+                axis = int(np.argmin(pen))
+                n = np.zeros(2)
+                n[axis % 2] = -1.0 if axis < 2 else 1.0
+                d = -float(pen[axis])
+            else:
+                n = diff[k] / d
+            normals.append(n)
+            dists.append(d)
+    if circles is not None and len(circles):
+        diff = p - circles[:, :2]
+        centre_dist = np.hypot(diff[:, 0], diff[:, 1])
+        for k in np.flatnonzero(centre_dist - circles[:, 2] < max_range):
+            n = diff[k] / centre_dist[k] if centre_dist[k] > 1e-9 else np.array([1.0, 0.0])
+            normals.append(n)
+            dists.append(float(centre_dist[k] - circles[k, 2]))
     lines = []
-    for k in np.flatnonzero(dist < max_range):
-        d = float(dist[k])
-        if d < 1e-9:  # centre inside the box: push out along the shallowest axis
-            pen = np.concatenate([p - lo[k], hi[k] - p])
-            axis = int(np.argmin(pen))
-            n = np.zeros(2)
-            n[axis % 2] = -1.0 if axis < 2 else 1.0
-            d = -float(pen[axis])
-        else:
-            n = diff[k] / d
+    for n, d in zip(normals, dists):
         gap = d - radius
         c = -gap / (tau_obst if d > physical_radius else dt)
         lines.append(Line((c * n[0], c * n[1]), (float(n[1]), float(-n[0]))))

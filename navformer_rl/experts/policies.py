@@ -24,13 +24,6 @@ from navformer_rl.experts.nh_orca import NHORCA, NHORCAConfig
 from navformer_rl.experts.visibility import target_visible
 
 
-def static_boxes(world) -> np.ndarray:
-    """float64 ``[W + T, 4]``: wall boxes plus every target as a box (spheres by their bounding square)."""
-    circles = world.obstacle_circles
-    squares = np.concatenate([circles[:, :2], circles[:, 2:3], circles[:, 2:3]], axis=1)
-    return np.concatenate([world.obstacle_boxes, squares.reshape(-1, 4)])
-
-
 def normalise(commands: np.ndarray, specs: list[RobotSpec]) -> np.ndarray:
     """``(v, w)`` float ``[R, 2]`` -> float32 ``[R, 2]`` actions in ``[-1, 1]``."""
     limits = np.array([(s.v_max, s.w_max) for s in specs], dtype=np.float64)
@@ -90,7 +83,8 @@ class _ExpertBase:
         self.reached = np.zeros(sim.n_robots, dtype=bool)
         self.failed = np.zeros(sim.n_robots, dtype=bool)
         self.targets = world.target_positions.astype(np.float64)
-        self.boxes = static_boxes(world)
+        self.boxes = world.obstacle_boxes
+        self.circles = world.obstacle_circles
         self.lidar = StaticLidar.for_world(world)
 
     def _scans(self, sim, idx: np.ndarray, poses: np.ndarray) -> np.ndarray:
@@ -126,8 +120,9 @@ class ExplorationExpert(_ExpertBase):
         nav_cfg = self.config.navigator
         if nav_cfg.robot_radius != spec.radius:
             nav_cfg = NavigatorConfig(**{**nav_cfg.__dict__, "robot_radius": spec.radius})
+        camera = (math.radians(spec.camera_fov_deg), self.config.camera.max_range)
         self.navigators = [
-            FrontierNavigator(world.size, nav_cfg, self.targets[i]) for i in range(sim.n_robots)
+            FrontierNavigator(world.size, nav_cfg, self.targets[i], camera=camera) for i in range(sim.n_robots)
         ]
         dwa = self.dwa_config or DWAConfig(
             v_max=spec.v_max, w_max=spec.w_max, a_max=spec.a_max, alpha_max=spec.alpha_max,
@@ -304,7 +299,7 @@ class NHORCAExpert(_ExpertBase):
         vels = sim.velocities.astype(np.float64)
         self._update_reached(poses)
         run = active & ~self.reached & ~self.failed
-        commands = self.planner.step(poses, vels, self.preferred(poses, run), run, self.boxes)
+        commands = self.planner.step(poses, vels, self.preferred(poses, run), run, self.boxes, self.circles)
         self._tick()
         return normalise(commands, self.specs)
 
@@ -368,13 +363,21 @@ class FCAController(_ExpertBase):
         if len(idx):
             scans = self._scans(sim, idx, poses)
             radii = sim.radii
+            # Stopped robots (arrived, failed, or held inactive) are static obstacles for planning, drawn
+            # with NH-ORCA's inflated radius so planned gaps are gaps ORCA lets a robot through.
+            cfg = self.planner.config
+            parked = np.flatnonzero(~run)
+            discs = np.concatenate(
+                [poses[parked, :2], radii[parked, None] + 2 * (cfg.tracking_error + cfg.safety)], axis=1
+            )
             for k, i in enumerate(idx):
+                self.navigators[i].set_static_discs(discs)
                 pref[i] = self._preferred_one(int(i), poses, radii, scans[k])
         run &= ~self.failed
         angle = self.rng.uniform(0.0, 2 * math.pi, sim.n_robots)
         mag = self.noise * self.rng.uniform(0.0, 1.0, sim.n_robots)
         pref += np.where(run[:, None], mag[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1), 0.0)
-        commands = self.planner.step(poses, vels, pref, run, self.boxes)
+        commands = self.planner.step(poses, vels, pref, run, self.boxes, self.circles)
         self._tick()
         return normalise(commands, self.specs)
 

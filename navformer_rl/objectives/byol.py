@@ -87,7 +87,7 @@ class BYOLLoss(LossModule):
     ``torchrl.objectives.SoftUpdate``; schedule with ``BYOLTauSchedule``). Views:
 
     - static encoder: ``v = aug(o^s)``, ``v' = aug(o^d)`` (same scene without / with other robots);
-    - general encoder: ``v = aug(o^d)``, ``v' = aug'(o^d)`` (two independent augmentations).
+    - general encoder: ``v = aug(o^d)`` (the same view), ``v' = aug'(o^d)`` (an independent augmentation).
 
     ``L_e = mean_batch[ l(q(g(f(v))), sg(g'(f'(v')))) + l(q(g(f(v'))), sg(g'(f'(v)))) ]`` with l of eq. 6,
     and ``loss_byol = sum_e L_e`` (eq. 8).
@@ -182,16 +182,17 @@ class BYOLLoss(LossModule):
         return ["loss_byol"] + [f"loss_byol_{name}" for name in self.encoder_names]
 
     def make_views(self, tensordict: TensorDictBase) -> dict[str, tuple[Tensor, Tensor]]:
-        """The two augmented views (float ``[B, 3, H, W]``) of each encoder."""
-        dynamic = tensordict.get(self.tensor_keys.pixels_dynamic)
+        """The two augmented views (float ``[B, 3, H, W]``) of each encoder.
+
+        One augmentation of o^d serves as the static encoder's v' and the general encoder's v (the two
+        losses are separate, so sharing it changes neither; it saves a quarter of the augmentation cost).
+        """
+        dynamic_view = self.augmentation(tensordict.get(self.tensor_keys.pixels_dynamic))
         views = {}
         if "static" in self.encoder_names:
-            views["static"] = (
-                self.augmentation(tensordict.get(self.tensor_keys.pixels_static)),
-                self.augmentation(dynamic),
-            )
+            views["static"] = (self.augmentation(tensordict.get(self.tensor_keys.pixels_static)), dynamic_view)
         if "general" in self.encoder_names:
-            views["general"] = (self.augmentation(dynamic), self.augmentation(dynamic))
+            views["general"] = (dynamic_view, self.augmentation(tensordict.get(self.tensor_keys.pixels_dynamic)))
         return views
 
     @dispatch

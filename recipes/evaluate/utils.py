@@ -17,7 +17,11 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
     if cfg.episodes:
         return load_episode_set(cfg.episodes)
     return make_protocol_episodes(
-        cfg.protocol, int(cfg.trials_per_setup), int(cfg.trials_per_world), int(cfg.episode_seed), int(cfg.max_steps)
+        cfg.protocol,
+        int(cfg.trials_per_setup),
+        int(cfg.trials_per_world),
+        int(cfg.episode_seed),
+        int(cfg.max_steps),
     )
 
 

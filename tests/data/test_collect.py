@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from navformer_rl.data import open_dataset
 from navformer_rl.data import collect as collect_module
+from navformer_rl.data import open_dataset
 from navformer_rl.data.cli import main as cli_main
 from navformer_rl.data.collect import collect, settings_for
 
@@ -30,7 +30,9 @@ def _check_trajectories(ds, task):
     assert not rows["next", "truncated"].any()
     assert rows["action"].abs().max() <= 1.0
     # the last pose plus the last action's motion ends within the success radius of the target
-    final_dist = (rows["privileged", "pose"][ends, :2] - rows["privileged", "target_position"][ends]).norm(dim=-1)
+    final_dist = (rows["privileged", "pose"][ends, :2] - rows["privileged", "target_position"][ends]).norm(
+        dim=-1
+    )
     assert (final_dist < 1.5 + 0.25).all()
     # frames are real camera images, target images differ between different targets
     assert rows["pixels"].float().std() > 10
@@ -73,7 +75,7 @@ def test_failed_episodes_are_dropped_and_counted():
     s = settings_for("e", "small", seed=0, episodes_per_unit=2, world_sizes=(5.0,), max_steps=3)
     rows, targets, counters = collect_module._exploration_unit(s, 0)
     assert rows == [] and targets == []
-    assert counters == {"attempted": 2, "failed": 2, "collision_steps": 0}
+    assert counters == {"attempted": 2, "failed": 2, "collision_steps": 0, "robot_steps": 6}
 
 
 def test_collection_is_deterministic_and_resumes_identically(tmp_path, folder_bytes):
@@ -106,11 +108,19 @@ def test_killed_cli_process_resumes_to_identical_dataset(tmp_path, folder_bytes)
     while not list((out / "shards").glob("unit-*")) and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)
     assert proc.poll() is None, "collection finished before it could be killed"
-    proc.send_signal(signal.SIGKILL)
+    workers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert workers
+    proc.send_signal(signal.SIGKILL)  # the parent only: its workers must notice and exit by themselves
     proc.wait()
-    subprocess.run([*cmd, "--out", str(out), "--workers", "2", "--no-progress"], cwd=REPO, env=env, check=True)
+    time.sleep(4)
+    assert not [pid for pid in workers if Path(f"/proc/{pid}").exists()], "orphaned collection workers"
+    subprocess.run(
+        [*cmd, "--out", str(out), "--workers", "2", "--no-progress"], cwd=REPO, env=env, check=True
+    )
     ref = tmp_path / "ref"
-    subprocess.run([*cmd, "--out", str(ref), "--workers", "1", "--no-progress"], cwd=REPO, env=env, check=True)
+    subprocess.run(
+        [*cmd, "--out", str(ref), "--workers", "1", "--no-progress"], cwd=REPO, env=env, check=True
+    )
     assert folder_bytes(out) == folder_bytes(ref)
     assert open_dataset(out).num_trajectories == 6
 

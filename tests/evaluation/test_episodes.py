@@ -25,7 +25,11 @@ def small_set():
 def test_generation_is_deterministic_and_groups_trials_by_world(small_set):
     again = make_episode_set([SETUP], trials_per_setup=3, trials_per_world=2, seed=5, name="t", max_steps=30)
     assert again == small_set
-    assert [e.episode_id for e in small_set.episodes] == ["7.5m-2r/w00t00", "7.5m-2r/w00t01", "7.5m-2r/w01t02"]
+    assert [e.episode_id for e in small_set.episodes] == [
+        "7.5m-2r/w00t00",
+        "7.5m-2r/w00t01",
+        "7.5m-2r/w01t02",
+    ]
     a, b, c = small_set.episodes
     # Trials 0 and 1 share a maze, with new starts and targets; trial 2 is in a new maze.
     assert a.world_seed == b.world_seed != c.world_seed
@@ -42,7 +46,9 @@ def test_episode_content_is_consistent_with_the_world(small_set):
         for i in range(episode.n_robots):
             xy = np.array(episode.starts[i][:2])
             # l: start -> target on the map inflated by the Jackal radius; the disc path is shorter.
-            assert world.shortest_path_length(xy, i, clearance=0.30) == pytest.approx(episode.shortest_paths[i])
+            assert world.shortest_path_length(xy, i, clearance=0.30) == pytest.approx(
+                episode.shortest_paths[i]
+            )
             assert episode.shortest_paths_to_disc[i] < episode.shortest_paths[i]
             assert np.hypot(*(xy - world.targets[i].position)) > 1.5
         assert len({(t["shape"], t["color"]) for t in episode.targets}) == episode.n_robots

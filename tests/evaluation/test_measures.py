@@ -79,7 +79,7 @@ def test_bootstrap_is_seeded_and_brackets_the_mean():
     assert bootstrap_mean_interval(np.full(5, 0.25)) == (0.25, 0.25)
 
 
-def _trial(episode, robot, success, steps, collisions, p, l):
+def _trial(episode, robot, success, steps, collisions, p, shortest):
     return RobotTrial(
         method="m",
         episode_id=episode,
@@ -96,8 +96,8 @@ def _trial(episode, robot, success, steps, collisions, p, l):
         steps=steps,
         collisions=collisions,
         path_length=p,
-        shortest_path=l,
-        shortest_path_to_disc=max(l - 1.5, 0.1),
+        shortest_path=shortest,
+        shortest_path_to_disc=max(shortest - 1.5, 0.1),
         final_distance=1.0 if success else 4.0,
     )
 
@@ -115,6 +115,8 @@ def test_summarize_and_record_round_trip():
     assert s.spl == pytest.approx((0.8 + 0 + 1 + 0.5) / 4)
     assert s.cr == pytest.approx((0.1 + 0.1 + 0 + 0.4) / 4)
     assert s.sr_ci == wilson_interval(3, 4)
+    # SPL-disc uses l - 1.5 here: 2.5/5, 0, 1.5/max(2, 1.5), 3.5/10.
+    assert s.spl_disc == pytest.approx((0.5 + 0 + 0.75 + 0.35) / 4)
     row = records[0].to_dict()
     assert row["spl"] == pytest.approx(0.8) and row["collision_rate"] == pytest.approx(0.1)
     assert RobotTrial.from_dict(row) == records[0]
@@ -133,3 +135,13 @@ def test_trial_tracker_counts_only_active_steps():
     np.testing.assert_array_equal(tracker.collisions, [1, 1])
     np.testing.assert_array_equal(tracker.success, [True, False])
     np.testing.assert_array_equal(tracker.success_step, [2, -1])
+
+
+def test_trial_tracker_takes_given_step_lengths():
+    # Arc lengths per step (e.g. |v| dt) instead of chords: a quarter circle of radius 1 driven in one step.
+    tracker = TrialTracker(np.array([[0.0, 0.0]]))
+    tracker.update(np.array([[1.0, 1.0]]), np.array([False]), np.array([False]), driven=np.array([np.pi / 2]))
+    np.testing.assert_allclose(tracker.path_length, [np.pi / 2])
+    with pytest.raises(ValueError, match="driven"):
+        tracker.update(np.array([[1.0, 1.0]]), np.array([False]), np.array([False]), driven=np.array([-1.0]))
+

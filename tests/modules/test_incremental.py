@@ -29,7 +29,9 @@ def decode(decoder, batch, t):
 
 @pytest.mark.parametrize("ablation", ["navformer", "dt"])
 def test_cached_step_equals_full_forward_at_every_step_across_the_slide(batch_factory, ablation):
-    model = small_context_model(**({} if ablation == "navformer" else {"use_static_encoder": False, "thsc": False}))
+    model = small_context_model(
+        **({} if ablation == "navformer" else {"use_static_encoder": False, "thsc": False})
+    )
     window = model.config.window_steps
     steps = window * 2 + 3
     batch = batch_factory(3, steps, seed=1)
@@ -49,7 +51,9 @@ def test_window_holds_at_most_context_tokens():
     model = small_context_model()
     config = model.config
     decoder = IncrementalNavFormer(model, 1)
-    assert decoder.cache.slots == 1 + config.window_steps * config.tokens_per_step <= config.context_tokens + 1
+    assert (
+        decoder.cache.slots == 1 + config.window_steps * config.tokens_per_step <= config.context_tokens + 1
+    )
     mask = sliding_window_mask(10, 4, 6, torch.device("cpu"))[0, 0]
     # the query tokens of a step see the target + 6 steps, minus the not-yet-known action: 24 tokens
     assert int(mask[-1].sum()) == config.context_tokens
@@ -71,7 +75,9 @@ def test_per_robot_reset_clears_only_that_robots_state(batch_factory):
         if t == restart:
             decoder.reset(torch.tensor([False, True]))
         prev = batch["action"][:, t - 1] if t > 0 else torch.zeros(2, 2)
-        action = decoder.step(batch["target_pixels"], batch["pixels"][:, t], batch["return_to_go"][:, t], prev)
+        action = decoder.step(
+            batch["target_pixels"], batch["pixels"][:, t], batch["return_to_go"][:, t], prev
+        )
         torch.testing.assert_close(action[0], reference_robot0[t], rtol=0, atol=1e-5)
         if t >= restart:
             torch.testing.assert_close(action[1], reference_robot1[t - restart], rtol=0, atol=1e-5)
@@ -83,7 +89,12 @@ def test_decoder_requires_eval_mode_and_matching_batch(batch_factory):
     batch = batch_factory(2, 1)
     decoder = IncrementalNavFormer(model, 2)
     with pytest.raises(ValueError, match="robots"):
-        decoder.step(batch["target_pixels"][:1], batch["pixels"][:1, 0], batch["return_to_go"][:1, 0], torch.zeros(1, 2))
+        decoder.step(
+            batch["target_pixels"][:1],
+            batch["pixels"][:1, 0],
+            batch["return_to_go"][:1, 0],
+            torch.zeros(1, 2),
+        )
     model.train()
     with pytest.raises(ValueError, match="eval"):
         decode(decoder, batch, 0)

@@ -74,7 +74,11 @@ def test_policy_handles_root_keys_and_batched_leading_dims():
         batch_size=[2],
     )  # fmt: skip
     action = batched(td)["agents", "action"]
-    flat = NavFormerPolicy(model)(agents_td(pixels.reshape(6, 84, 84, 3), target.reshape(6, 84, 84, 3), torch.zeros(6, 1, dtype=torch.long)))
+    flat = NavFormerPolicy(model)(
+        agents_td(
+            pixels.reshape(6, 84, 84, 3), target.reshape(6, 84, 84, 3), torch.zeros(6, 1, dtype=torch.long)
+        )
+    )
     torch.testing.assert_close(action.reshape(6, 2), flat["agents", "action"], rtol=0, atol=1e-6)
 
 
@@ -104,7 +108,9 @@ class TwoRobotEnv(EnvBase):
         pixels = torch.randint(0, 256, (self.robots, 84, 84, 3), dtype=torch.uint8, generator=self.gen)
         target = torch.full((self.robots, 84, 84, 3), 7, dtype=torch.uint8)
         step = torch.full((self.robots, 1), self.t)
-        return TensorDict({"pixels": pixels, "target_pixels": target, "step_count": step}, batch_size=[self.robots])
+        return TensorDict(
+            {"pixels": pixels, "target_pixels": target, "step_count": step}, batch_size=[self.robots]
+        )
 
     def _reset(self, tensordict=None):
         self.t = 0

@@ -39,10 +39,22 @@ def test_config_rejects_bad_values(changes, match):
 
 def test_config_defaults_are_the_papers():
     c = NavFormerConfig()
-    assert (c.d_embed, c.n_blocks, c.n_heads, c.d_head, c.context_tokens, c.dropout) == (128, 3, 2, 64, 1024, 0.1)
+    assert (c.d_embed, c.n_blocks, c.n_heads, c.d_head, c.context_tokens, c.dropout) == (
+        128,
+        3,
+        2,
+        64,
+        1024,
+        0.1,
+    )
     assert c.tokens_per_step == 4 and c.window_steps == 256
     dt = NavFormerConfig.dt_baseline()
-    assert (dt.use_static_encoder, dt.use_general_encoder, dt.thsc, dt.tokens_per_step) == (False, True, False, 3)
+    assert (dt.use_static_encoder, dt.use_general_encoder, dt.thsc, dt.tokens_per_step) == (
+        False,
+        True,
+        False,
+        3,
+    )
     with pytest.raises(ValueError, match="unknown model ablation"):
         NavFormerConfig.ablation("no_ssl")
 
@@ -88,7 +100,9 @@ def test_perturbing_step_t_plus_1_leaves_outputs_up_to_t_unchanged(batch_factory
     t = 2
     perturbed = {k: v.clone() for k, v in batch.items()}
     gen = torch.Generator().manual_seed(1)
-    perturbed["pixels"][:, t + 1 :] = torch.randint(0, 256, perturbed["pixels"][:, t + 1 :].shape, dtype=torch.uint8, generator=gen)
+    perturbed["pixels"][:, t + 1 :] = torch.randint(
+        0, 256, perturbed["pixels"][:, t + 1 :].shape, dtype=torch.uint8, generator=gen
+    )
     perturbed["return_to_go"][:, t + 1 :] += torch.randn(2, 6 - t - 1, 1, generator=gen)
     perturbed["action"][:, t + 1 :] = torch.rand(2, 6 - t - 1, 2, generator=gen) * 2 - 1
     out = run(model, perturbed)
@@ -129,7 +143,9 @@ def test_thsc_head_is_a_linear_map_of_target_and_observation_hidden_states():
     # without THSC the head reads h_obs only, so h_g has no direct path
     plain = eval_model(thsc=False)
     assert plain.head.weight.shape == (2, d)
-    torch.testing.assert_close(plain.predict_action(h_g, h_obs), plain.predict_action(torch.zeros_like(h_g), h_obs))
+    torch.testing.assert_close(
+        plain.predict_action(h_g, h_obs), plain.predict_action(torch.zeros_like(h_g), h_obs)
+    )
 
 
 # ------------------------------------------------------------------------------------------ padding

@@ -44,7 +44,9 @@ def test_set_keys_renames_inputs_and_rejects_unknown_names():
     prediction = torch.tensor([[[0.0, 0.0]]])
     loss = fixed_loss(prediction)
     loss.set_keys(action_target=("expert", "action"), mask="valid")
-    td = TensorDict({"action": target, ("expert", "action"): target, "valid": torch.ones(1, 1, dtype=torch.bool)}, [1, 1])
+    td = TensorDict(
+        {"action": target, ("expert", "action"): target, "valid": torch.ones(1, 1, dtype=torch.bool)}, [1, 1]
+    )
     assert loss(td)["loss_dt"].item() == pytest.approx(0.08)
     with pytest.raises(ValueError, match="not an accepted tensordict key"):
         loss.set_keys(foo="bar")

@@ -52,3 +52,9 @@ def tiny_config(datasets, tmp_path):
         return load_train_config([*base, *overrides])
 
     return make
+
+
+@pytest.fixture
+def base_overrides(datasets) -> list[str]:
+    """Overrides pointing at the tiny datasets with the tiny model (no output_dir)."""
+    return [*data_overrides(datasets), *TINY_OVERRIDES]

@@ -16,7 +16,8 @@ EXPECTED_TASKS = {"no_de": ["collision_avoidance"] * 2, "no_dca": ["exploration"
 
 @pytest.mark.parametrize("ablation", list(ABLATIONS))
 def test_every_ablation_trains_two_iterations(tiny_config, ablation):
-    result = train(tiny_config(f"ablation={ablation}", "optim.iterations=2"))
+    smaller = ["data.collision_batch_trajs=2", "data.ssl_batch_pairs=2"] if ablation == "resnet18" else []
+    result = train(tiny_config(f"ablation={ablation}", "optim.iterations=2", *smaller))
     assert result.iterations == 2
     metrics = result.metrics
     assert math.isfinite(metrics["loss"]) and metrics["loss_dt"] > 0

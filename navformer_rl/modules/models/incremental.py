@@ -117,8 +117,9 @@ class IncrementalNavFormer:
         self.slot_pos[first] = -1
         self.slot_pos.scatter_(1, (group + tps - 1)[:, None], -1)  # a_{t-W} leaves with step t-W
         self.slot_pos.scatter_(1, write_index, new_pos)
-        valid = self.slot_pos[:, None, :] >= 0
-        attn_mask = (valid & (self.slot_pos[:, None, :] <= new_pos[:, :, None])).unsqueeze(1)
+        used = min(self.slot_pos.shape[1], 1 + tps * (int(t.max()) + 1))  # slots beyond are still empty
+        slot_pos = self.slot_pos[:, None, :used]
+        attn_mask = ((slot_pos >= 0) & (slot_pos <= new_pos[:, :, None])).unsqueeze(1)
 
         hidden, _ = model.transformer(
             model.prepare_tokens(tokens).to(self.cache.keys[0].dtype),

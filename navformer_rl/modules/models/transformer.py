@@ -63,8 +63,8 @@ class CausalSelfAttention(nn.Module):
         """x: ``[B, L, d]``. Without ``attn_mask``: plain causal attention among the L tokens.
 
         With ``cache = (keys, values)`` (``[B, H, S, d_head]``), the new keys/values are written at
-        ``write_index`` (long ``[B, L]``, slots) and the queries attend over all S slots under
-        ``attn_mask`` (bool ``[B, 1, L, S]``, True = may attend).
+        ``write_index`` (long ``[B, L]``, slots) and the queries attend over the first S' slots under
+        ``attn_mask`` (bool ``[B, 1, L, S']``, True = may attend, S' <= S).
         """
         batch, length, _ = x.shape
         q, k, v = self.qkv(x).view(batch, length, 3, self.n_heads, self.d_head).permute(2, 0, 3, 1, 4)
@@ -73,7 +73,8 @@ class CausalSelfAttention(nn.Module):
             index = write_index[:, None, :, None].expand(batch, self.n_heads, length, self.d_head)
             cache_k.scatter_(2, index, k.to(cache_k.dtype))
             cache_v.scatter_(2, index, v.to(cache_v.dtype))
-            k, v = cache_k, cache_v
+            used = attn_mask.shape[-1]  # the caller may restrict attention to the first slots in use
+            k, v = cache_k[:, :, :used], cache_v[:, :, :used]
         dropout_p = self.dropout if self.training else 0.0
         y = F.scaled_dot_product_attention(
             q, k, v, attn_mask=attn_mask, dropout_p=dropout_p, is_causal=attn_mask is None
@@ -139,8 +140,8 @@ class CausalTransformer(nn.Module):
     ) -> tuple[Tensor, KVCache | None]:
         """x: ``[B, L, d]`` -> (hidden ``[B, L, d]``, the updated ``kv_cache``).
 
-        attn_mask: bool, True = may attend; ``[B or 1, 1, L, L]`` without a cache, ``[B, 1, L, S]`` with
-        one; None means causal among the L tokens (no cache only).
+        attn_mask: bool, True = may attend; ``[B or 1, 1, L, L]`` without a cache, ``[B, 1, L, S']`` with
+        one (attention over the first S' <= S slots); None means causal among the L tokens (no cache only).
         kv_cache / write_index: incremental mode (inference, no autograd): the L new tokens' keys and
         values are written in place at slots ``write_index`` (long ``[B, L]``) before attending.
         """

@@ -1,0 +1,112 @@
+"""Per-step NavFormer inference latency: KV-cache step vs full recompute (CPU by default).
+
+For each batch size (robots) and episode position T the script measures, with the paper model in eval mode
+and under ``torch.no_grad``:
+
+- ``kv``: one ``IncrementalNavFormer.step`` at timestep T (encoding the new frame with f_s and f_g, the
+  transformer on the 4 new tokens against the cache, the THSC head); median over ``--steps`` consecutive steps.
+- ``recompute``: the same decision by re-running the transformer over the whole context (target + T steps,
+  i.e. 4T tokens), with the frame embeddings of past steps cached and only the new frame encoded; median
+  over ``--repeats``.
+- ``window``: the recompute of a full 1024-token window (256 steps), the cost of an exact sliding window.
+
+Usage: ``OMP_NUM_THREADS=1 python benchmarks/bench_inference.py [--threads 1] [--batches 1 6] [--T 50 200 500]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import torch
+
+from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
+
+
+def timed(fn, repeats: int) -> float:
+    """Median wall time of ``fn()`` in ms over ``repeats`` calls (after one warm-up)."""
+    fn()
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        samples.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(samples)
+
+
+def random_frames(*shape: int, seed: int) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(seed)
+    return torch.randint(0, 256, (*shape, 84, 84, 3), dtype=torch.uint8, generator=gen)
+
+
+def recompute_step(model: NavFormerModel, cached: dict[str, torch.Tensor], pixels: torch.Tensor, steps: int):
+    """Decide the action at step ``steps - 1`` by running the transformer over the whole context."""
+    tps = model.config.tokens_per_step
+    obs = torch.cat([cached["obs"][:, : steps - 1], model.encode_observations(pixels)[:, None]], dim=1)
+    tokens = model.step_tokens(obs, cached["rtg"][:, :steps], cached["action"][:, :steps], cached["step"][:, :steps])
+    batch = tokens.shape[0]
+    sequence = torch.cat([cached["target"][:, None], tokens.reshape(batch, steps * tps, -1)[:, :-1]], dim=1)
+    hidden, _ = model.transformer(model.prepare_tokens(sequence))
+    return model.predict_action(hidden[:, 0], hidden[:, -1:])[:, 0]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 6])
+    parser.add_argument("--T", type=int, nargs="+", default=[50, 200, 500])
+    parser.add_argument("--steps", type=int, default=20, help="KV-cache steps timed at each T")
+    parser.add_argument("--repeats", type=int, default=5, help="repeats of each recompute")
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--device", default="cpu")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    device = torch.device(args.device)
+    torch.manual_seed(0)
+    model = NavFormerModel(NavFormerConfig()).to(device).eval()
+    window = model.config.window_steps
+    print(f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, "
+          f"load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+    print("| robots | T | tokens | KV step ms | ms / robot-step | recompute ms | speed-up | window recompute ms | window / KV |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    with torch.no_grad():
+        for batch in args.batches:
+            window_ms = None
+            max_t = max(args.T)
+            frames = random_frames(batch, 8, seed=batch).to(device)  # cycle 8 frames: content is irrelevant
+            target = random_frames(batch, seed=99).to(device)
+            cached = {
+                "target": model.target_token(model.encode_target(target)),
+                "obs": model.encode_observations(frames)[:, torch.arange(max_t + args.steps) % 8],
+                "rtg": torch.ones(batch, max_t + args.steps, 1, device=device),
+                "action": torch.rand(batch, max_t + args.steps, 2, device=device) * 2 - 1,
+                "step": torch.arange(max_t + args.steps, device=device).clamp(max=511).expand(batch, -1),
+            }
+            decoder = IncrementalNavFormer(model, batch, device=device)
+            prev = torch.zeros(batch, 2, device=device)
+            rtg = torch.ones(batch, 1, device=device)
+            for t in sorted(args.T):
+                while int(decoder.steps_done[0]) < t - 1:  # advance the episode to step T - 1
+                    prev = decoder.step(target, frames[:, int(decoder.steps_done[0]) % 8], rtg, prev)
+                samples = []
+                for _ in range(args.steps):
+                    pixels = frames[:, int(decoder.steps_done[0]) % 8]
+                    start = time.perf_counter()
+                    prev = decoder.step(target, pixels, rtg, prev)
+                    samples.append((time.perf_counter() - start) * 1e3)
+                kv_ms = statistics.median(samples)
+                pixels = frames[:, (t - 1) % 8]
+                recompute_ms = timed(lambda t=t, pixels=pixels: recompute_step(model, cached, pixels, t), args.repeats)
+                if window_ms is None:
+                    window_ms = timed(lambda pixels=pixels: recompute_step(model, cached, pixels, window), args.repeats)
+                tps = model.config.tokens_per_step
+                print(
+                    f"| {batch} | {t} | {tps * t} | {kv_ms:.3f} | {kv_ms / batch:.3f} | {recompute_ms:.1f} | "
+                    f"{recompute_ms / kv_ms:.0f}x | {window_ms:.1f} | {window_ms / kv_ms:.0f}x |"
+                )
+
+
+if __name__ == "__main__":
+    main()

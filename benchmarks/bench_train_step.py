@@ -1,0 +1,190 @@
+"""Training-iteration throughput of NavFormer at the paper's batch shapes, against the matmul floor.
+
+One paper iteration (§VI) = the DT loss on one trajectory batch (alternately 25 x 98 steps from D_e and
+150 x 63 steps from D_ca) + BYOL on 512 image pairs for both encoders (eq. 11), backward, AdamW, the EMA
+update. The script times, per configuration (median over ``--repeats``, after one warm-up):
+
+- ``aug``: the BYOL augmentations alone (3 x 512 images, ``BYOLAugmentation``);
+- ``A`` / ``B``: a full iteration with batch A / B (augmentation included); ``mean`` = (A + B) / 2;
+- frames/s = trajectory frames per second over A and B; GFLOP/s = counted FLOPs / time, and the
+  fraction of the large-matmul floor (fp32 and bf16, measured in the same run).
+
+FLOPs: ``torch.utils.flop_counter`` on one fp32 iteration of each kind (convolutions, linears, ...) plus
+the causal attention counted analytically (the counter does not see CPU SDPA): forward
+``2 * B * H * L^2 * d_head`` per block (the causal half), backward twice that.
+
+Configurations (levers are ``NavFormerConfig`` / ``BYOLLoss`` options the training loop can set):
+``fp32`` (NCHW, one chunk), ``bf16`` (autocast bfloat16 + channels_last), ``bf16_mb`` (+ encoder
+micro-batches of ``--micro-batch``), ``bf16_mb_detach`` (+ ``detach_encoders``: the DT loss does not
+back-propagate into the encoders).
+
+Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
+(``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import torch
+from tensordict import TensorDict
+from torch.utils._python_dispatch import TorchDispatchMode
+from torch.utils.flop_counter import flop_registry
+from torchrl.objectives import SoftUpdate
+
+from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
+from navformer_rl.objectives import BYOLLoss, NavFormerLoss, joint_parameters
+
+CONFIGS = {
+    "fp32": {"channels_last": False},
+    "bf16": {"autocast_dtype": "bfloat16"},
+    "bf16_mb": {"autocast_dtype": "bfloat16", "encoder_micro_batch": "MB"},
+    "bf16_mb_detach": {"autocast_dtype": "bfloat16", "encoder_micro_batch": "MB", "detach_encoders": True},
+    "fp32_mb": {"encoder_micro_batch": "MB"},
+}
+
+
+def median_ms(fn, repeats: int) -> float:
+    fn()
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        samples.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(samples)
+
+
+def matmul_gflops(dtype: torch.dtype, n: int = 2048, repeats: int = 5) -> float:
+    a, b = torch.randn(n, n).to(dtype), torch.randn(n, n).to(dtype)
+    return 2 * n**3 / median_ms(lambda: a @ b, repeats) / 1e6
+
+
+def trajectory_batch(n: int, steps: int, seed: int) -> TensorDict:
+    gen = torch.Generator().manual_seed(seed)
+    return TensorDict(
+        {
+            "target_pixels": torch.randint(0, 256, (n, 84, 84, 3), dtype=torch.uint8, generator=gen),
+            "pixels": torch.randint(0, 256, (n, steps, 84, 84, 3), dtype=torch.uint8, generator=gen),
+            "return_to_go": torch.ones(n, steps, 1),
+            "action": torch.rand(n, steps, 2, generator=gen) * 2 - 1,
+            "step": torch.arange(steps).expand(n, steps).clone(),
+            "mask": torch.ones(n, steps, dtype=torch.bool),
+        },
+        batch_size=[n],
+    )
+
+
+def pair_batch(n: int, seed: int) -> TensorDict:
+    gen = torch.Generator().manual_seed(seed)
+    shape = (n, 84, 84, 3)
+    return TensorDict(
+        {
+            "pixels_static": torch.randint(0, 256, shape, dtype=torch.uint8, generator=gen),
+            "pixels_dynamic": torch.randint(0, 256, shape, dtype=torch.uint8, generator=gen),
+        },
+        batch_size=[n],
+    )
+
+
+class Trainer:
+    """Model, both losses, one AdamW over their joint parameters and the EMA updater (the paper's loop)."""
+
+    def __init__(self, config: NavFormerConfig) -> None:
+        torch.manual_seed(0)
+        self.model = NavFormerModel(config)
+        self.dt_loss = NavFormerLoss(make_navformer_actor(self.model))
+        self.byol_loss = BYOLLoss(
+            self.model.static_encoder, self.model.general_encoder, autocast_dtype=config.autocast_dtype
+        )
+        self.updater = SoftUpdate(self.byol_loss, eps=0.996)
+        self.optimizer = torch.optim.AdamW(joint_parameters(self.dt_loss, self.byol_loss), lr=2e-4, weight_decay=1e-4)
+
+    def iteration(self, trajectories: TensorDict, pairs: TensorDict) -> None:
+        self.optimizer.zero_grad(set_to_none=True)
+        loss = self.dt_loss(trajectories)["loss_dt"] + self.byol_loss(pairs)["loss_byol"]
+        loss.backward()
+        self.optimizer.step()
+        self.updater.step()
+
+
+class CountFlops(TorchDispatchMode):
+    """``torch.utils.flop_counter``'s per-op formulas without its module tracker (which trips on TensorDictParams)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.total = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        out = func(*args, **kwargs)
+        formula = flop_registry.get(func._overloadpacket)
+        if formula is not None:
+            self.total += formula(*args, **kwargs, out_val=out)
+        return out
+
+
+def attention_flops(config: NavFormerConfig, n: int, steps: int) -> float:
+    length = config.tokens_per_step * steps
+    forward = 2 * n * config.n_heads * length**2 * config.d_head * config.n_blocks
+    return 3 * forward
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--configs", nargs="+", default=["fp32", "bf16", "bf16_mb", "bf16_mb_detach"])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--micro-batch", type=int, default=512)
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--batch-a", type=int, nargs=2, default=[25, 98], metavar=("N", "T"))
+    parser.add_argument("--batch-b", type=int, nargs=2, default=[150, 63], metavar=("N", "T"))
+    parser.add_argument("--pairs", type=int, default=512)
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    unknown = set(args.configs) - set(CONFIGS)
+    if unknown:
+        raise SystemExit(f"unknown configs {sorted(unknown)}: expected some of {sorted(CONFIGS)}")
+
+    batch_a, batch_b = trajectory_batch(*args.batch_a, seed=1), trajectory_batch(*args.batch_b, seed=2)
+    pairs = pair_batch(args.pairs, seed=3)
+    frames_a, frames_b = args.batch_a[0] * args.batch_a[1], args.batch_b[0] * args.batch_b[1]
+
+    fp32_floor, bf16_floor = matmul_gflops(torch.float32), matmul_gflops(torch.bfloat16)
+    print(f"# torch {torch.__version__}, threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}, "
+          f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}")  # fmt: skip
+    print(f"# matmul floor (2048^3): fp32 {fp32_floor:.0f} GFLOP/s, bf16 {bf16_floor:.0f} GFLOP/s")
+
+    reference = Trainer(NavFormerConfig())
+    flops = {}
+    for name, batch, n_t in (("A", batch_a, args.batch_a), ("B", batch_b, args.batch_b)):
+        with CountFlops() as counter:
+            reference.iteration(batch, pairs)
+        flops[name] = counter.total + attention_flops(reference.model.config, *n_t)
+    del reference
+    mean_flops = (flops["A"] + flops["B"]) / 2
+    print(f"# counted FLOPs per iteration: A {flops['A'] / 1e9:.0f} G, B {flops['B'] / 1e9:.0f} G, mean {mean_flops / 1e9:.0f} G")
+    print(f"# floors for the mean iteration: fp32 {mean_flops / fp32_floor / 1e9:.2f} s, bf16 {mean_flops / bf16_floor / 1e9:.2f} s")
+    print("| config | aug ms | A ms | B ms | mean s/iter | frames/s | GFLOP/s | % fp32 floor | % bf16 floor | 10k iters h |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.configs:
+        options = {k: (args.micro_batch if v == "MB" else v) for k, v in CONFIGS[name].items()}
+        trainer = Trainer(NavFormerConfig(**options))
+        aug = trainer.byol_loss.augmentation
+        aug_ms = median_ms(lambda aug=aug: [aug(pairs["pixels_dynamic"]) for _ in range(3)], args.repeats)
+        a_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_a, pairs), args.repeats)
+        b_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_b, pairs), args.repeats)
+        mean_s = (a_ms + b_ms) / 2e3
+        gflops = mean_flops / mean_s / 1e9
+        print(
+            f"| {name} | {aug_ms:.0f} | {a_ms:.0f} | {b_ms:.0f} | {mean_s:.2f} | {(frames_a + frames_b) / (2 * mean_s):.0f} | "
+            f"{gflops:.0f} | {100 * gflops / fp32_floor:.0f} % | {100 * gflops / bf16_floor:.0f} % | {mean_s * 1e4 / 3600:.1f} |",
+            flush=True,
+        )
+        del trainer
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""TorchRL MultiRobotNavEnv (and the single-robot TorchRL wrapper): specs, keys, determinism, success."""
+
+import numpy as np
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs, step_mdp
+
+from navformer_rl.envs.multi_robot import MultiRobotNavEnv
+from navformer_rl.envs.torchrl_target_nav import make_torchrl_target_nav_env
+from navformer_rl.envs.world import EpisodeSpec
+
+
+def test_check_env_specs_and_keys():
+    env = MultiRobotNavEnv(size=5.0, n_robots=2, seed=0)
+    check_env_specs(env, seed=0)
+    td = env.reset()
+    assert td["agents", "pixels"].shape == (2, 84, 84, 3) and td["agents", "pixels"].dtype == torch.uint8
+    assert td["agents", "target_pixels"].shape == (2, 84, 84, 3)
+    assert td["agents", "step_count"].tolist() == [[0], [0]]
+    assert td["privileged", "pose"].shape == (2, 3) and td["privileged", "success"].dtype == torch.bool
+    assert (td["privileged", "shortest_path_length"] > 0).all()
+    assert td["done"].shape == (1,) and not td["done"].any()
+    assert env.reward_keys == [("agents", "reward")] and env.action_keys == [("agents", "action")]
+    assert env.world.n_robots == 2 and env.simulator.n_robots == 2
+    env.close()
+
+
+def actions(n_steps, n_robots):
+    return torch.from_numpy(
+        np.random.default_rng(3).uniform(-1, 1, (n_steps, n_robots, 2)).astype(np.float32)
+    )
+
+
+def run(env, acts):
+    td = env.reset()
+    frames, poses = [td["agents", "pixels"]], [td["privileged", "pose"]]
+    for a in acts:
+        td["agents", "action"] = a
+        td = step_mdp(env.step(td))
+        frames.append(td["agents", "pixels"])
+        poses.append(td["privileged", "pose"])
+    return torch.stack(frames), torch.stack(poses)
+
+
+def test_same_seed_same_rollout():
+    acts = actions(12, 3)
+    a = MultiRobotNavEnv(size=5.0, n_robots=3)
+    b = MultiRobotNavEnv(size=5.0, n_robots=3)
+    a.set_seed(8)
+    b.set_seed(8)
+    frames_a, poses_a = run(a, acts)
+    frames_b, poses_b = run(b, acts)
+    assert torch.equal(frames_a, frames_b) and torch.equal(poses_a, poses_b)
+    b.set_seed(9)
+    frames_c, _ = run(b, acts)
+    assert not torch.equal(frames_a[0], frames_c[0])
+
+
+def test_success_reward_once_robot_stays_put_and_episode_ends(make_open_world):
+    # robot 0 is 1.6 m from its target (succeeds on its first step), robot 1 is 2.0 m from its target
+    world = make_open_world(
+        [(1.0, 1.0, 0.0), (1.0, 4.0, 0.0)], [(2.6, 1.0, "sphere", "red"), (3.0, 4.0, "box", "yellow")]
+    )
+    env = MultiRobotNavEnv(size=5.0, n_robots=2)
+    env.set_next_episode(EpisodeSpec(world=world))
+    td = env.reset()
+    rewards, poses0 = [], []
+    for t in range(3):
+        td["agents", "action"] = torch.tensor([[1.0, 0.5], [1.0, 0.0]])
+        out = env.step(td)
+        nxt = out["next"]
+        rewards.append(nxt["agents", "reward"].squeeze(-1).tolist())
+        poses0.append(nxt["privileged", "pose"][0].clone())
+        assert nxt["agents", "step_count"].tolist() == [[t + 1], [t + 1]]
+        td = step_mdp(out)
+    assert rewards == [[1.0, 0.0], [0.0, 0.0], [0.0, 1.0]]  # robot 1: 2.0 -> 1.8 -> 1.6 -> 1.4 m
+    assert torch.equal(poses0[0], poses0[1]) and torch.equal(poses0[1], poses0[2])  # robot 0 stays put
+    assert nxt["agents", "terminated"].all() and nxt["terminated"].item() and nxt["done"].item()
+    assert not nxt["truncated"].item()
+    assert nxt["privileged", "path_length"][0].item() == pytest.approx(0.2, abs=1e-4)
+
+
+def test_truncation_at_max_steps(make_open_world):
+    world = make_open_world([(1.0, 1.0, 0.0)], [(4.0, 4.0, "sphere", "blue")])
+    env = MultiRobotNavEnv(size=5.0, n_robots=1, max_steps=4)
+    env.set_next_episode(world)
+    td = env.reset()
+    td["agents", "action"] = torch.zeros(1, 2)
+    rollout = env.rollout(10, auto_reset=False, tensordict=td, break_when_any_done=True)
+    assert rollout.shape == (4,)
+    assert rollout["next", "truncated"].squeeze(-1).tolist() == [False, False, False, True]
+    assert rollout["next", "agents", "done"][-1].all() and not rollout["next", "agents", "terminated"].any()
+
+
+def test_bad_inputs_raise_value_error():
+    env = MultiRobotNavEnv(size=5.0, n_robots=2, seed=0)
+    td = env.reset()
+    td["agents", "action"] = torch.tensor([[float("nan"), 0.0], [0.0, 0.0]])
+    with pytest.raises(ValueError, match="finite"):
+        env.step(td)
+    with pytest.raises(ValueError, match="robot style"):
+        MultiRobotNavEnv(robots=["jackal", "roomba"])
+    env.set_next_episode(EpisodeSpec(config=env.config.__class__(size=5.0, n_robots=3), world_seed=0))
+    with pytest.raises(ValueError, match="3 robots"):
+        env.reset()
+
+
+def test_mixed_robot_styles():
+    env = MultiRobotNavEnv(size=5.0, robots=["jackal", "turtlebot3"], seed=1)
+    env.reset()
+    assert [s.name for s in env.simulator.robot_specs] == ["jackal", "turtlebot3"]
+
+
+def test_torchrl_wrapper_of_the_single_robot_env():
+    env = make_torchrl_target_nav_env(size=5.0, n_robots=2)
+    check_env_specs(env, seed=0)
+    td = env.reset()
+    assert td["pixels"].shape == (84, 84, 3) and td["privileged", "pose"].shape == (3,)
+    env.close()

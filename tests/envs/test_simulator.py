@@ -1,0 +1,147 @@
+"""Simulator: unicycle kinematics with known answers, blocked motion, collision kinds, cameras and rays."""
+
+import math
+
+import numpy as np
+import pytest
+
+from navformer_rl.envs.robots import JACKAL, TURTLEBOT3
+from navformer_rl.envs.sim import COLLISION_NONE, COLLISION_ROBOT, COLLISION_WALL, Simulator, unicycle_pose
+
+FAR_TARGET = [(4.4, 4.4, "sphere", "red")]
+
+
+def sim_at(make_open_world, poses, specs=None):
+    n = len(poses)
+    targets = [
+        (4.4, 4.4 - 0.8 * k, "sphere" if k % 2 else "box", c)
+        for k, c in zip(range(n), ["red", "blue", "green"])
+    ]
+    world = make_open_world(poses, targets)
+    return Simulator(world, specs or [JACKAL] * n, textured=False)
+
+
+def test_straight_line_known_answer(make_open_world):
+    sim = sim_at(make_open_world, [(1.0, 2.5, 0.0)])
+    contacts = sim.step(np.array([[1.0, 0.0]]))
+    assert not contacts.collided[0] and contacts.kind[0] == COLLISION_NONE
+    assert np.allclose(sim.poses[0], [1.2, 2.5, 0.0], atol=1e-6)  # v_max 1 m/s for 0.2 s
+    assert np.allclose(sim.velocities[0], [1.0, 0.0])
+
+
+def test_turning_known_answers(make_open_world):
+    sim = sim_at(make_open_world, [(2.0, 2.0, 0.0)])
+    for _ in range(5):
+        sim.step(np.array([[0.0, 1.0]]))  # w_max 1.5 rad/s: 0.3 rad per step, no translation
+    assert np.allclose(sim.poses[0], [2.0, 2.0, 1.5], atol=1e-6)
+    sim.set_poses([[2.0, 2.0, 0.0]])
+    sim.step(np.array([[0.5, 1.0]]))  # arc: v = 0.5, w = 1.5 for 0.2 s
+    r = 0.5 / 1.5
+    assert np.allclose(sim.poses[0], [2.0 + r * math.sin(0.3), 2.0 + r * (1 - math.cos(0.3)), 0.3], atol=1e-6)
+    # a quarter circle of radius 2/pi: v = 1, w = pi/2 for 1 s
+    assert np.allclose(
+        unicycle_pose(np.zeros(3), 1.0, math.pi / 2, 1.0)[0], [2 / math.pi, 2 / math.pi, math.pi / 2]
+    )
+
+
+def test_actions_are_clipped_and_validated(make_open_world):
+    a = sim_at(make_open_world, [(1.0, 2.5, 0.3)])
+    b = sim_at(make_open_world, [(1.0, 2.5, 0.3)])
+    a.step(np.array([[3.0, -7.0]]))
+    b.step(np.array([[1.0, -1.0]]))
+    assert np.array_equal(a.poses, b.poses)
+    with pytest.raises(ValueError, match="finite"):
+        a.step(np.array([[np.nan, 0.0]]))
+    with pytest.raises(ValueError, match=r"shape \(1, 2\)"):
+        a.step(np.zeros((1, 3)))
+
+
+def test_robot_driven_into_a_wall_stops_and_counts(make_open_world):
+    sim = sim_at(make_open_world, [(4.5, 2.5, 0.0)])  # the wall face is at x = 4.95
+    contacts = sim.step(np.array([[1.0, 0.0]]))
+    assert contacts.collided[0] and contacts.kind[0] == COLLISION_WALL
+    assert sim.poses[0, 0] == pytest.approx(4.95 - JACKAL.radius, abs=1e-3)
+    assert sim.poses[0, 0] <= 4.95 - JACKAL.radius
+    assert sim.velocities[0, 0] == pytest.approx(0.75, abs=0.01)
+    again = sim.step(np.array([[1.0, 0.0]]))  # still pushing: blocked again, no motion
+    assert again.collided[0] and sim.poses[0, 0] == pytest.approx(4.65, abs=1e-3)
+    turned = sim.step(np.array([[0.0, 1.0]]))  # turning in place is not a collision
+    assert not turned.collided[0]
+    sim.set_poses([[sim.poses[0, 0], 2.5, math.pi / 2]])
+    along = sim.step(np.array([[1.0, 0.0]]))  # sliding along the wall while touching it
+    assert not along.collided[0] and sim.poses[0, 1] == pytest.approx(2.7, abs=1e-6)
+    away = sim.step(np.array([[-1.0, 0.0]]))  # driving away from the contact
+    assert not away.collided[0]
+
+
+def test_head_on_robots_never_overlap(make_open_world):
+    sim = sim_at(make_open_world, [(1.5, 2.5, 0.0), (3.5, 2.5, math.pi)])
+    kinds = []
+    for _ in range(10):
+        kinds.append(sim.step(np.array([[1.0, 0.0], [1.0, 0.0]])).kind.copy())
+        gap = np.hypot(*(sim.poses[0, :2] - sim.poses[1, :2]))
+        assert gap >= 2 * JACKAL.radius - 1e-9
+    assert gap == pytest.approx(2 * JACKAL.radius, abs=1e-3)
+    assert (np.array(kinds[-1]) == COLLISION_ROBOT).all()
+    assert (np.array(kinds[0]) == COLLISION_NONE).all()
+
+
+def test_adversarial_random_actions_never_overlap(tiny_maze):
+    sim = Simulator(tiny_maze, [JACKAL, TURTLEBOT3, JACKAL], textured=False)
+    rng = np.random.default_rng(0)
+    boxes, circles, radii = tiny_maze.obstacle_boxes, tiny_maze.obstacle_circles, sim.radii
+    counts = np.zeros(3, dtype=int)
+    for _ in range(400):
+        contacts = sim.step(rng.uniform(-1.5, 1.5, size=(3, 2)))
+        counts += np.bincount(contacts.kind, minlength=3)
+        p = sim.poses[:, :2].astype(np.float64)
+        dx = np.maximum(np.abs(p[:, None, 0] - boxes[None, :, 0]) - boxes[None, :, 2], 0)
+        dy = np.maximum(np.abs(p[:, None, 1] - boxes[None, :, 1]) - boxes[None, :, 3], 0)
+        assert (np.hypot(dx, dy).min(axis=1) >= radii - 1e-6).all()
+        d_circle = np.hypot(p[:, None, 0] - circles[None, :, 0], p[:, None, 1] - circles[None, :, 1])
+        assert (d_circle >= radii[:, None] + circles[None, :, 2] - 1e-6).all()
+        d_pair = np.hypot(*(p[:, None] - p[None]).transpose(2, 0, 1)) - radii[:, None] - radii[None]
+        assert d_pair[~np.eye(3, dtype=bool)].min() >= -1e-6
+    assert counts[COLLISION_WALL] > 0  # the test did push robots into walls
+
+
+def test_inactive_robots_do_not_move(make_open_world):
+    sim = sim_at(make_open_world, [(1.0, 1.0, 0.0), (1.0, 3.0, 0.0)])
+    sim.step(np.ones((2, 2)), active=np.array([True, False]))
+    assert np.allclose(sim.poses[1], [1.0, 3.0, 0.0]) and np.allclose(sim.velocities[1], 0.0)
+    assert not np.allclose(sim.poses[0], [1.0, 1.0, 0.0])
+
+
+def test_set_poses_rejects_overlaps(make_open_world):
+    sim = sim_at(make_open_world, [(1.0, 1.0, 0.0), (1.0, 3.0, 0.0)])
+    with pytest.raises(ValueError, match="overlaps"):
+        sim.set_poses([[0.1, 1.0, 0.0], [1.0, 3.0, 0.0]])
+    with pytest.raises(ValueError, match="overlaps"):
+        sim.set_poses([[1.0, 1.0, 0.0], [1.3, 1.0, 0.0]])
+
+
+def test_ray_scan_known_distances_and_hidden_robots(make_open_world):
+    sim = sim_at(make_open_world, [(2.5, 2.5, 0.0), (4.0, 2.5, 0.0)])
+    # 4 rays over a full circle: -pi, -pi/2, 0, +pi/2
+    scan = sim.ray_scan(0, 4, 2 * math.pi, 6.0)
+    assert scan.dtype == np.float32 and scan.shape == (4,)
+    assert scan[0] == pytest.approx(2.45, abs=1e-3) and scan[1] == pytest.approx(2.45, abs=1e-3)
+    assert scan[2] == pytest.approx(4.0 - JACKAL.radius - 2.5, abs=1e-3)  # robot 1's cylinder
+    assert sim.ray_scan(0, 4, 2 * math.pi, 1.0)[0] == pytest.approx(1.0)  # nothing within range
+    sim.set_robot_visible(1, False)
+    assert sim.ray_scan(0, 4, 2 * math.pi, 6.0)[2] == pytest.approx(2.45, abs=1e-3)
+
+
+def test_camera_images_see_other_robots(make_open_world):
+    sim = sim_at(make_open_world, [(2.0, 2.5, 0.0), (3.2, 2.5, 0.0)])
+    with_robot = sim.render(0)
+    assert with_robot.dtype == np.uint8 and with_robot.shape == (84, 84, 3)
+    sim.set_robot_visible(1, False)
+    without = sim.render(0)
+    assert np.abs(with_robot.astype(int) - without.astype(int)).sum(axis=-1).astype(bool).sum() > 200
+    sim.set_robot_visible(1, True)
+    assert np.array_equal(sim.render(0), with_robot)  # deterministic
+    frames = sim.render_all(np.array([False, True]))
+    assert frames.shape == (2, 84, 84, 3) and not frames[0].any() and frames[1].any()
+    sim.close()
+    sim.close()

@@ -1,0 +1,69 @@
+"""`navformer evaluate` (make-episodes, run, report) and the markdown report."""
+
+import argparse
+import json
+
+import pytest
+
+from navformer_rl.evaluation.cli import register
+from navformer_rl.evaluation.episodes import load_episode_set
+from navformer_rl.evaluation.harness import evaluate
+from navformer_rl.evaluation.report import paper_table1_markdown, write_report
+
+
+def _run(argv):
+    parser = argparse.ArgumentParser(prog="navformer")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.run(args)
+
+
+def test_make_episodes_then_evaluate_then_report(tmp_path, capsys):
+    episodes = tmp_path / "smoke.json"
+    common = ["--protocol", "smoke", "--trials-per-setup", "2", "--trials-per-world", "2", "--max-steps", "6"]
+    assert _run(["evaluate", "make-episodes", "--out", str(episodes), *common]) == 0
+    episode_set = load_episode_set(episodes)
+    assert len(episode_set) == 2 and episode_set.max_steps == 6 and episode_set.setups == ["7.5m-2r"]
+
+    out = tmp_path / "vrw"
+    argv = ["evaluate", "--method", "vrw", "--episodes", str(episodes), "--out", str(out), "--videos", "0"]
+    assert _run([*argv, "--maps", "1", "--no-progress"]) == 0
+    assert "| 7.5m-2r | 7.5 × 7.5 | 2 |" in capsys.readouterr().out
+    assert (out / "maps" / "7.5m-2r_w00t00.png").is_file()
+
+    report = tmp_path / "report" / "README.md"
+    assert _run(["evaluate", "report", str(out), "--out", str(report)]) == 0
+    text = report.read_text()
+    assert "vrw SR" in text and (tmp_path / "report" / "metrics.png").is_file()
+    assert "../vrw/maps/7.5m-2r_w00t00.png" in text
+
+
+def test_cli_errors(tmp_path):
+    with pytest.raises(ValueError, match="expected one of navformer, dt, vrw, fca"):
+        _run(["evaluate", "--method", "random", "--protocol", "smoke", "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="--episodes FILE or --protocol"):
+        _run(["evaluate", "--method", "vrw", "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="unknown protocol"):
+        _run(["evaluate", "make-episodes", "--protocol", "table2", "--out", str(tmp_path / "x.json")])
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"format": "navformer_rl.dataset", "version": 1}))
+    with pytest.raises(ValueError, match="not an episode-set file"):
+        _run(["evaluate", "--method", "vrw", "--episodes", str(bad), "--out", str(tmp_path / "o")])
+
+
+def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes):
+    a = evaluate("vrw", tiny_episodes, tmp_path / "vrw", maps_per_setup=0, videos_per_setup=0, progress=False)
+    b = evaluate(
+        "vrw", tiny_episodes, tmp_path / "vrw2", label="vrw-seed1", seed=1,
+        maps_per_setup=0, videos_per_setup=0, progress=False,
+    )  # fmt: skip
+    path = write_report([a.out_dir, b.out_dir], tmp_path / "report.md", title="tiny")
+    text = path.read_text()
+    # Our two methods side by side, the paper's VRW value for 7.5 m / 2 robots, and the caveat.
+    assert "| Setup | Env size (m) | # of robots | vrw SR | vrw SPL | vrw CR | vrw-seed1 SR |" in text
+    assert "/ 39.17%" in text and "not directly comparable" in text and "Gazebo" in text
+    assert paper_table1_markdown() in text
+    with pytest.raises(ValueError, match="same method label"):
+        write_report([a.out_dir, a.out_dir], tmp_path / "dup.md")
+    with pytest.raises(FileNotFoundError, match="not an evaluation folder"):
+        write_report([tmp_path], tmp_path / "none.md")

@@ -1,0 +1,153 @@
+"""The harness end to end on tiny episodes: outputs, numbers recomputed from the JSONL, env agreement."""
+
+import csv
+import json
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from navformer_rl.baselines.random_walk import RandomWalkPolicy
+from navformer_rl.evaluation.episodes import load_episode_set
+from navformer_rl.evaluation.harness import evaluate, make_eval_env
+from navformer_rl.evaluation.measures import collision_rate, spl, wilson_interval
+
+
+@pytest.fixture(scope="module")
+def vrw_run(tmp_path_factory, tiny_episodes):
+    out = tmp_path_factory.mktemp("eval") / "vrw"
+    result = evaluate("vrw", tiny_episodes, out, maps_per_setup=1, videos_per_setup=1, progress=False, seed=3)
+    return out, result
+
+
+def test_writes_every_output(vrw_run, tiny_episodes):
+    out, result = vrw_run
+    for name in (
+        "episodes.jsonl",
+        "summary.csv",
+        "summary.md",
+        "metrics.png",
+        "run.json",
+        "episode_set.json",
+    ):
+        assert (out / name).is_file(), name
+    assert result.files["maps"] == ["maps/7.5m-2r_w00t00.png"]
+    assert result.files["videos"] == ["videos/7.5m-2r_w00t00.mp4"]
+    assert load_episode_set(out / "episode_set.json") == tiny_episodes
+    run = json.loads((out / "run.json").read_text())
+    assert run["method"] == "vrw" and run["episode_set"]["content_sha256"] == tiny_episodes.content_hash()
+    image = cv2.imread(str(out / "maps/7.5m-2r_w00t00.png"))
+    assert image is not None and image.shape[0] > 400
+    plot = cv2.imread(str(out / "metrics.png"))
+    assert plot is not None
+    capture = cv2.VideoCapture(str(out / "videos/7.5m-2r_w00t00.mp4"))
+    frames = 0
+    while capture.read()[0]:
+        frames += 1
+    rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    first = [r for r in rows if r["episode_id"] == "7.5m-2r/w00t00"]
+    assert frames == 1 + max(r["steps"] for r in first)  # the reset frame + one per step
+
+
+def test_summary_matches_a_recomputation_from_the_jsonl(vrw_run, tiny_episodes):
+    out, _ = vrw_run
+    rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    assert len(rows) == 4  # 2 trials x 2 robots
+    assert [(r["episode_id"], r["robot"]) for r in rows] == [
+        (e.episode_id, i) for e in tiny_episodes.episodes for i in range(e.n_robots)
+    ]
+    success = np.array([r["success"] for r in rows])
+    shortest = np.array([r["shortest_path"] for r in rows])
+    driven = np.array([r["path_length"] for r in rows])
+    collisions = np.array([r["collisions"] for r in rows])
+    steps = np.array([r["steps"] for r in rows])
+    for r, episode_row in zip(rows, [e for e in tiny_episodes.episodes for _ in range(e.n_robots)]):
+        assert r["shortest_path"] == episode_row.shortest_paths[r["robot"]]
+        assert r["steps"] == (r["success_step"] if r["success"] else 12)
+    table = list(csv.DictReader((out / "summary.csv").open()))
+    assert len(table) == 1 and table[0]["setup"] == "7.5m-2r"
+    row = table[0]
+    assert float(row["sr"]) == pytest.approx(success.mean(), abs=1e-6)
+    assert float(row["spl"]) == pytest.approx(spl(success, shortest, driven), abs=1e-6)
+    assert float(row["cr"]) == pytest.approx(collision_rate(collisions, steps), abs=1e-6)
+    low, high = wilson_interval(int(success.sum()), len(rows))
+    assert float(row["sr_low"]) == pytest.approx(low, abs=1e-6) and float(row["sr_high"]) == pytest.approx(
+        high, abs=1e-6
+    )
+    assert int(row["n_trials"]) == 2 and int(row["n_robot_trials"]) == 4
+    markdown = (out / "summary.md").read_text()
+    assert "| 7.5m-2r | 7.5 × 7.5 | 2 |" in markdown and "vrw SR" in markdown
+
+
+def test_measures_agree_with_the_env_counters(vrw_run, tiny_episodes):
+    """Replay episode 0 by hand with the same seeded VRW: the env's own path length and collision counters
+    equal the harness's p and N_c."""
+    out, _ = vrw_run
+    rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()][:2]
+    episode = tiny_episodes.episodes[0]
+    env = make_eval_env(episode.robots, tiny_episodes.max_steps)
+    try:
+        env.set_next_episode(episode.world_spec())
+        policy = RandomWalkPolicy()
+        with torch.no_grad():
+            td = env.reset()
+            policy.bind(env, episode.seed ^ 3)
+            for _ in range(tiny_episodes.max_steps):
+                td = env.step(policy(td))
+                if td["next", "done"].all():
+                    break
+                td = td["next"]
+        final = td["next", "privileged"]
+        np.testing.assert_allclose(
+            final["path_length"].reshape(-1).numpy(), [r["path_length"] for r in rows], atol=1e-4
+        )
+        np.testing.assert_array_equal(
+            final["collisions"].reshape(-1).numpy(), [r["collisions"] for r in rows]
+        )
+    finally:
+        env.close()
+
+
+def test_vrw_is_deterministic(tmp_path, vrw_run, tiny_episodes):
+    out, _ = vrw_run
+    again = evaluate(
+        "vrw", tiny_episodes, tmp_path / "again", maps_per_setup=0, videos_per_setup=0, progress=False, seed=3
+    )
+    assert (tmp_path / "again" / "episodes.jsonl").read_text() == (out / "episodes.jsonl").read_text()
+    assert not (tmp_path / "again" / "maps").exists() and again.files["videos"] == []
+
+
+@pytest.mark.slow
+def test_worker_count_does_not_change_results(tmp_path, vrw_run, tiny_episodes):
+    out, _ = vrw_run
+    evaluate(
+        "vrw",
+        tiny_episodes,
+        tmp_path / "two",
+        workers=2,
+        maps_per_setup=0,
+        videos_per_setup=0,
+        progress=False,
+        seed=3,
+    )
+    assert (tmp_path / "two" / "episodes.jsonl").read_text() == (out / "episodes.jsonl").read_text()
+
+
+def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes):
+    out = tmp_path / "resume"
+    evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
+    first = (out / "episodes.jsonl").read_text()
+    # Mark episode 0's stored rows: a resumed run must take them as they are, not recompute them.
+    partial = out / "per_episode" / "7.5m-2r_w00t00.json"
+    document = json.loads(partial.read_text())
+    document["records"][0]["path_length"] = 123.0
+    partial.write_text(json.dumps(document))
+    (out / "per_episode" / "7.5m-2r_w00t01.json").unlink()
+    evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
+    rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    assert rows[0]["path_length"] == 123.0
+    assert [json.dumps(r, sort_keys=True) for r in rows[1:]] == first.splitlines()[1:]
+    # Another seed is other work: nothing is reused; resume=False recomputes too.
+    evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False, resume=False)
+    assert (out / "episodes.jsonl").read_text() == first

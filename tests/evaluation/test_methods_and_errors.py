@@ -1,0 +1,94 @@
+"""NavFormer / DT from checkpoints, FCA, and clear errors for bad inputs."""
+
+import dataclasses
+import json
+
+import pytest
+import torch
+
+from navformer_rl.checkpoint import save_checkpoint
+from navformer_rl.evaluation.episodes import save_episode_set
+from navformer_rl.evaluation.harness import METHODS, evaluate
+from navformer_rl.modules import NavFormerConfig, NavFormerModel
+
+
+def _checkpoint(run_dir, config):
+    torch.manual_seed(0)
+    model = NavFormerModel(config)
+    save_checkpoint(
+        run_dir,
+        1,
+        model_state=model.state_dict(),
+        model_config=dataclasses.asdict(config),
+        train_config={},
+        resume_state=None,
+    )
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def checkpoints(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ckpt")
+    return {
+        "navformer": _checkpoint(root / "navformer", NavFormerConfig()),
+        "dt": _checkpoint(root / "dt", NavFormerConfig.dt_baseline()),
+    }
+
+
+@pytest.mark.parametrize("method", ["navformer", "dt"])
+def test_checkpoint_methods_run_every_robot(tmp_path, tiny_episodes, checkpoints, method):
+    result = evaluate(
+        method, tiny_episodes, tmp_path / method, checkpoint=checkpoints[method],
+        maps_per_setup=0, videos_per_setup=0, progress=False,
+    )  # fmt: skip
+    assert len(result.records) == 4
+    # An untrained model still drives: every robot moved.
+    assert all(r.path_length > 0 for r in result.records)
+    run = json.loads((tmp_path / method / "run.json").read_text())
+    assert run["model_config"]["thsc"] is (method == "navformer")
+
+
+def test_wrong_checkpoint_kind_is_refused(tmp_path, tiny_episodes, checkpoints):
+    with pytest.raises(ValueError, match="--method navformer"):
+        evaluate("dt", tiny_episodes, tmp_path / "x", checkpoint=checkpoints["navformer"], progress=False)
+    with pytest.raises(ValueError, match="--method dt"):
+        evaluate("navformer", tiny_episodes, tmp_path / "x", checkpoint=checkpoints["dt"], progress=False)
+
+
+def test_foreign_and_missing_checkpoints(tmp_path, tiny_episodes):
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "config.json").write_text(json.dumps({"format": "someone-else/3"}))
+    (foreign / "model.safetensors").write_bytes(b"not a tensor file")
+    with pytest.raises(ValueError, match="format"):
+        evaluate("navformer", tiny_episodes, tmp_path / "x", checkpoint=foreign, progress=False)
+    with pytest.raises(FileNotFoundError):
+        evaluate("navformer", tiny_episodes, tmp_path / "x", checkpoint=tmp_path / "nothing", progress=False)
+    with pytest.raises(ValueError, match="needs a checkpoint"):
+        evaluate("navformer", tiny_episodes, tmp_path / "x", progress=False)
+    with pytest.raises(ValueError, match="takes no checkpoint"):
+        evaluate("vrw", tiny_episodes, tmp_path / "x", checkpoint=foreign, progress=False)
+
+
+def test_unknown_method_lists_the_valid_ones(tmp_path, tiny_episodes):
+    with pytest.raises(ValueError, match="unknown method 'dsac'; expected one of navformer, dt, vrw, fca"):
+        evaluate("dsac", tiny_episodes, tmp_path / "x", progress=False)
+    assert METHODS == ("navformer", "dt", "vrw", "fca")
+
+
+def test_bad_episode_file_and_worker_count(tmp_path, tiny_episodes):
+    path = save_episode_set(tiny_episodes, tmp_path / "set.json")
+    path.write_text(path.read_text().replace('"trial": 1', '"trial": 7'))
+    with pytest.raises(ValueError, match="corrupt or was edited"):
+        evaluate("vrw", path, tmp_path / "x", progress=False)
+    with pytest.raises(ValueError, match="workers"):
+        evaluate("vrw", tiny_episodes, tmp_path / "x", workers=0, progress=False)
+
+
+def test_fca_reaches_targets(tmp_path, tiny_episodes):
+    """The privileged upper bound finds both targets of the first tiny episode within 80 steps."""
+    episodes = dataclasses.replace(tiny_episodes, episodes=tiny_episodes.episodes[:1], max_steps=80)
+    result = evaluate("fca", episodes, tmp_path / "fca", maps_per_setup=0, videos_per_setup=0, progress=False)
+    assert all(r.success for r in result.records)
+    assert all(r.steps == r.success_step for r in result.records)
+    assert result.summaries[0].metrics.sr == 1.0
