@@ -45,7 +45,9 @@ def recompute_step(model: NavFormerModel, cached: dict[str, torch.Tensor], pixel
     """Decide the action at step ``steps - 1`` by running the transformer over the whole context."""
     tps = model.config.tokens_per_step
     obs = torch.cat([cached["obs"][:, : steps - 1], model.encode_observations(pixels)[:, None]], dim=1)
-    tokens = model.step_tokens(obs, cached["rtg"][:, :steps], cached["action"][:, :steps], cached["step"][:, :steps])
+    tokens = model.step_tokens(
+        obs, cached["rtg"][:, :steps], cached["action"][:, :steps], cached["step"][:, :steps]
+    )
     batch = tokens.shape[0]
     sequence = torch.cat([cached["target"][:, None], tokens.reshape(batch, steps * tps, -1)[:, :-1]], dim=1)
     hidden, _ = model.transformer(model.prepare_tokens(sequence))
@@ -53,7 +55,9 @@ def recompute_step(model: NavFormerModel, cached: dict[str, torch.Tensor], pixel
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 6])
     parser.add_argument("--T", type=int, nargs="+", default=[50, 200, 500])
     parser.add_argument("--steps", type=int, default=20, help="KV-cache steps timed at each T")
@@ -69,7 +73,9 @@ def main() -> None:
     window = model.config.window_steps
     print(f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, "
           f"load average {os.getloadavg()[0]:.2f}")  # fmt: skip
-    print("| robots | T | tokens | KV step ms | ms / robot-step | recompute ms | speed-up | window recompute ms | window / KV |")
+    print(
+        "| robots | T | tokens | KV step ms | ms / robot-step | recompute ms | speed-up | window recompute ms | window / KV |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     with torch.no_grad():
         for batch in args.batches:
@@ -98,9 +104,15 @@ def main() -> None:
                     samples.append((time.perf_counter() - start) * 1e3)
                 kv_ms = statistics.median(samples)
                 pixels = frames[:, (t - 1) % 8]
-                recompute_ms = timed(lambda t=t, pixels=pixels: recompute_step(model, cached, pixels, t), args.repeats)
+                recompute_ms = timed(
+                    lambda t=t, pixels=pixels, cached=cached: recompute_step(model, cached, pixels, t),
+                    args.repeats,
+                )
                 if window_ms is None:
-                    window_ms = timed(lambda pixels=pixels: recompute_step(model, cached, pixels, window), args.repeats)
+                    window_ms = timed(
+                        lambda pixels=pixels, cached=cached: recompute_step(model, cached, pixels, window),
+                        args.repeats,
+                    )
                 tps = model.config.tokens_per_step
                 print(
                     f"| {batch} | {t} | {tps * t} | {kv_ms:.3f} | {kv_ms / batch:.3f} | {recompute_ms:.1f} | "

@@ -92,7 +92,9 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"torch threads: {torch.get_num_threads()}, repeats: {args.repeats} (median)\n")
-    print("| batch | ours (frames/s) | numpy memmap floor | torchrl SliceSampler | ours / numpy | ours / torchrl |")
+    print(
+        "| batch | ours (frames/s) | numpy memmap floor | torchrl SliceSampler | ours / numpy | ours / torchrl |"
+    )
     print("|---|---|---|---|---|---|")
     try:
         for label, (n, length, dataset_traj) in SHAPES.items():

@@ -100,7 +100,9 @@ class Trainer:
             self.model.static_encoder, self.model.general_encoder, autocast_dtype=config.autocast_dtype
         )
         self.updater = SoftUpdate(self.byol_loss, eps=0.996)
-        self.optimizer = torch.optim.AdamW(joint_parameters(self.dt_loss, self.byol_loss), lr=2e-4, weight_decay=1e-4)
+        self.optimizer = torch.optim.AdamW(
+            joint_parameters(self.dt_loss, self.byol_loss), lr=2e-4, weight_decay=1e-4
+        )
 
     def iteration(self, trajectories: TensorDict, pairs: TensorDict) -> None:
         self.optimizer.zero_grad(set_to_none=True)
@@ -133,7 +135,9 @@ def attention_flops(config: NavFormerConfig, n: int, steps: int) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--configs", nargs="+", default=["fp32", "bf16", "bf16_mb", "bf16_mb_detach"])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--micro-batch", type=int, default=512)
@@ -165,9 +169,15 @@ def main() -> None:
         flops[name] = counter.total + attention_flops(reference.model.config, *n_t)
     del reference
     mean_flops = (flops["A"] + flops["B"]) / 2
-    print(f"# counted FLOPs per iteration: A {flops['A'] / 1e9:.0f} G, B {flops['B'] / 1e9:.0f} G, mean {mean_flops / 1e9:.0f} G")
-    print(f"# floors for the mean iteration: fp32 {mean_flops / fp32_floor / 1e9:.2f} s, bf16 {mean_flops / bf16_floor / 1e9:.2f} s")
-    print("| config | aug ms | A ms | B ms | mean s/iter | frames/s | GFLOP/s | % fp32 floor | % bf16 floor | 10k iters h |")
+    print(
+        f"# counted FLOPs per iteration: A {flops['A'] / 1e9:.0f} G, B {flops['B'] / 1e9:.0f} G, mean {mean_flops / 1e9:.0f} G"
+    )
+    print(
+        f"# floors for the mean iteration: fp32 {mean_flops / fp32_floor / 1e9:.2f} s, bf16 {mean_flops / bf16_floor / 1e9:.2f} s"
+    )
+    print(
+        "| config | aug ms | A ms | B ms | mean s/iter | frames/s | GFLOP/s | % fp32 floor | % bf16 floor | 10k iters h |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in args.configs:
         options = {k: (args.micro_batch if v == "MB" else v) for k, v in CONFIGS[name].items()}

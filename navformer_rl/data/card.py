@@ -54,7 +54,10 @@ def sample_sheet(dataset: NavDataset, n: int = 3, frames: int = 6) -> np.ndarray
                 break
             images = []
             for i in picks:
-                images += [dataset.rows["pixels_static"][int(i)].numpy(), dataset.rows["pixels_dynamic"][int(i)].numpy()]
+                images += [
+                    dataset.rows["pixels_static"][int(i)].numpy(),
+                    dataset.rows["pixels_dynamic"][int(i)].numpy(),
+                ]
             rows.append(_row(images))
     return _stack(rows)
 

@@ -367,7 +367,7 @@ def collect(
     kind = DatasetKind.parse(kind)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    settings_dict = {"kind": kind.value, **dataclasses.asdict(settings)}
+    settings_dict = {"kind": kind.value, **dataclasses.asdict(settings), "code_sha256": code_fingerprint()}
     target = _target_count(kind, settings)
     writer = DatasetWriter(out, kind, settings_dict, target_count=target)
     if writer.is_complete:
@@ -426,6 +426,23 @@ def collect(
 _SEED_DOC = (
     "item k of unit u uses SeedSequence(entropy=seed, spawn_key=(kind_code, u, k)).generate_state(1)[0]"
 )
+
+
+def code_fingerprint() -> str:
+    """sha256 of the source that determines the data (``envs/``, ``experts/``, this module, the schema).
+
+    Stored in the settings, so resuming with changed simulator or expert code is refused instead of
+    silently mixing two versions of the experts in one dataset."""
+    import hashlib
+
+    package = Path(__file__).resolve().parents[1]
+    files = sorted([*package.glob("envs/*.py"), *package.glob("experts/*.py")])
+    files += [package / "data" / "collect.py", package / "data" / "schema.py"]
+    digest = hashlib.sha256()
+    for file in files:
+        digest.update(file.relative_to(package).as_posix().encode())
+        digest.update(file.read_bytes())
+    return digest.hexdigest()
 
 
 def _enough_in_flight(items: dict[int, int], pending: dict[Future, int], target: int) -> bool:

@@ -24,15 +24,8 @@ from navformer_rl.data.samplers import (
     TrajectoryBatcher,
     TrajectorySampler,
 )
-from navformer_rl.data.schema import (
-    SCHEMA_VERSION,
-    TARGET_FIELDS,
-    DatasetKind,
-    FieldSpec,
-    fields_for,
-    key_name,
-)
-from navformer_rl.data.writer import CONSOLIDATED_DIR, METADATA_FILE
+from navformer_rl.data.schema import SCHEMA_VERSION, TARGET_FIELDS, DatasetKind, fields_for
+from navformer_rl.data.writer import CONSOLIDATED_DIR, METADATA_FILE, load_checked
 
 
 class AttachTargetPixels(Transform):
@@ -174,41 +167,10 @@ def open_dataset(path: str | Path, kind: DatasetKind | str | None = None) -> Nav
         )
     counts = metadata.get("counts", {})
     consolidated = root / CONSOLIDATED_DIR
-    rows = _load_checked(consolidated / "rows", fields_for(found), int(counts.get("rows", -1)))
+    rows = load_checked(consolidated / "rows", fields_for(found), int(counts.get("rows", -1)))
     targets = None
     if found.is_trajectory:
-        targets = _load_checked(consolidated / "targets", TARGET_FIELDS, int(counts.get("items", -1)))[
+        targets = load_checked(consolidated / "targets", TARGET_FIELDS, int(counts.get("items", -1)))[
             "target_pixels"
         ]
     return NavDataset(root, metadata, rows, targets)
-
-
-def _load_checked(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows: int) -> TensorDict:
-    """Load a memmapped TensorDict after checking every file's existence, size, dtype and shape."""
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder} is missing (expected a consolidated memmap folder)")
-    for key, spec in fields.items():
-        file = folder.joinpath(*key[:-1], f"{key[-1]}.memmap")
-        if not file.is_file():
-            raise FileNotFoundError(f"{file} is missing (key {key_name(key)!r})")
-        expected = spec.nbytes(n_rows)
-        actual = file.stat().st_size
-        if actual != expected:
-            raise ValueError(
-                f"{file} has {actual} bytes, expected {expected} ({n_rows} rows of {spec.dtype} {spec.shape}); "
-                "the file is truncated or does not belong to this dataset"
-            )
-    try:
-        td = TensorDict.load_memmap(folder)
-    except Exception as err:  # tensordict raises assorted errors for a corrupt meta.json
-        raise ValueError(
-            f"{folder}: cannot read the memmapped TensorDict ({type(err).__name__}: {err})"
-        ) from None
-    for key, spec in fields.items():
-        value = td.get(key)
-        if value.dtype != spec.dtype or tuple(value.shape) != (n_rows, *spec.shape):
-            raise ValueError(
-                f"{folder}: key {key_name(key)!r} is {value.dtype} {tuple(value.shape)}, "
-                f"expected {spec.dtype} {(n_rows, *spec.shape)}"
-            )
-    return td

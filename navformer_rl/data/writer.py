@@ -31,8 +31,10 @@ from navformer_rl.data.schema import (
     SCHEMA_VERSION,
     TARGET_FIELDS,
     DatasetKind,
+    FieldSpec,
     check_rows,
     fields_for,
+    key_name,
 )
 
 METADATA_FILE = "metadata.json"
@@ -149,9 +151,14 @@ class DatasetWriter:
             old = read_json(meta_path)
             for key in ("schema_version", "kind", "settings", "target_count"):
                 if old.get(key) != header[key]:
+                    was, now = old.get(key), header[key]
+                    if key == "settings" and isinstance(was, dict):
+                        names = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))
+                        was = {k: was.get(k) for k in names}
+                        now = {k: now.get(k) for k in names}
                     raise ValueError(
-                        f"{self.root} already holds a dataset with {key}={old.get(key)!r}, but this run asks "
-                        f"for {key}={header[key]!r}; use another output folder or delete that one"
+                        f"{self.root} already holds a dataset with {key} {was!r}, but this run asks for "
+                        f"{now!r}; use another output folder or delete that one"
                     )
             self.metadata = old
         else:
@@ -234,13 +241,16 @@ class DatasetWriter:
         for (unit, take), rows in zip(plan, row_counts):
             if rows == 0:
                 continue
-            shard = TensorDict.load_memmap(shard_dir(self.root, unit) / "rows")
+            stats = self.shard_stats(unit)
+            shard = load_checked(shard_dir(self.root, unit) / "rows", fields, stats["rows"])
             for key in fields:
                 out.get(key)[row_at : row_at + rows].copy_(shard.get(key)[:rows])
             if self.kind.is_trajectory:
                 out["episode"][row_at : row_at + rows] += item_at
                 out["target_id"][row_at : row_at + rows] += item_at
-                shard_targets = TensorDict.load_memmap(shard_dir(self.root, unit) / "targets")
+                shard_targets = load_checked(
+                    shard_dir(self.root, unit) / "targets", TARGET_FIELDS, stats["items"]
+                )
                 targets_out[item_at : item_at + take].copy_(shard_targets["target_pixels"][:take])
             row_at += rows
             item_at += take
@@ -301,3 +311,34 @@ def dataset_statistics(rows: TensorDict, kind: DatasetKind) -> dict[str, Any]:
         "collision_rate_per_step": float(round(collision.mean(), 6)),
         "trajectories_with_collision": int((per_traj_collisions > 0).sum()),
     }
+
+
+def load_checked(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows: int) -> TensorDict:
+    """Load a memmapped TensorDict after checking every file's existence, size, dtype and shape."""
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder} is missing (expected a consolidated memmap folder)")
+    for key, spec in fields.items():
+        file = folder.joinpath(*key[:-1], f"{key[-1]}.memmap")
+        if not file.is_file():
+            raise FileNotFoundError(f"{file} is missing (key {key_name(key)!r})")
+        expected = spec.nbytes(n_rows)
+        actual = file.stat().st_size
+        if actual != expected:
+            raise ValueError(
+                f"{file} has {actual} bytes, expected {expected} ({n_rows} rows of {spec.dtype} {spec.shape}); "
+                "the file is truncated or does not belong to this dataset"
+            )
+    try:
+        td = TensorDict.load_memmap(folder)
+    except Exception as err:  # tensordict raises assorted errors for a corrupt meta.json
+        raise ValueError(
+            f"{folder}: cannot read the memmapped TensorDict ({type(err).__name__}: {err})"
+        ) from None
+    for key, spec in fields.items():
+        value = td.get(key)
+        if value.dtype != spec.dtype or tuple(value.shape) != (n_rows, *spec.shape):
+            raise ValueError(
+                f"{folder}: key {key_name(key)!r} is {value.dtype} {tuple(value.shape)}, "
+                f"expected {spec.dtype} {(n_rows, *spec.shape)}"
+            )
+    return td

@@ -192,7 +192,9 @@ class MultiRobotNavEnv(EnvBase):
         self.world = world
         a = self.n_agents
         self._target_xy = world.target_positions.astype(np.float64)
-        self._target_pixels = np.stack([render_target_image(t.shape, t.color) for t in world.targets])
+        self._target_pixels = torch.from_numpy(
+            np.stack([render_target_image(t.shape, t.color) for t in world.targets])
+        )
         self._shortest = np.array(
             [
                 world.shortest_path_length(world.starts[i, :2], i, spec.radius, goal_radius=SUCCESS_RADIUS)
@@ -219,9 +221,11 @@ class MultiRobotNavEnv(EnvBase):
         arrived = active & (np.hypot(*(after - self._target_xy).T) <= SUCCESS_RADIUS)
         self._success |= arrived
         self._step_count += 1
-        if active.any():
+        if active.all():
+            self._pixels = self.simulator.render_all()
+        elif active.any():  # a new array (never written in place: the last output may share its memory)
             fresh = self.simulator.render_all(active)
-            self._pixels[active] = fresh[active]
+            self._pixels = np.where(active[:, None, None, None], fresh, self._pixels)
         truncated = self._step_count >= self.max_steps and not self._success.all()
         return self._make_tensordict(contacts.collided, contacts.kind, reward=arrived, truncated=truncated)
 
@@ -233,8 +237,8 @@ class MultiRobotNavEnv(EnvBase):
         success = torch.from_numpy(self._success.copy()).reshape(a, 1)
         terminated = bool(self._success.all())
         agents = {
-            "pixels": torch.from_numpy(self._pixels.copy()),
-            "target_pixels": torch.from_numpy(self._target_pixels.copy()),
+            "pixels": torch.from_numpy(self._pixels),
+            "target_pixels": self._target_pixels.clone(),
             "collision": torch.from_numpy(np.asarray(collided, dtype=bool)).reshape(a, 1),
             "collision_kind": torch.from_numpy(np.asarray(kind, dtype=np.int64)).reshape(a, 1),
             "step_count": torch.full((a, 1), self._step_count, dtype=torch.int64),

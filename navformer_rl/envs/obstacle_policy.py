@@ -40,6 +40,25 @@ def coarsen(occupancy: OccupancyMap, factor: int, clearance: float = 0.0) -> Occ
     return OccupancyMap(blocked[np.ix_(rows, cols)], occupancy.resolution * factor, occupancy.origin)
 
 
+def descent_successors(field: np.ndarray) -> np.ndarray:
+    """int64 ``[H * W]``: for every cell (flat index) its 8-neighbour with the lowest value of ``field``
+    when lower than its own, else itself (a fixed point at goals and unreachable cells)."""
+    h, w = field.shape
+    padded = np.pad(field, 1, constant_values=np.inf)
+    best = field.copy()
+    index = np.arange(h * w).reshape(h, w)
+    successor = index.copy()
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == dc == 0:
+                continue
+            candidate = padded[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            better = candidate < best
+            best = np.where(better, candidate, best)
+            successor = np.where(better, index + dr * w + dc, successor)
+    return successor.reshape(-1)
+
+
 _TARGET, _DETOUR, _WANDER = "target", "detour", "wander"
 
 
@@ -89,7 +108,7 @@ class GoalSeekingPolicy:
             world.targets[i].position.astype(np.float64) if i < len(world.targets) else None for i in range(n)
         ]
         self._goals: list[tuple[np.ndarray, str]] = [(np.zeros(2), _WANDER)] * n
-        self._fields: list[dict[int, np.ndarray]] = [{} for _ in range(n)]
+        self._fields: list[dict[int, tuple[np.ndarray, np.ndarray]]] = [{} for _ in range(n)]
         self._best = np.full(n, np.inf)
         self._stalled = np.zeros(n, dtype=np.int64)
         for i in range(n):
@@ -103,11 +122,13 @@ class GoalSeekingPolicy:
         free = self._free_cells[id(occ)]
         return occ.cell_to_world(free[int(self._rng.integers(len(free)))])
 
-    def _field(self, i: int, occ: OccupancyMap) -> np.ndarray:
-        """Distance field of robot ``i``'s current goal on ``occ`` (computed once per goal and map)."""
+    def _field(self, i: int, occ: OccupancyMap) -> tuple[np.ndarray, np.ndarray]:
+        """Distance field of robot ``i``'s current goal on ``occ`` and its steepest-descent successors
+        (computed once per goal and map)."""
         key = id(occ)
         if key not in self._fields[i]:
-            self._fields[i][key] = occ.distance_field(self._goals[i][0], 0.0)
+            field = occ.distance_field(self._goals[i][0], 0.0)
+            self._fields[i][key] = (field, descent_successors(field))
         return self._fields[i][key]
 
     def _set_goal(self, i: int, goal: np.ndarray, kind: str) -> None:
@@ -142,27 +163,25 @@ class GoalSeekingPolicy:
             self._next_goal(i, reached=True)
             goal, kind = self._goals[i]
         for occ in self._maps[i]:  # with the wall margin if that connects robot and goal, else tight
-            field = self._field(i, occ)
+            field, successor = self._field(i, occ)
             h, w = field.shape
             cell = (
                 min(max(int(y // occ.resolution), 0), h - 1),
                 min(max(int(x // occ.resolution), 0), w - 1),
             )
-            if not np.isfinite(field[cell]):
+            if not math.isfinite(field[cell]):
                 cell = occ.snap_to_free((x, y), 0.0)  # inside the inflated walls: the nearest free cell
             start_value = field[cell]
-            if np.isfinite(start_value):
+            if math.isfinite(start_value):
                 break
+        flat = cell[0] * w + cell[1]
         for _ in range(self._descent_steps):  # walk down the distance field: never across a wall
-            r, c = cell
-            r0, c0 = max(r - 1, 0), max(c - 1, 0)
-            window = field[r0 : r + 2, c0 : c + 2]
-            k = int(np.argmin(window))
-            nxt = (r0 + k // window.shape[1], c0 + k % window.shape[1])
-            if not field[nxt] < field[cell]:
-                break
-            cell = nxt
-        waypoint = occ.cell_to_world(np.array(cell))
+            flat = int(successor[flat])
+        cell = divmod(flat, w)
+        waypoint = (
+            (cell[1] + 0.5) * occ.resolution + occ.origin[0],
+            (cell[0] + 0.5) * occ.resolution + occ.origin[1],
+        )
         if math.hypot(waypoint[0] - x, waypoint[1] - y) < 0.05:
             waypoint = goal
         if start_value < self._best[i] - 0.1:
@@ -173,7 +192,7 @@ class GoalSeekingPolicy:
                 self._next_goal(i, reached=False)
         heading_error = wrap_angle(math.atan2(waypoint[1] - y, waypoint[0] - x) - yaw)
         spec = sim.robot_specs[i]
-        w_cmd = float(np.clip(2.0 * heading_error / spec.w_max, -1.0, 1.0))
+        w_cmd = min(1.0, max(-1.0, 2.0 * heading_error / spec.w_max))
         v_cmd = self.speed * max(0.0, math.cos(heading_error)) ** 2
         return self._yield_to_robots(i, poses, spec.radius, v_cmd, w_cmd)
 

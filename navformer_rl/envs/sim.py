@@ -97,6 +97,18 @@ def _contact_kind(px: float, py: float, r2: float, boxes: list, discs: list) -> 
     return COLLISION_NONE
 
 
+def _clearance(px: float, py: float, radius: float, boxes: list, discs: list) -> float:
+    """Free distance between a disc of ``radius`` at ``(px, py)`` and the nearest box or disc (``inf`` if none)."""
+    best = math.inf
+    for cx, cy, hx, hy in boxes:
+        dx = max(abs(px - cx) - hx, 0.0)
+        dy = max(abs(py - cy) - hy, 0.0)
+        best = min(best, math.sqrt(dx * dx + dy * dy) - radius)
+    for cx, cy, reach, _ in discs:
+        best = min(best, math.hypot(px - cx, py - cy) - reach)
+    return best
+
+
 def wrap_angle(angle: float) -> float:
     """Angle in radians wrapped to [-pi, pi)."""
     return (angle + math.pi) % (2 * math.pi) - math.pi
@@ -295,6 +307,8 @@ class Simulator:
         if not boxes and not discs:
             return 1.0, COLLISION_NONE
         x, y, th = (float(c) for c in self._poses[i])
+        if _clearance(x, y, float(self._radii[i]), boxes, discs) > distance:
+            return 1.0, COLLISION_NONE  # the arc stays within `distance` of its start: nothing in reach
         r2 = float(self._radii[i]) ** 2
         n = max(1, math.ceil(distance / _PATH_SAMPLE))
         lo, hi, kind = 0.0, 1.0, COLLISION_NONE

@@ -416,14 +416,12 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
         TargetSpec(position=positions[i].astype(np.float32), shape=pairs[k][0], color=pairs[k][1])
         for i, k in enumerate(chosen)
     ]
-    holder = dataclasses.replace(base, targets=targets)  # the base starts are replaced below
-    holder = dataclasses.replace(
-        holder,
-        occupancy=OccupancyMap.from_shapes(
-            config.size, OCCUPANCY_RESOLUTION, holder.obstacle_boxes, holder.obstacle_circles
-        ),
+    # The maze with the new targets as obstacles (its old starts are only placeholders) to draw starts in.
+    with_targets = dataclasses.replace(base, targets=targets)
+    occupancy = OccupancyMap.from_shapes(
+        config.size, OCCUPANCY_RESOLUTION, with_targets.obstacle_boxes, with_targets.obstacle_circles
     )
-    starts = sample_start_poses(holder, setup.n_robots, rng)
+    starts = sample_start_poses(dataclasses.replace(with_targets, occupancy=occupancy), setup.n_robots, rng)
     world = replace_layout(base, starts=starts, targets=targets)
     shortest, to_disc = [], []
     for i, spec in enumerate(specs):

@@ -11,11 +11,7 @@ import numpy as np
 from navformer_rl.evaluation._io import atomic_path
 from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, setup_order_key
 
-_METRICS = (
-    ("sr", "SR (success rate)", "sr_ci"),
-    ("spl", "SPL", "spl_ci"),
-    ("cr", "CR (collision rate)", "cr_ci"),
-)
+_METRICS = (("sr", "SR", "sr_ci"), ("spl", "SPL", "spl_ci"), ("cr", "CR", "cr_ci"))
 
 
 def plot_setup_bars(
@@ -24,7 +20,8 @@ def plot_setup_bars(
     methods: Sequence[str] | None = None,
     title: str | None = None,
 ) -> Path:
-    """Write a PNG with one panel per metric; per setup (x axis) one bar per method with its CI.
+    """Write a PNG with one panel per metric (SR, SPL, CR stacked); per setup (x axis) one bar per method,
+    with its confidence interval as an error bar and its value written above.
 
     Args:
         summaries: per-(method, setup) summaries (the pooled ``"all"`` rows are skipped).
@@ -48,7 +45,8 @@ def plot_setup_bars(
     x = np.arange(len(setups))
     width = 0.8 / len(methods)
     colors = plt.get_cmap("tab10").colors
-    fig, axes = plt.subplots(1, 3, figsize=(max(9.0, 1.2 * len(setups) * 3), 3.8), constrained_layout=True)
+    fig_width = max(7.0, 0.45 * len(setups) * max(2, len(methods)) + 2.0)
+    fig, axes = plt.subplots(3, 1, figsize=(fig_width, 8.5), sharex=True, constrained_layout=True)
     for ax, (attr, name, ci_attr) in zip(axes, _METRICS):
         for k, method in enumerate(methods):
             values, low, high = [], [], []
@@ -66,28 +64,21 @@ def plot_setup_bars(
                 width,
                 yerr=np.array([low, high]),
                 capsize=2,
+                ecolor="0.35",
                 label=method,
                 color=colors[k % len(colors)],
             )
-            for position, value in zip(positions, values):
+            for position, value, up in zip(positions, values, high):
                 if np.isfinite(value):
                     text = f"{100 * value:.0f}%" if attr == "sr" else f"{value:.2f}"
-                    ax.text(
-                        position,
-                        value + 0.01,
-                        text,
-                        ha="center",
-                        va="bottom",
-                        fontsize=7,
-                        rotation=90 if len(methods) > 2 else 0,
-                    )
-        ax.set_title(name)
-        ax.set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
-        ax.set_ylim(0, 1.05)
+                    ax.text(position, value + up + 0.02, text, ha="center", va="bottom", fontsize=7)
+        ax.set_ylabel(name)
+        ax.set_ylim(0, 1.15)
+        ax.set_yticks(np.linspace(0, 1, 6))
         ax.grid(axis="y", alpha=0.3)
-    axes[0].legend(fontsize=8)
-    if title:
-        fig.suptitle(title)
+    axes[-1].set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
+    axes[0].legend(fontsize=8, ncol=min(len(methods), 6), loc="upper right")
+    fig.suptitle(title or "SR / SPL / CR per setup", fontsize=11)
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")

@@ -36,7 +36,8 @@ class DWAConfig:
     n_v: int = 7
     n_w: int = 15
     robot_radius: float = 0.30
-    safety_margin: float = 0.06
+    safety_margin: float = 0.12
+    """Clearance margin beyond the radius; covers the 0.1 m grid's quantisation of wall positions."""
     k_goal: float = 1.0
     k_heading: float = 0.6
     k_speed: float = 0.3

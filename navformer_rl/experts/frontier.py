@@ -73,6 +73,7 @@ def select_frontier(
     blacklist_radius: float = 5.0,
     bias_cell: tuple[int, int] | None = None,
     bias_weight: float = 0.0,
+    min_path: float = 0.0,
 ) -> Frontier | None:
     """The frontier to explore next, or ``None`` when no reachable, non-blacklisted frontier is left.
 
@@ -85,6 +86,8 @@ def select_frontier(
             cells of a blacklisted cell is skipped, other groups lose those cells.
         bias_cell, bias_weight: optional goal-directed ranking ``cost = path + weight * |goal - bias_cell|``
             (used by the privileged FCA, which knows its target); plain Yamauchi when ``bias_weight == 0``.
+        min_path: frontier cells closer than this path length (cells) are not goals (a robot standing on a
+            frontier it cannot clear by driving onto it would otherwise re-select it forever).
     """
     groups = frontier_clusters(ternary, min_cells)
     if not groups:
@@ -97,7 +100,7 @@ def select_frontier(
     best: Frontier | None = None
     for cells in groups:
         d = dist[cells[:, 0], cells[:, 1]].copy()
-        d[banned[cells[:, 0], cells[:, 1]]] = np.inf
+        d[banned[cells[:, 0], cells[:, 1]] | (d < min_path)] = np.inf
         k = int(np.argmin(d))
         if not np.isfinite(d[k]):
             continue

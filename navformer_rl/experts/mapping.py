@@ -135,7 +135,9 @@ class LogOddsGrid:
         angles = np.asarray(angles, dtype=np.float64)
         if ranges.shape != angles.shape or ranges.ndim != 1:
             raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must be equal 1-D shapes")
-        free_flat, occ_flat = trace_rays(self.shape, self.origin, self.resolution, pose, ranges, angles, max_range)
+        free_flat, occ_flat = trace_rays(
+            self.shape, self.origin, self.resolution, pose, ranges, angles, max_range
+        )
         free_flat &= ~occ_flat
         flat = self.logodds.reshape(-1)
         flat[free_flat] += self.l_free
@@ -148,7 +150,9 @@ class LogOddsGrid:
         """Set ``viewed`` (bool ``[H, W]``, in place) on the cells seen by rays clipped to ``max_range``
         (e.g. the camera's part of a scan): crossed cells and hit surface cells."""
         clipped = np.minimum(np.asarray(ranges, dtype=np.float64), max_range)
-        crossed, behind = trace_rays(self.shape, self.origin, self.resolution, pose, clipped, angles, max_range)
+        crossed, behind = trace_rays(
+            self.shape, self.origin, self.resolution, pose, clipped, angles, max_range
+        )
         flat = viewed.reshape(-1)
         flat |= crossed | behind
 

@@ -57,8 +57,11 @@ class NavigatorConfig:
     min_frontier_cells: int = 5
     """Frontier groups smaller than this (0.5 m at 0.1 m cells) are ignored."""
     replan_every: int = 8
-    lookahead: float = 1.0
+    lookahead: float = 2.0
+    """Pursuit point: the farthest path point within this distance in straight line of sight."""
     goal_reached: float = 0.4
+    min_goal_distance: float = 1.0
+    """Frontier goals are chosen at least this far (by path) from the robot when any such goal exists."""
     """A frontier goal closer than this is considered visited (the frontier is replanned)."""
     progress_window: int = 30
     progress_min: float = 0.3
@@ -101,6 +104,7 @@ class FrontierNavigator:
         self.camera = camera
         self.viewed = np.zeros(self.map.shape, dtype=bool)
         self.discs = np.zeros((0, 3))
+        self.planning_blocked = np.zeros(self.map.shape, dtype=bool)
         self.goal: np.ndarray | None = None
         self.goal_cell: tuple[int, int] | None = None
         self.path: np.ndarray = np.zeros((0, 2))
@@ -155,9 +159,10 @@ class FrontierNavigator:
         changed = discs.shape != self.discs.shape or not np.array_equal(discs, self.discs)
         self.discs = discs
         if changed and len(self.path) and len(discs):
-            gap = np.hypot(
-                self.path[:, None, 0] - discs[None, :, 0], self.path[:, None, 1] - discs[None, :, 1]
-            ) - discs[None, :, 2]
+            gap = (
+                np.hypot(self.path[:, None, 0] - discs[None, :, 0], self.path[:, None, 1] - discs[None, :, 1])
+                - discs[None, :, 2]
+            )
             if gap.min() < self.config.robot_radius + self.config.inflation_margin:
                 self.steps_since_plan = self.config.replan_every
 
@@ -183,6 +188,7 @@ class FrontierNavigator:
         """Choose the goal (target or frontier) and an A* path to it."""
         c = self.config
         blocked = self._blocked()
+        self.planning_blocked = blocked
         self.steps_since_plan = 0
         if self.target_mode:
             # Optimistic about unknown cells: the target was seen, the way to it is mostly mapped.
@@ -204,16 +210,22 @@ class FrontierNavigator:
         bias_cell = None
         if self.target_known and self.frontier_bias > 0:
             bias_cell = tuple(int(v) for v in self.map.world_to_cell(self.target))
-        frontier = select_frontier(
-            self.exploration_map(),
-            traversable,
-            start,
-            min_cells=c.min_frontier_cells,
-            blacklist=self.blacklist,
-            blacklist_radius=c.blacklist_radius / c.resolution,
-            bias_cell=bias_cell,
-            bias_weight=self.frontier_bias,
-        )
+        explore = self.exploration_map()
+        frontier = None
+        for min_path in (c.min_goal_distance / c.resolution, 0.0):
+            frontier = select_frontier(
+                explore,
+                traversable,
+                start,
+                min_cells=c.min_frontier_cells,
+                blacklist=self.blacklist,
+                blacklist_radius=c.blacklist_radius / c.resolution,
+                bias_cell=bias_cell,
+                bias_weight=self.frontier_bias,
+                min_path=min_path,
+            )
+            if frontier is not None:
+                break
         goal = None if frontier is None else frontier.goal
         if goal is None and self.camera is not None:
             goal = self._unviewed_goal(traversable, start)
@@ -247,16 +259,23 @@ class FrontierNavigator:
         viewed yet, outside blacklisted areas, else None."""
         dist = distance_field(traversable, [start])
         candidates = np.isfinite(dist) & ~self.viewed & traversable
+        far = candidates & (dist >= self.config.min_goal_distance / self.config.resolution)
+        candidates = far if far.any() else candidates
         for r, c in self.blacklist:
             rr, cc = np.ogrid[: dist.shape[0], : dist.shape[1]]
-            candidates &= (rr - r) ** 2 + (cc - c) ** 2 > (self.config.blacklist_radius / self.config.resolution) ** 2
+            candidates &= (rr - r) ** 2 + (cc - c) ** 2 > (
+                self.config.blacklist_radius / self.config.resolution
+            ) ** 2
         if not candidates.any():
             return None
         k = int(np.argmin(np.where(candidates, dist, np.inf)))
         return divmod(k, dist.shape[1])
 
     def _set_path(self, pose: np.ndarray, cells: list[tuple[int, int]], goal_cell: tuple[int, int]) -> None:
-        new_goal = self.goal_cell is None or np.hypot(*np.subtract(goal_cell, self.goal_cell)) * self.config.resolution > 0.5
+        new_goal = (
+            self.goal_cell is None
+            or np.hypot(*np.subtract(goal_cell, self.goal_cell)) * self.config.resolution > 0.5
+        )
         self.goal_cell = goal_cell
         self.goal = self.map.cell_to_world(np.array(goal_cell))
         self.path = self.map.cell_to_world(np.array(cells))
@@ -318,7 +337,26 @@ class FrontierNavigator:
             self.last_progress_step = self.step_count
             if self.goal is None:
                 return None
+        return self._pursuit_point(pose)
+
+    def _pursuit_point(self, pose: np.ndarray) -> np.ndarray:
+        """The farthest path point within ``lookahead`` of the robot whose straight segment from the robot
+        stays outside the inflated obstacles of the last plan (the nearest path point at worst)."""
+        c = self.config
         d = np.hypot(*(self.path - pose[:2]).T)
         k = int(np.argmin(d))
-        ahead = np.flatnonzero(d[k:] >= c.lookahead)
-        return self.path[k + ahead[0]] if len(ahead) else self.path[-1]
+        reach = np.flatnonzero(d[k:] <= c.lookahead)
+        last = k + int(reach[-1]) if len(reach) else k
+        candidates = self.path[k : last + 1]
+        # Sample every candidate's segment at half-cell steps, skipping the first robot radius.
+        t = np.arange(c.robot_radius, c.lookahead + c.resolution, 0.5 * c.resolution)
+        delta = candidates - pose[:2]
+        length = np.hypot(delta[:, 0], delta[:, 1])
+        frac = np.clip(t[None, :] / np.maximum(length[:, None], 1e-9), 0.0, 1.0)  # [K, S]
+        pts = pose[:2] + frac[..., None] * delta[:, None, :]
+        cells = self.map.world_to_cell(pts)
+        h, w = self.planning_blocked.shape
+        rows, cols = np.clip(cells[..., 0], 0, h - 1), np.clip(cells[..., 1], 0, w - 1)
+        hit = (self.planning_blocked[rows, cols] & (t[None, :] <= length[:, None])).any(axis=1)
+        clear = np.flatnonzero(~hit)
+        return candidates[int(clear[-1])] if len(clear) else candidates[0]

@@ -77,7 +77,9 @@ class _ExpertBase:
         if not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         if sim.n_robots != world.n_robots:
-            raise ValueError(f"simulator has {sim.n_robots} robots but the world has {world.n_robots} targets")
+            raise ValueError(
+                f"simulator has {sim.n_robots} robots but the world has {world.n_robots} targets"
+            )
         self.world, self.specs, self.rng = world, list(sim.robot_specs), rng
         self.step_count = 0
         self.reached = np.zeros(sim.n_robots, dtype=bool)
@@ -122,11 +124,16 @@ class ExplorationExpert(_ExpertBase):
             nav_cfg = NavigatorConfig(**{**nav_cfg.__dict__, "robot_radius": spec.radius})
         camera = (math.radians(spec.camera_fov_deg), self.config.camera.max_range)
         self.navigators = [
-            FrontierNavigator(world.size, nav_cfg, self.targets[i], camera=camera) for i in range(sim.n_robots)
+            FrontierNavigator(world.size, nav_cfg, self.targets[i], camera=camera)
+            for i in range(sim.n_robots)
         ]
         dwa = self.dwa_config or DWAConfig(
-            v_max=spec.v_max, w_max=spec.w_max, a_max=spec.a_max, alpha_max=spec.alpha_max,
-            dt=sim.dt, robot_radius=spec.radius,
+            v_max=spec.v_max,
+            w_max=spec.w_max,
+            a_max=spec.a_max,
+            alpha_max=spec.alpha_max,
+            dt=sim.dt,
+            robot_radius=spec.radius,
         )
         self.dwa = DWAPlanner(dwa)
 
@@ -155,8 +162,12 @@ class ExplorationExpert(_ExpertBase):
         spec = self.specs[i]
         nav.observe(pose, scan, self.config.lidar)
         if not nav.target_mode and target_visible(
-            pose, self.targets[i], self.world.walls, math.radians(spec.camera_fov_deg),
-            self.config.camera.max_range, spec.camera_forward,
+            pose,
+            self.targets[i],
+            self.world.walls,
+            math.radians(spec.camera_fov_deg),
+            self.config.camera.max_range,
+            spec.camera_forward,
         ):
             nav.set_target_seen()
         carrot = nav.carrot(pose)
@@ -166,8 +177,12 @@ class ExplorationExpert(_ExpertBase):
             return np.zeros(2)
         cfg = self.dwa.config
         clearance = ClearanceMap(
-            nav.map.occupied(), nav.map.resolution, tuple(nav.map.origin), pose[:2],
-            cfg.v_max * cfg.predict_time + cfg.clearance_cap + cfg.robot_radius, cfg.clearance_cap,
+            nav.map.occupied(),
+            nav.map.resolution,
+            tuple(nav.map.origin),
+            pose[:2],
+            cfg.v_max * cfg.predict_time + cfg.clearance_cap + cfg.robot_radius,
+            cfg.clearance_cap,
         )
         res = self.dwa.plan(pose, vel, carrot, clearance)
         return np.array([res.v, res.w])
@@ -227,8 +242,12 @@ class NHORCAExpert(_ExpertBase):
         self.planner = NHORCA(
             self.nh_config
             or NHORCAConfig(
-                radius=spec.radius, v_max=spec.v_max, w_max=spec.w_max, a_max=spec.a_max,
-                alpha_max=spec.alpha_max, dt=sim.dt,
+                radius=spec.radius,
+                v_max=spec.v_max,
+                w_max=spec.w_max,
+                a_max=spec.a_max,
+                alpha_max=spec.alpha_max,
+                dt=sim.dt,
             )
         )
         self.planner.reset(sim.poses, sim.velocities)
@@ -255,7 +274,11 @@ class NHORCAExpert(_ExpertBase):
 
         base = self.world.occupancy
         circles = np.array(
-            [(poses[j, 0], poses[j, 1], self.radii[j] + self.inflation) for j in np.flatnonzero(stopped) if j != i]
+            [
+                (poses[j, 0], poses[j, 1], self.radii[j] + self.inflation)
+                for j in np.flatnonzero(stopped)
+                if j != i
+            ]
         ).reshape(-1, 3)
         grid = base.grid.copy()
         if len(circles):
@@ -340,8 +363,12 @@ class FCAController(_ExpertBase):
         self.planner = NHORCA(
             self.nh_config
             or NHORCAConfig(
-                radius=spec.radius, v_max=spec.v_max, w_max=spec.w_max, a_max=spec.a_max,
-                alpha_max=spec.alpha_max, dt=sim.dt,
+                radius=spec.radius,
+                v_max=spec.v_max,
+                w_max=spec.w_max,
+                a_max=spec.a_max,
+                alpha_max=spec.alpha_max,
+                dt=sim.dt,
             )
         )
         self.planner.reset(sim.poses, sim.velocities)
@@ -397,7 +424,12 @@ class FCAController(_ExpertBase):
         if not nav.target_mode:
             fov = math.radians(spec.camera_fov_deg)
             seen = target_visible(
-                pose, self.targets[i], self.world.walls, fov, self.config.camera.max_range, spec.camera_forward
+                pose,
+                self.targets[i],
+                self.world.walls,
+                fov,
+                self.config.camera.max_range,
+                spec.camera_forward,
             ) or target_visible(pose, self.targets[i], self.world.walls, 2 * math.pi, lidar.max_range)
             if seen:
                 nav.set_target_seen()

@@ -190,9 +190,15 @@ class BYOLLoss(LossModule):
         dynamic_view = self.augmentation(tensordict.get(self.tensor_keys.pixels_dynamic))
         views = {}
         if "static" in self.encoder_names:
-            views["static"] = (self.augmentation(tensordict.get(self.tensor_keys.pixels_static)), dynamic_view)
+            views["static"] = (
+                self.augmentation(tensordict.get(self.tensor_keys.pixels_static)),
+                dynamic_view,
+            )
         if "general" in self.encoder_names:
-            views["general"] = (dynamic_view, self.augmentation(tensordict.get(self.tensor_keys.pixels_dynamic)))
+            views["general"] = (
+                dynamic_view,
+                self.augmentation(tensordict.get(self.tensor_keys.pixels_dynamic)),
+            )
         return views
 
     @dispatch

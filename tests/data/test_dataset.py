@@ -104,7 +104,10 @@ def test_refuses_unfinished_collection(tmp_path):
 
 def test_writer_refuses_other_settings_in_same_folder(tmp_path):
     writer_module.DatasetWriter(tmp_path / "d", "e", {"seed": 1}, target_count=3)
-    with pytest.raises(ValueError, match="already holds a dataset with settings"):
+    with pytest.raises(
+        ValueError,
+        match=r"already holds a dataset with settings \{.seed.: 1\}, but this run asks for \{.seed.: 2\}",
+    ):
         writer_module.DatasetWriter(tmp_path / "d", "e", {"seed": 2}, target_count=3)
 
 
@@ -167,3 +170,15 @@ def test_last_shard_is_cut_to_the_requested_count(tmp_path):
     assert ds.num_trajectories == 5 and ds.targets.shape == (5, 84, 84, 3)
     assert ds.metadata["counts"]["units"] == 2
     assert ds.rows["task"].unique().tolist() == [1]
+
+
+def test_truncated_shard_is_refused_at_consolidation(tmp_path, monkeypatch):
+    real_finalize = writer_module.DatasetWriter.finalize
+    monkeypatch.setattr(writer_module.DatasetWriter, "finalize", lambda self, **kw: self.root)
+    root = syn.make_synthetic_dataset(tmp_path / "d", "e", 6, 3, 5, seed=0, items_per_shard=3)
+    pixels = writer_module.shard_dir(root, 1) / "rows" / "pixels.memmap"
+    with open(pixels, "r+b") as f:
+        f.truncate(1000)
+    monkeypatch.setattr(writer_module.DatasetWriter, "finalize", real_finalize)
+    with pytest.raises(ValueError, match=r"unit-000001/rows/pixels.memmap has 1000 bytes, expected"):
+        syn.make_synthetic_dataset(root, "e", 6, 3, 5, seed=0, items_per_shard=3)

@@ -5,7 +5,7 @@ import numpy as np
 
 from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.envs.demo import run_world_demo
-from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy, ObstaclePolicy, coarsen
+from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy, ObstaclePolicy, coarsen, descent_successors
 from navformer_rl.envs.occupancy import OccupancyMap
 from navformer_rl.envs.robots import JACKAL
 from navformer_rl.envs.sim import Simulator
@@ -55,3 +55,13 @@ def test_world_demo_writes_a_map_and_a_video(tmp_path):
     ok, frame = video.read()
     assert ok and frame.shape[1] > frame.shape[0]
     assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == ["egocentric.mp4", "map.png"]
+
+
+def test_descent_successors_point_downhill():
+    field = np.array([[2.0, 1.0, 2.0], [1.0, 0.0, np.inf], [2.0, 1.0, 2.0]])
+    successor = descent_successors(field).reshape(3, 3)
+    # every cell, the unreachable one included, steps onto the goal (flat index 4), a fixed point
+    assert (successor == 4).all()
+    ramp = np.array([[0.0, 1.0, 2.0, 3.0]])
+    assert descent_successors(ramp).tolist() == [0, 0, 1, 2]
+    assert descent_successors(np.full((2, 2), np.inf)).tolist() == [0, 1, 2, 3]

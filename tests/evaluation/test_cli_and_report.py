@@ -51,8 +51,8 @@ def test_cli_errors(tmp_path):
         _run(["evaluate", "--method", "vrw", "--episodes", str(bad), "--out", str(tmp_path / "o")])
 
 
-def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes):
-    a = evaluate("vrw", tiny_episodes, tmp_path / "vrw", maps_per_setup=0, videos_per_setup=0, progress=False)
+def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes, vrw_run):
+    a = vrw_run[1]
     b = evaluate(
         "vrw", tiny_episodes, tmp_path / "vrw2", label="vrw-seed1", seed=1,
         maps_per_setup=0, videos_per_setup=0, progress=False,
@@ -62,6 +62,7 @@ def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes):
     # Our two methods side by side, the paper's VRW value for 7.5 m / 2 robots, and the caveat.
     assert "| Setup | Env size (m) | # of robots | vrw SR | vrw SPL | vrw CR | vrw-seed1 SR |" in text
     assert "/ 39.17%" in text and "not directly comparable" in text and "Gazebo" in text
+    assert "| Setup | vrw SPL-disc | vrw-seed1 SPL-disc |" in text
     assert paper_table1_markdown() in text
     with pytest.raises(ValueError, match="same method label"):
         write_report([a.out_dir, a.out_dir], tmp_path / "dup.md")

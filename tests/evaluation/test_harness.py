@@ -14,13 +14,6 @@ from navformer_rl.evaluation.harness import evaluate, make_eval_env
 from navformer_rl.evaluation.measures import collision_rate, spl, wilson_interval
 
 
-@pytest.fixture(scope="module")
-def vrw_run(tmp_path_factory, tiny_episodes):
-    out = tmp_path_factory.mktemp("eval") / "vrw"
-    result = evaluate("vrw", tiny_episodes, out, maps_per_setup=1, videos_per_setup=1, progress=False, seed=3)
-    return out, result
-
-
 def test_writes_every_output(vrw_run, tiny_episodes):
     out, result = vrw_run
     for name in (

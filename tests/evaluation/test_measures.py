@@ -144,4 +144,3 @@ def test_trial_tracker_takes_given_step_lengths():
     np.testing.assert_allclose(tracker.path_length, [np.pi / 2])
     with pytest.raises(ValueError, match="driven"):
         tracker.update(np.array([[1.0, 1.0]]), np.array([False]), np.array([False]), driven=np.array([-1.0]))
-
