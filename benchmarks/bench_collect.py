@@ -1,6 +1,8 @@
 """Collection throughput per core for D_e, D_ca and D_ssl, against the simulator step alone.
 
-All in one process (one core), on the same seeded worlds the collection uses:
+All in one process (one core), on the same seeded worlds the collection uses. Rates are per **CPU
+second of this process** (``time.process_time``: robust to other jobs sharing the cores); the wall-clock
+seconds of the run are printed beside them.
 
 * ``collect``: the library's work units (expert + cameras + shard rows), robot-steps/s and stored rows/s;
 * ``planner only``: the same episodes with the cameras off (``run_episode(record=False)``);
@@ -35,13 +37,13 @@ def _env_step_rate(world, n_robots: int, steps: int, seed: int) -> float:
     sim = Simulator(world, JACKAL)
     rng = np.random.default_rng(seed)
     try:
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         done = 0
         while done < steps:
             sim.render_all()
             sim.step(rng.uniform(-1, 1, size=(n_robots, 2)))
             done += n_robots
-        return done / (time.perf_counter() - t0)
+        return done / (time.process_time() - t0)
     finally:
         sim.close()
 
@@ -54,9 +56,9 @@ def _planner_only(world, rng, expert_cls, max_steps: int) -> tuple[float, int]:
     try:
         expert = expert_cls()
         expert.reset(world, sim, rng)
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         trajs = C.run_episode(world, sim, expert, max_steps, record=False)
-        return time.perf_counter() - t0, sum(len(t.actions) for t in trajs)
+        return time.process_time() - t0, sum(len(t.actions) for t in trajs)
     finally:
         sim.close()
 
@@ -65,13 +67,13 @@ def bench_exploration(n: int) -> dict[str, float]:
     from navformer_rl.experts.policies import ExplorationExpert
 
     s = C.settings_for("e", "paper", seed=123, episodes_per_unit=1)
-    t0 = time.perf_counter()
+    t0, w0 = time.process_time(), time.perf_counter()
     steps = rows = 0
     for u in range(n):
         r, _, counters = C._exploration_unit(s, u)
         steps += counters["robot_steps"]
         rows += sum(x.shape[0] for x in r)
-    collect_time = time.perf_counter() - t0
+    collect_time, wall = time.process_time() - t0, time.perf_counter() - w0
     plan_time = plan_steps = 0
     env_rates = []
     for u in range(n):
@@ -80,20 +82,20 @@ def bench_exploration(n: int) -> dict[str, float]:
         plan_time += dt
         plan_steps += k
         env_rates.append(_env_step_rate(world, 1, 60, u))
-    return _summary("e", steps, rows, collect_time, plan_steps / plan_time, float(np.median(env_rates)))
+    return _summary("e", steps, rows, collect_time, wall, plan_steps / plan_time, float(np.median(env_rates)))
 
 
 def bench_collision_avoidance(n: int) -> dict[str, float]:
     from navformer_rl.experts.policies import NHORCAExpert
 
     s = C.settings_for("ca", "paper", seed=123)
-    t0 = time.perf_counter()
+    t0, w0 = time.process_time(), time.perf_counter()
     steps = rows = 0
     for u in range(n):
         r, _, counters = C._collision_avoidance_unit(s, u)
         steps += counters["robot_steps"]
         rows += sum(x.shape[0] for x in r)
-    collect_time = time.perf_counter() - t0
+    collect_time, wall = time.process_time() - t0, time.perf_counter() - w0
     plan_time = plan_steps = 0
     env_rates = []
     for u in range(n):
@@ -102,7 +104,9 @@ def bench_collision_avoidance(n: int) -> dict[str, float]:
         plan_time += dt
         plan_steps += k
         env_rates.append(_env_step_rate(world, world.n_robots, 200, u))
-    return _summary("ca", steps, rows, collect_time, plan_steps / plan_time, float(np.median(env_rates)))
+    return _summary(
+        "ca", steps, rows, collect_time, wall, plan_steps / plan_time, float(np.median(env_rates))
+    )
 
 
 def bench_ssl(n: int) -> dict[str, float]:
@@ -111,12 +115,12 @@ def bench_ssl(n: int) -> dict[str, float]:
     from navformer_rl.envs.world import WorldConfig, generate_world
 
     s = C.settings_for("ssl", "paper", seed=123)
-    t0 = time.perf_counter()
+    t0, w0 = time.process_time(), time.perf_counter()
     pairs = 0
     for u in range(n):
         rows, _ = C._ssl_unit(s, u)
         pairs += rows.shape[0]
-    collect_time = time.perf_counter() - t0
+    collect_time, wall = time.process_time() - t0, time.perf_counter() - w0
     # reference: two bare renders per pair in a 12.5 m maze with 14 robots (the mean of 4-25)
     world = generate_world(WorldConfig(size=12.5, n_robots=1), 7)
     from navformer_rl.envs.world import sample_start_poses
@@ -124,23 +128,24 @@ def bench_ssl(n: int) -> dict[str, float]:
     poses = sample_start_poses(world, 14, np.random.default_rng(0), min_target_distance=0.0)
     sim = Simulator(world, [JACKAL] * 14, poses=poses)
     try:
-        t1 = time.perf_counter()
+        t1 = time.process_time()
         for _ in range(10):
             for i in range(14):
                 sim.render(i)
                 sim.render_pose(poses[i], JACKAL)
-        ref = 140 / (time.perf_counter() - t1)
+        ref = 140 / (time.process_time() - t1)
     finally:
         sim.close()
-    return _summary("ssl", pairs, pairs, collect_time, float("nan"), ref)
+    return _summary("ssl", pairs, pairs, collect_time, wall, float("nan"), ref)
 
 
-def _summary(kind, steps, rows, seconds, planner_rate, env_rate) -> dict[str, float]:
+def _summary(kind, steps, rows, seconds, wall, planner_rate, env_rate) -> dict[str, float]:
     return {
         "kind": kind,
         "robot_steps": steps,
         "rows": rows,
         "seconds": seconds,
+        "wall": wall,
         "steps_per_s": steps / seconds,
         "rows_per_s": rows / seconds,
         "planner_rate": planner_rate,
@@ -176,7 +181,8 @@ def main() -> None:
         total += hours
         planner = "-" if np.isnan(r["planner_rate"]) else f"{r['planner_rate']:,.0f}"
         print(
-            f"| {DatasetKind(r['kind']).name} | {r['robot_steps']:,} {unit} in {r['seconds']:.1f} s | "
+            f"| {DatasetKind(r['kind']).name} | {r['robot_steps']:,} {unit}, {r['seconds']:.1f} CPU s "
+            f"({r['wall']:.1f} s wall) | "
             f"{r['steps_per_s']:,.1f} | {r['rows_per_s']:,.1f} | {planner} | {r['env_rate']:,.1f} | "
             f"{r['steps_per_s'] / r['env_rate']:.2f} | {hours * 60:.0f} min |"
         )

@@ -87,7 +87,7 @@ class NavDataset:
     ) -> TensorDictReplayBuffer:
         """TorchRL buffer with :class:`TrajectorySampler`: ``sample()`` is flat ``[N * T]`` with
         ``("collector", "mask")`` and per-row ``target_pixels``; ``.reshape(N, -1)`` gives windows."""
-        self._require_trajectories()
+        self._require_trajectories(num_trajectories)
         sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
         return self.replay_buffer(
             sampler=sampler, batch_size=num_trajectories, transform=AttachTargetPixels(self.targets)
@@ -102,7 +102,7 @@ class NavDataset:
         reuse_buffers: bool = True,
     ) -> TrajectoryBatcher:
         """Fast padded batches ``[N]`` with per-step keys ``[N, T, ...]``, ``mask`` and ``target_pixels``."""
-        self._require_trajectories()
+        self._require_trajectories(num_trajectories)
         sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
         return TrajectoryBatcher(self.rows, self.targets, sampler, keys=keys, reuse_buffers=reuse_buffers)
 
@@ -120,10 +120,15 @@ class NavDataset:
         self._require_kind(DatasetKind.SSL)
         return PairBatcher(self.rows, batch_size=batch_size, seed=seed, reuse_buffers=reuse_buffers)
 
-    def _require_trajectories(self) -> None:
+    def _require_trajectories(self, num_trajectories: int) -> None:
         if not self.kind.is_trajectory:
             raise ValueError(
                 f"{self.root} is a {self.kind.value!r} dataset; trajectory sampling needs 'e' or 'ca'"
+            )
+        if not 1 <= num_trajectories <= self.num_trajectories:
+            raise ValueError(
+                f"{num_trajectories} trajectories per batch requested from {self.root}, which holds "
+                f"{self.num_trajectories}; expected 1 <= num_trajectories <= {self.num_trajectories}"
             )
 
     def _require_kind(self, kind: DatasetKind) -> None:

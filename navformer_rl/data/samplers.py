@@ -152,9 +152,10 @@ class TrajectorySampler(Sampler):
         self._ids: EpochPermutation | None = None
         self._pending_state: dict[str, Any] | None = None
         if episodes is not None:
-            self._bind(episodes)
+            self.bind(episodes)
 
-    def _bind(self, episodes: EpisodeTable) -> None:
+    def bind(self, episodes: EpisodeTable) -> None:
+        """Use ``episodes`` (restoring a state loaded before the table was known)."""
         self.episodes = episodes
         self._ids = EpochPermutation(len(episodes), self.seed)
         if self._pending_state is not None:
@@ -190,7 +191,7 @@ class TrajectorySampler(Sampler):
     def sample(self, storage, batch_size: int) -> tuple[torch.Tensor, dict]:
         if self._ids is None:
             rows = storage.get(slice(None))
-            self._bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"], "replay buffer storage"))
+            self.bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"], "replay buffer storage"))
         out = self.draw(batch_size)
         return out.index.reshape(-1), {("collector", "mask"): out.mask.reshape(-1)}
 
@@ -257,7 +258,7 @@ class TrajectoryBatcher:
         reuse_buffers: bool = True,
     ):
         if sampler.episodes is None:
-            sampler._bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"]))
+            sampler.bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"]))
         self.rows = rows
         self.targets = targets.as_subclass(torch.Tensor)
         self.sampler = sampler

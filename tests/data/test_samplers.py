@@ -186,3 +186,8 @@ def test_cross_task_resume(e_dataset, ca_dataset):
     assert all((x == y).all() for (_, x), (_, y) in zip(expected, got))
     with pytest.raises(ValueError, match="lacks"):
         make().load_state_dict({"iteration": 0, "exploration": {}})
+
+
+def test_batch_larger_than_dataset_is_refused_up_front(e_dataset):
+    with pytest.raises(ValueError, match=r"13 trajectories per batch requested from .* which holds 12"):
+        open_dataset(e_dataset).trajectory_batcher(13)

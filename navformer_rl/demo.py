@@ -1,0 +1,302 @@
+"""The end-to-end demo (``navformer demo``) and the world demo (``navformer world-demo``).
+
+``run_demo`` is the whole NavFormer pipeline at a small scale, in one run folder:
+
+1. collect D_e, D_ca and D_ssl with the experts (``<out>/data/{e,ca,ssl}``; resumable);
+2. train NavFormer and the DT baseline on them (``<out>/train/{navformer,dt}``; checkpoints);
+3. evaluate NavFormer, DT, VRW and FCA on the same fixed episodes (``<out>/eval/<method>``);
+4. write ``<out>/report.md`` with tables (the paper's numbers beside ours), plots, maps and videos.
+
+Every stage is resumable: rerunning the same command after an interruption reuses what is finished.
+``DemoConfig`` holds the knobs; ``DemoConfig.preset("quick" | "default")`` gives the two sizes we ship.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+BASELINES = ("vrw", "fca")
+TRAINED_METHODS = ("navformer", "dt")
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """Sizes of the small end-to-end run (the paper-scale values are in ``docs/reproduce.md``).
+
+    Attributes:
+        out_dir: run folder.
+        seed: base seed of collection, training and evaluation.
+        workers: processes for collection and evaluation.
+        exploration_trajectories, collision_trajectories: D_e / D_ca trajectories (paper: 3,496 / 7,467).
+        ssl_worlds, ssl_pairs_per_world: D_ssl size (paper: 1,000 x 98).
+        iterations: training iterations of NavFormer and of DT (paper: 10,000).
+        exploration_batch, collision_batch, ssl_batch: trajectories / pairs per iteration (paper: 25/150/512).
+        setups: evaluation protocol (a name of ``navformer_rl.evaluation.episodes.PROTOCOLS``).
+        trials_per_setup, trials_per_world: evaluation trials (paper: 60 per setup, new world every 10).
+        max_steps: steps per evaluation trial (paper: 500).
+        videos_per_setup: episodes recorded as mp4 per setup and method.
+    """
+
+    out_dir: Path = Path("runs/demo")
+    seed: int = 0
+    workers: int = 2
+    exploration_trajectories: int = 48
+    collision_trajectories: int = 96
+    ssl_worlds: int = 8
+    ssl_pairs_per_world: int = 64
+    iterations: int = 300
+    exploration_batch: int = 8
+    collision_batch: int = 24
+    ssl_batch: int = 128
+    setups: str = "smoke"
+    trials_per_setup: int = 6
+    trials_per_world: int = 3
+    max_steps: int = 500
+    videos_per_setup: int = 1
+    methods: tuple[str, ...] = field(default=TRAINED_METHODS + BASELINES)
+
+    @staticmethod
+    def preset(name: str, **overrides) -> DemoConfig:
+        """``default`` (about 20 minutes on 2 CPU cores) or ``quick`` (a few minutes: a smoke check)."""
+        presets = {
+            "default": {},
+            "quick": {
+                "exploration_trajectories": 6,
+                "collision_trajectories": 12,
+                "ssl_worlds": 2,
+                "ssl_pairs_per_world": 32,
+                "iterations": 20,
+                "exploration_batch": 4,
+                "collision_batch": 8,
+                "ssl_batch": 32,
+                "trials_per_setup": 2,
+                "trials_per_world": 2,
+                "max_steps": 120,
+            },
+        }
+        if name not in presets:
+            raise ValueError(f"unknown demo preset {name!r}; expected one of {sorted(presets)}")
+        return dataclasses.replace(DemoConfig(), **{**presets[name], **overrides})
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad field."""
+        positive = (
+            "workers exploration_trajectories collision_trajectories ssl_worlds ssl_pairs_per_world "
+            "iterations exploration_batch collision_batch ssl_batch trials_per_setup trials_per_world "
+            "max_steps"
+        ).split()
+        for name in positive:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"demo setting {name}={value!r}: expected a positive integer")
+        unknown = sorted(set(self.methods) - set(TRAINED_METHODS + BASELINES))
+        if unknown or not self.methods:
+            raise ValueError(
+                f"demo methods {list(self.methods)!r}: expected a non-empty subset of "
+                f"{list(TRAINED_METHODS + BASELINES)}"
+            )
+        if self.exploration_batch > self.exploration_trajectories:
+            raise ValueError(
+                f"exploration_batch={self.exploration_batch} exceeds exploration_trajectories="
+                f"{self.exploration_trajectories}"
+            )
+        if self.collision_batch > self.collision_trajectories:
+            raise ValueError(
+                f"collision_batch={self.collision_batch} exceeds collision_trajectories="
+                f"{self.collision_trajectories}"
+            )
+
+
+def collect_stage(cfg: DemoConfig, progress: bool = True) -> dict[str, Path]:
+    """Stage 1: the three datasets under ``<out>/data`` (resumes a partial collection)."""
+    from navformer_rl.data.collect import collect, settings_for
+    from navformer_rl.data.schema import DatasetKind
+
+    data_dir = cfg.out_dir / "data"
+    sizes = {
+        DatasetKind.EXPLORATION: {"n_trajectories": cfg.exploration_trajectories},
+        DatasetKind.COLLISION_AVOIDANCE: {"n_trajectories": cfg.collision_trajectories},
+        DatasetKind.SSL: {"n_worlds": cfg.ssl_worlds, "pairs_per_world": cfg.ssl_pairs_per_world},
+    }
+    paths = {}
+    for kind, overrides in sizes.items():
+        settings = settings_for(kind, "small", cfg.seed, **overrides)
+        paths[kind.value] = collect(kind, data_dir / kind.value, settings, workers=cfg.workers, progress=progress)
+    return paths
+
+
+def train_stage(cfg: DemoConfig, data: dict[str, Path], method: str, progress: bool = True) -> Path:
+    """Stage 2: train ``method`` (``navformer`` or the ``dt`` baseline); returns its run folder."""
+    from navformer_rl.data.schema import DatasetKind
+    from navformer_rl.training import load_train_config, train
+
+    run_dir = cfg.out_dir / "train" / method
+    overrides = [
+        f"ablation={'dt' if method == 'dt' else 'none'}",
+        f"seed={cfg.seed}",
+        f"output_dir={run_dir}",
+        "resume=true",
+        f"data.exploration_path={data[DatasetKind.EXPLORATION.value]}",
+        f"data.collision_path={data[DatasetKind.COLLISION_AVOIDANCE.value]}",
+        f"data.ssl_path={data[DatasetKind.SSL.value]}",
+        f"data.exploration_batch_trajs={cfg.exploration_batch}",
+        f"data.collision_batch_trajs={cfg.collision_batch}",
+        f"data.ssl_batch_pairs={cfg.ssl_batch}",
+        f"optim.iterations={cfg.iterations}",
+        f"checkpoint.interval={max(1, cfg.iterations // 4)}",
+        "model.autocast_dtype=bfloat16",
+        "model.encoder_micro_batch=512",
+        f"logger.progress={str(progress).lower()}",
+    ]
+    result = train(load_train_config(overrides))
+    return result.run_dir
+
+
+def evaluate_stage(cfg: DemoConfig, train_dirs: dict[str, Path], progress: bool = True) -> list[Path]:
+    """Stage 3: every method on one fixed episode set; returns the evaluation folders."""
+    from navformer_rl.evaluation.episodes import make_protocol_episodes, save_episode_set
+    from navformer_rl.evaluation.harness import evaluate
+
+    eval_dir = cfg.out_dir / "eval"
+    episodes = make_protocol_episodes(
+        cfg.setups, cfg.trials_per_setup, cfg.trials_per_world, seed=cfg.seed, max_steps=cfg.max_steps
+    )
+    save_episode_set(episodes, eval_dir / "episode_set.json")
+    folders = []
+    for method in cfg.methods:
+        result = evaluate(
+            method,
+            episodes,
+            eval_dir / method,
+            checkpoint=train_dirs.get(method),
+            workers=cfg.workers,
+            seed=cfg.seed,
+            videos_per_setup=cfg.videos_per_setup,
+            progress=progress,
+        )
+        folders.append(result.out_dir)
+    return folders
+
+
+def run_demo(cfg: DemoConfig, progress: bool = True, log: Callable[[str], None] = print) -> Path:
+    """Run the four stages; returns the path of ``report.md``. See the module docstring."""
+    cfg.validate()
+    cfg.out_dir.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+
+    started = time.perf_counter()
+    log(f"[1/4] collecting D_e, D_ca, D_ssl into {cfg.out_dir / 'data'}")
+    data = collect_stage(cfg, progress)
+    timings["collect"] = time.perf_counter() - started
+
+    train_dirs: dict[str, Path] = {}
+    for method in (m for m in TRAINED_METHODS if m in cfg.methods):
+        started = time.perf_counter()
+        log(f"[2/4] training {method} ({cfg.iterations} iterations)")
+        train_dirs[method] = train_stage(cfg, data, method, progress)
+        timings[f"train {method}"] = time.perf_counter() - started
+
+    started = time.perf_counter()
+    log(f"[3/4] evaluating {', '.join(cfg.methods)} on the '{cfg.setups}' episodes")
+    folders = evaluate_stage(cfg, train_dirs, progress)
+    timings["evaluate"] = time.perf_counter() - started
+
+    log("[4/4] writing the report")
+    from navformer_rl.demo_report import write_demo_report
+
+    report = write_demo_report(cfg, data, train_dirs, folders, timings)
+    log(f"done: {report}")
+    return report
+
+
+def _demo_config_from_args(args: argparse.Namespace) -> DemoConfig:
+    overrides = {
+        name: getattr(args, name)
+        for name in ("seed", "workers", "iterations")
+        if getattr(args, name, None) is not None
+    }
+    if args.methods:
+        overrides["methods"] = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    return DemoConfig.preset(args.preset, out_dir=Path(args.out), **overrides)
+
+
+def _run_demo_command(args: argparse.Namespace) -> int:
+    cfg = _demo_config_from_args(args)
+    run_demo(cfg, progress=not args.no_progress)
+    return 0
+
+
+def _run_world_demo_command(args: argparse.Namespace) -> int:
+    from navformer_rl.envs.demo import run_world_demo
+
+    paths = run_world_demo(
+        args.out, size=args.size, n_robots=args.robots, steps=args.steps, seed=args.seed,
+        progress=not args.no_progress,
+    )
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``demo`` and ``world-demo`` to the ``navformer`` CLI."""
+    demo = subparsers.add_parser(
+        "demo",
+        help="end to end: collect -> train -> evaluate -> report (about 20 min on 2 CPU cores)",
+        description="Collect small D_e / D_ca / D_ssl with the experts, train NavFormer and the DT baseline, "
+        "evaluate them with VRW and FCA on fixed episodes, and write report.md in --out. Rerun the same "
+        "command to resume after an interruption.",
+    )
+    demo.add_argument("--out", default="runs/demo", help="run folder (default runs/demo)")
+    demo.add_argument(
+        "--preset", default="default", choices=("default", "quick"),
+        help="default: ~20 min on 2 cores; quick: a few minutes, a smoke check",
+    )
+    demo.add_argument("--seed", type=int, help="base seed (default 0)")
+    demo.add_argument("--workers", type=int, help="processes for collection and evaluation (default 2)")
+    demo.add_argument("--iterations", type=int, help="training iterations per model")
+    demo.add_argument("--methods", help=f"comma-separated subset of {','.join(TRAINED_METHODS + BASELINES)}")
+    demo.add_argument("--no-progress", action="store_true", help="no progress bars")
+    demo.set_defaults(run=_run_demo_command)
+
+    world = subparsers.add_parser(
+        "world-demo",
+        help="a seeded maze with moving robots: top-down map + egocentric video",
+        description="Generate a seeded maze with several robots, drive them with the goal-seeking obstacle "
+        "policy, and write map.png (trajectories) and egocentric.mp4 into --out.",
+    )
+    world.add_argument("--out", default="runs/world-demo", help="output folder (default runs/world-demo)")
+    world.add_argument("--size", type=float, default=12.5, help="maze side in metres, 5-17.5 (default 12.5)")
+    world.add_argument("--robots", type=int, default=4, help="number of robots (default 4)")
+    world.add_argument("--steps", type=int, default=200, help="steps of 0.2 s (default 200)")
+    world.add_argument("--seed", type=int, default=0, help="world seed (default 0)")
+    world.add_argument("--no-progress", action="store_true", help="no progress bar")
+    world.set_defaults(run=_run_world_demo_command)
+
+
+def environment_summary() -> dict[str, str]:
+    """Machine facts recorded in the report (threads, torch version, device)."""
+    import platform
+
+    import torch
+
+    return {
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "cpu_count": str(os.cpu_count()),
+        "cuda": str(torch.cuda.is_available()),
+    }
+
+
+def write_json(path: Path, payload: dict) -> None:
+    """Atomically write ``payload`` as JSON."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=str) + "\n")
+    os.replace(tmp, path)

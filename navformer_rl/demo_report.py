@@ -1,0 +1,147 @@
+"""``report.md`` of the end-to-end demo: datasets, training curves, evaluation tables, maps and videos.
+
+The evaluation part (tables in the paper's Table I layout with confidence intervals, the paper's numbers
+beside ours, bar plots) comes from :func:`navformer_rl.evaluation.report.write_report`; this module adds
+what the pipeline knows around it: dataset statistics and sample sheets, loss curves, stage timings.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from navformer_rl.demo import DemoConfig
+
+
+def _dataset_section(data: dict[str, Path], report_dir: Path) -> list[str]:
+    from navformer_rl.data.card import sample_sheet, save_png
+    from navformer_rl.data.dataset import open_dataset
+
+    lines = ["## Datasets (collected by the experts)\n", "| dataset | rows | trajectories | folder |", "|---|---|---|---|"]
+    sheets = []
+    for name, path in data.items():
+        dataset = open_dataset(path)
+        trajectories = dataset.num_trajectories if dataset.episodes is not None else "-"
+        lines.append(f"| {name} | {len(dataset)} | {trajectories} | `{os.path.relpath(path, report_dir)}` |")
+        sheet = save_png(sample_sheet(dataset, n=2, frames=6), report_dir / "figures" / f"samples_{name}.png")
+        sheets.append((name, sheet))
+    lines.append("")
+    for name, sheet in sheets:
+        caption = (
+            "pairs (o^s, o^d): the same pose without and with the other robots"
+            if name == "ssl"
+            else "target image, then frames from the start to the end of a trajectory"
+        )
+        lines.append(f"**{name}** - {caption}:\n\n![{name} samples]({os.path.relpath(sheet, report_dir)})\n")
+    return lines
+
+
+def _read_scalar(csv_path: Path) -> tuple[list[float], list[float]]:
+    steps, values = [], []
+    with csv_path.open() as handle:
+        for row in csv.reader(handle):
+            if len(row) >= 2:
+                steps.append(float(row[0]))
+                values.append(float(row[1]))
+    return steps, values
+
+
+def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lines = ["## Training\n"]
+    if not train_dirs:
+        return lines + ["No model was trained in this run.\n"]
+    fig, axes = plt.subplots(1, len(train_dirs), figsize=(5 * len(train_dirs), 3.2), squeeze=False)
+    for ax, (method, run_dir) in zip(axes[0], train_dirs.items()):
+        scalars = sorted((run_dir / "logs").glob("*/scalars"))
+        plotted = False
+        for folder in scalars:
+            for name in ("loss_dt", "loss_byol", "loss"):
+                path = folder / f"{name}.csv"
+                if path.is_file():
+                    steps, values = _read_scalar(path)
+                    if steps:
+                        ax.plot(steps, values, label=name)
+                        plotted = True
+        ax.set_title(method)
+        ax.set_xlabel("iteration")
+        ax.set_yscale("log")
+        if plotted:
+            ax.legend()
+        lines.append(f"- **{method}**: run folder `{os.path.relpath(run_dir, report_dir)}`")
+    fig.tight_layout()
+    figure = report_dir / "figures" / "training_losses.png"
+    figure.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(figure, dpi=110)
+    plt.close(fig)
+    lines += ["", f"![training losses]({os.path.relpath(figure, report_dir)})\n"]
+    return lines
+
+
+def _media_section(eval_dirs: Sequence[Path], report_dir: Path) -> list[str]:
+    lines = ["## What the robots did\n"]
+    for folder in eval_dirs:
+        run = json.loads((folder / "run.json").read_text())
+        maps = run["files"].get("maps", [])
+        videos = run["files"].get("videos", [])
+        if not maps and not videos:
+            continue
+        lines.append(f"### {run['label']}\n")
+        for item in maps[:2]:
+            lines.append(f"![{run['label']} map]({os.path.relpath(folder / item, report_dir)})")
+        for item in videos:
+            lines.append(f"- video (egocentric camera beside the top-down map): "
+                         f"[{item}]({os.path.relpath(folder / item, report_dir)})")
+        lines.append("")
+    return lines
+
+
+def write_demo_report(
+    cfg: DemoConfig,
+    data: dict[str, Path],
+    train_dirs: dict[str, Path],
+    eval_dirs: Sequence[Path],
+    timings: dict[str, float],
+) -> Path:
+    """Write ``<out>/report.md`` (and ``figures/``) and return its path."""
+    from navformer_rl.demo import environment_summary, write_json
+    from navformer_rl.evaluation.report import write_report
+
+    report_dir = cfg.out_dir
+    evaluation_md = write_report(eval_dirs, report_dir / "evaluation.md", title="Evaluation", seed=cfg.seed)
+    evaluation = evaluation_md.read_text().split("\n", 1)[1]  # drop its title; ours heads the report
+
+    lines = [
+        "# NavFormer end-to-end demo\n",
+        "Small-scale run of the whole pipeline on the embedded pybullet mazes: expert data collection, "
+        "training of NavFormer and the DT baseline, evaluation with VRW and the privileged FCA upper bound. "
+        f"It is far below paper scale ({cfg.iterations} training iterations instead of 10,000, "
+        f"{cfg.exploration_trajectories} + {cfg.collision_trajectories} trajectories instead of "
+        "3,496 + 7,467), so NavFormer's numbers show the pipeline working, not the paper's result. "
+        "`docs/reproduce.md` has the paper-scale commands.\n",
+        "| stage | seconds |",
+        "|---|---|",
+        *[f"| {stage} | {seconds:.0f} |" for stage, seconds in timings.items()],
+        "",
+    ]
+    lines += _dataset_section(data, report_dir)
+    lines += _training_section(train_dirs, report_dir)
+    lines += [evaluation]
+    lines += _media_section(eval_dirs, report_dir)
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
+    write_json(report_dir / "demo_config.json", {"config": settings, "machine": environment_summary()})
+    lines += ["## Settings\n", "`demo_config.json` holds every setting of this run and the machine.\n"]
+    report = report_dir / "report.md"
+    tmp = report.with_suffix(".md.tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, report)
+    return report
