@@ -10,7 +10,7 @@ the same number of frames per batch:
   traj_key="episode", strict_length=False))``, reshaped to ``[N, T]``.
 
 Usage: ``OMP_NUM_THREADS=1 python benchmarks/bench_replay.py [--repeats 9] [--workdir /tmp/bench_replay]``.
-Prints a markdown table (medians over repeats, frames/s, ratio to the numpy floor).
+Prints a markdown table (medians over interleaved repeats, frames/s, ratios).
 """
 
 from __future__ import annotations
@@ -39,14 +39,18 @@ def _numpy_views(rows) -> dict:
     return views
 
 
-def _median_rate(fn, frames: int, repeats: int) -> float:
-    fn()  # warm-up (page cache, buffers)
-    times = []
+def _median_rates(fns: dict, frames: int, repeats: int) -> dict[str, float]:
+    """frames/s (median over ``repeats``) of each function; the functions take turns within every repeat so
+    that load from other processes affects them alike."""
+    for fn in fns.values():
+        fn()  # warm-up (page cache, buffers)
+    times: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return frames / statistics.median(times)
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t0)
+    return {name: frames / statistics.median(ts) for name, ts in times.items()}
 
 
 def bench_shape(root: Path, n_traj: int, length: int, dataset_traj: int, repeats: int) -> dict[str, float]:
@@ -77,11 +81,9 @@ def bench_shape(root: Path, n_traj: int, length: int, dataset_traj: int, repeats
     def torchrl_slice():
         return rb.sample().reshape(n_traj, -1)
 
-    return {
-        "ours": _median_rate(batcher.sample, frames, repeats),
-        "numpy": _median_rate(numpy_floor, frames, repeats),
-        "torchrl": _median_rate(torchrl_slice, frames, repeats),
-    }
+    return _median_rates(
+        {"ours": batcher.sample, "numpy": numpy_floor, "torchrl": torchrl_slice}, frames, repeats
+    )
 
 
 def main() -> None:

@@ -7,7 +7,8 @@ update. The script times, per configuration (median over ``--repeats``, after on
 - ``aug``: the BYOL augmentations alone (3 x 512 images, ``BYOLAugmentation``);
 - ``A`` / ``B``: a full iteration with batch A / B (augmentation included); ``mean`` = (A + B) / 2;
 - frames/s = trajectory frames per second over A and B; GFLOP/s = counted FLOPs / time, and the
-  fraction of the large-matmul floor (fp32 and bf16, measured in the same run).
+  fraction of the large-matmul floor (fp32 and bf16), measured in the same run just before and after each
+  configuration (the mean of the two), since the load of a shared machine drifts.
 
 FLOPs: ``torch.utils.flop_counter`` on one fp32 iteration of each kind (convolutions, linears, ...) plus
 the causal attention counted analytically (the counter does not see CPU SDPA): forward
@@ -176,9 +177,10 @@ def main() -> None:
         f"# floors for the mean iteration: fp32 {mean_flops / fp32_floor / 1e9:.2f} s, bf16 {mean_flops / bf16_floor / 1e9:.2f} s"
     )
     print(
-        "| config | aug ms | A ms | B ms | mean s/iter | frames/s | GFLOP/s | % fp32 floor | % bf16 floor | 10k iters h |"
+        "| config | aug ms | A ms | B ms | mean s/iter | frames/s | GFLOP/s | fp32 / bf16 floor GFLOP/s "
+        "| % fp32 floor | % bf16 floor | 10k iters h |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.configs:
         options = {k: (args.micro_batch if v == "MB" else v) for k, v in CONFIGS[name].items()}
         trainer = Trainer(NavFormerConfig(**options))
@@ -188,9 +190,14 @@ def main() -> None:
         b_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_b, pairs), args.repeats)
         mean_s = (a_ms + b_ms) / 2e3
         gflops = mean_flops / mean_s / 1e9
+        # floors again right after this configuration: on a shared machine the load drifts
+        fp32_after, bf16_after = matmul_gflops(torch.float32), matmul_gflops(torch.bfloat16)
+        fp32_now, bf16_now = (fp32_floor + fp32_after) / 2, (bf16_floor + bf16_after) / 2
+        fp32_floor, bf16_floor = fp32_after, bf16_after
         print(
-            f"| {name} | {aug_ms:.0f} | {a_ms:.0f} | {b_ms:.0f} | {mean_s:.2f} | {(frames_a + frames_b) / (2 * mean_s):.0f} | "
-            f"{gflops:.0f} | {100 * gflops / fp32_floor:.0f} % | {100 * gflops / bf16_floor:.0f} % | {mean_s * 1e4 / 3600:.1f} |",
+            f"| {name} | {aug_ms:.0f} | {a_ms:.0f} | {b_ms:.0f} | {mean_s:.2f} | "
+            f"{(frames_a + frames_b) / (2 * mean_s):.0f} | {gflops:.0f} | {fp32_now:.0f} / {bf16_now:.0f} | "
+            f"{100 * gflops / fp32_now:.0f} % | {100 * gflops / bf16_now:.0f} % | {mean_s * 1e4 / 3600:.1f} |",
             flush=True,
         )
         del trainer

@@ -54,7 +54,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"navformer {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"navformer {args.command}: interrupted (finished work is kept; rerun to resume)", file=sys.stderr)
+        print(
+            f"navformer {args.command}: interrupted (finished work is kept; rerun to resume)", file=sys.stderr
+        )
         return 130
     return int(result or 0)
 

@@ -128,7 +128,9 @@ def collect_stage(cfg: DemoConfig, progress: bool = True) -> dict[str, Path]:
     paths = {}
     for kind, overrides in sizes.items():
         settings = settings_for(kind, "small", cfg.seed, **overrides)
-        paths[kind.value] = collect(kind, data_dir / kind.value, settings, workers=cfg.workers, progress=progress)
+        paths[kind.value] = collect(
+            kind, data_dir / kind.value, settings, workers=cfg.workers, progress=progress
+        )
     return paths
 
 
@@ -237,7 +239,11 @@ def _run_world_demo_command(args: argparse.Namespace) -> int:
     from navformer_rl.envs.demo import run_world_demo
 
     paths = run_world_demo(
-        args.out, size=args.size, n_robots=args.robots, steps=args.steps, seed=args.seed,
+        args.out,
+        size=args.size,
+        n_robots=args.robots,
+        steps=args.steps,
+        seed=args.seed,
         progress=not args.no_progress,
     )
     for name, path in paths.items():
@@ -256,7 +262,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     demo.add_argument("--out", default="runs/demo", help="run folder (default runs/demo)")
     demo.add_argument(
-        "--preset", default="default", choices=("default", "quick"),
+        "--preset",
+        default="default",
+        choices=("default", "quick"),
         help="default: ~20 min on 2 cores; quick: a few minutes, a smoke check",
     )
     demo.add_argument("--seed", type=int, help="base seed (default 0)")

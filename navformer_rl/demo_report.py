@@ -8,7 +8,6 @@ what the pipeline knows around it: dataset statistics and sample sheets, loss cu
 from __future__ import annotations
 
 import csv
-import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,7 +21,11 @@ def _dataset_section(data: dict[str, Path], report_dir: Path) -> list[str]:
     from navformer_rl.data.card import sample_sheet, save_png
     from navformer_rl.data.dataset import open_dataset
 
-    lines = ["## Datasets (collected by the experts)\n", "| dataset | rows | trajectories | folder |", "|---|---|---|---|"]
+    lines = [
+        "## Datasets (collected by the experts)\n",
+        "| dataset | rows | trajectories | folder |",
+        "|---|---|---|---|",
+    ]
     sheets = []
     for name, path in data.items():
         dataset = open_dataset(path)
@@ -87,24 +90,6 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
     return lines
 
 
-def _media_section(eval_dirs: Sequence[Path], report_dir: Path) -> list[str]:
-    lines = ["## What the robots did\n"]
-    for folder in eval_dirs:
-        run = json.loads((folder / "run.json").read_text())
-        maps = run["files"].get("maps", [])
-        videos = run["files"].get("videos", [])
-        if not maps and not videos:
-            continue
-        lines.append(f"### {run['label']}\n")
-        for item in maps[:2]:
-            lines.append(f"![{run['label']} map]({os.path.relpath(folder / item, report_dir)})")
-        for item in videos:
-            lines.append(f"- video (egocentric camera beside the top-down map): "
-                         f"[{item}]({os.path.relpath(folder / item, report_dir)})")
-        lines.append("")
-    return lines
-
-
 def write_demo_report(
     cfg: DemoConfig,
     data: dict[str, Path],
@@ -135,8 +120,7 @@ def write_demo_report(
     ]
     lines += _dataset_section(data, report_dir)
     lines += _training_section(train_dirs, report_dir)
-    lines += [evaluation]
-    lines += _media_section(eval_dirs, report_dir)
+    lines += ["## Evaluation\n", evaluation]
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
     write_json(report_dir / "demo_config.json", {"config": settings, "machine": environment_summary()})
     lines += ["## Settings\n", "`demo_config.json` holds every setting of this run and the machine.\n"]

@@ -28,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "evaluate",
         help="measure SR / SPL / CR of a method on fixed episodes (paper §VII)",
         description="Run a method on every episode of an episode set (a file, or a protocol generated on the "
-        "fly) and write per-robot-trial JSONL, a Table I-layout CSV/markdown with 95%% CIs, bar plots, "
+        "fly) and write per-robot-trial JSONL, a Table I-layout CSV/markdown with 95 % CIs, bar plots, "
         "top-down maps and videos into --out.",
     )
     parser.add_argument("--method", help=f"one of: {', '.join(METHODS)}")

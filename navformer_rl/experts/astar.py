@@ -39,19 +39,28 @@ def astar(blocked: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) ->
         return None
     if (sr, sc) == (gr, gc):
         return [(sr, sc)]
-    # Padded flat grid: a blocked border removes bound checks from the inner loop.
-    wp = w + 2
-    free = np.zeros((h + 2, wp), dtype=bool)
-    free[1:-1, 1:-1] = ~grid
+    # Search only the bounding box of the free cells (paths never leave it), padded with a blocked border
+    # that removes bound checks from the inner loop.
+    rows, cols = np.nonzero(~grid)
+    r0, c0 = int(rows.min()), int(cols.min())
+    sub = grid[r0 : int(rows.max()) + 1, c0 : int(cols.max()) + 1]
+    hs, ws = sub.shape
+    wp = ws + 2
+    free = np.zeros((hs + 2, wp), dtype=bool)
+    free[1:-1, 1:-1] = ~sub
     free_flat = free.ravel().tolist()
-    start_i = (sr + 1) * wp + sc + 1
-    goal_i = (gr + 1) * wp + gc + 1
+    # Octile heuristic of every padded cell, precomputed with numpy (same float arithmetic as octile()).
+    dr = np.abs(np.arange(hs + 2)[:, None] - (gr - r0 + 1))
+    dc = np.abs(np.arange(wp)[None, :] - (gc - c0 + 1))
+    heur = (np.maximum(dr, dc) + (SQRT2 - 1.0) * np.minimum(dr, dc)).ravel().tolist()
+    start_i = (sr - r0 + 1) * wp + sc - c0 + 1
+    goal_i = (gr - r0 + 1) * wp + gc - c0 + 1
     straight = (-wp, wp, -1, 1)
     diagonal = ((-wp - 1, -wp, -1), (-wp + 1, -wp, 1), (wp - 1, wp, -1), (wp + 1, wp, 1))
     g_cost = {start_i: 0.0}
     parent = {start_i: -1}
     closed = set()
-    heap = [(octile(sr - gr, sc - gc), 0.0, start_i)]
+    heap = [(heur[start_i], 0.0, start_i)]
     while heap:
         _, g, cur = heapq.heappop(heap)
         if cur in closed:
@@ -66,8 +75,7 @@ def astar(blocked: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) ->
                 if ng < g_cost.get(nxt, math.inf):
                     g_cost[nxt] = ng
                     parent[nxt] = cur
-                    nr, nc = divmod(nxt, wp)
-                    heapq.heappush(heap, (ng + octile(nr - gr - 1, nc - gc - 1), ng, nxt))
+                    heapq.heappush(heap, (ng + heur[nxt], ng, nxt))
         for off, side_a, side_b in diagonal:
             nxt = cur + off
             if free_flat[nxt] and free_flat[cur + side_a] and free_flat[cur + side_b] and nxt not in closed:
@@ -75,15 +83,14 @@ def astar(blocked: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) ->
                 if ng < g_cost.get(nxt, math.inf):
                     g_cost[nxt] = ng
                     parent[nxt] = cur
-                    nr, nc = divmod(nxt, wp)
-                    heapq.heappush(heap, (ng + octile(nr - gr - 1, nc - gc - 1), ng, nxt))
+                    heapq.heappush(heap, (ng + heur[nxt], ng, nxt))
     else:
         return None
     path = []
     node = goal_i
     while node != -1:
         r, c = divmod(node, wp)
-        path.append((r - 1, c - 1))
+        path.append((r - 1 + r0, c - 1 + c0))
         node = parent[node]
     path.reverse()
     return path

@@ -115,15 +115,6 @@ class LogOddsGrid:
         cells = np.asarray(cells, dtype=np.float64)
         return self.origin + (cells[..., ::-1] + 0.5) * self.resolution
 
-    def in_bounds(self, cells: np.ndarray) -> np.ndarray:
-        """bool ``[...]``: which ``(row, col)`` cells lie inside the grid."""
-        return (
-            (cells[..., 0] >= 0)
-            & (cells[..., 0] < self.shape[0])
-            & (cells[..., 1] >= 0)
-            & (cells[..., 1] < self.shape[1])
-        )
-
     def update(self, pose: np.ndarray, ranges: np.ndarray, angles: np.ndarray, max_range: float) -> None:
         """Integrate one scan taken at ``pose = (x, y, yaw)``.
 

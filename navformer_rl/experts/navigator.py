@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from navformer_rl.experts.astar import astar
@@ -135,7 +136,10 @@ class FrontierNavigator:
         camera never viewed are unknown (with a camera), else the lidar map itself."""
         t = self.map.ternary()
         if self.camera is not None:
-            t[(t == FREE) & ~self.viewed] = UNKNOWN
+            # Grown by 0.2 m: the thin strips along walls that rays only graze hide no target (targets
+            # stand >= 0.9 m from walls) and would otherwise stay frontiers forever.
+            viewed = cv2.dilate(self.viewed.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+            t[(t == FREE) & ~viewed] = UNKNOWN
         return t
 
     def set_target_seen(self) -> None:
@@ -317,6 +321,8 @@ class FrontierNavigator:
         pose = np.asarray(pose, dtype=np.float64)
         need = self.goal is None or self.steps_since_plan >= c.replan_every or self._path_blocked(pose)
         if not need and not self.target_mode and np.hypot(*(self.goal - pose[:2])) < c.goal_reached:
+            # Visited: whatever can be seen from here has been; never come back for this goal.
+            self.blacklist.append(self.goal_cell)
             need = True
         if not need and not self.target_mode and self.goal_cell is not None and self.steps_since_plan >= 4:
             need = self._explored_around(self.goal_cell)

@@ -117,3 +117,16 @@ def test_torchrl_wrapper_of_the_single_robot_env():
     td = env.reset()
     assert td["pixels"].shape == (84, 84, 3) and td["privileged", "pose"].shape == (3,)
     env.close()
+
+
+def test_episodes_per_world_and_fixed_episodes():
+    env = MultiRobotNavEnv(size=5.0, n_robots=2, episodes_per_world=2, seed=4)
+    env.reset()
+    first = env.world
+    env.reset()
+    assert np.array_equal(env.world.walls, first.walls) and not np.array_equal(env.world.starts, first.starts)
+    env.set_next_episode(first)  # replay the first episode exactly
+    td = env.reset()
+    assert np.allclose(td["privileged", "pose"].numpy(), first.starts)
+    env.reset()  # a fixed episode is not reused implicitly: a new world is drawn
+    assert not np.array_equal(env.world.walls, first.walls) or env.world.seed != first.seed

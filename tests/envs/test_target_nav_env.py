@@ -115,3 +115,16 @@ def test_obstacle_policy_is_pluggable_and_obstacles_can_be_turtlebots():
     assert np.allclose(info1["robot_poses"][0], info0["robot_poses"][0])  # robot 0 was told to stand still
     with pytest.raises(ValueError, match="obstacle_policy"):
         TargetNavEnv(obstacle_policy=object())
+
+
+def test_episodes_per_world_reuses_the_maze_with_fresh_starts():
+    env = TargetNavEnv(size=5.0, n_robots=2, episodes_per_world=2)
+    env.reset(seed=0)
+    first, sim = env.world, env.simulator
+    env.reset()
+    second = env.world
+    assert np.array_equal(first.walls, second.walls) and env.simulator is sim  # same scene, same client
+    assert not np.array_equal(first.starts, second.starts)
+    assert np.allclose(env.simulator.poses, second.starts)
+    env.reset()
+    assert env.world.seed != first.seed

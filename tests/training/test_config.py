@@ -170,3 +170,24 @@ def test_a_fresh_run_refuses_a_directory_with_checkpoints(tiny_config):
     train(tiny_config("optim.iterations=1"))
     with pytest.raises(FileExistsError, match="resume=true"):
         build_trainer(tiny_config("optim.iterations=1"))
+
+
+def test_tensorboard_without_the_package_is_refused(tiny_config):
+    try:
+        import tensorboard  # noqa: F401
+
+        pytest.skip("tensorboard is installed here")
+    except ImportError:
+        pass
+    cfg = tiny_config("logger.backend=tensorboard")
+    with pytest.raises(ValueError, match="needs the `tensorboard` package"):
+        build_trainer(cfg)
+
+
+def test_cuda_without_a_gpu_is_refused(tiny_config):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(ValueError, match="device=cuda but torch sees no CUDA device"):
+        build_trainer(tiny_config("device=cuda"))

@@ -75,15 +75,17 @@ class NavFormerModel(nn.Module):
 
     def encode_target(self, target_pixels: Tensor) -> Tensor:
         """target_pixels: uint8 ``[B, H, W, 3]`` -> target embedding e_g ``[B, d]``."""
-        return self._maybe_detach(self.target_encoder(target_pixels))
+        with self._encoder_grad():
+            return self.target_encoder(target_pixels)
 
     def encode_observations(self, pixels: Tensor) -> Tensor:
         """pixels: uint8 ``[..., H, W, 3]`` -> ``[..., n_encoders, d]`` (static first, then general)."""
-        embeddings = [encoder(pixels) for _, encoder in self.observation_encoders()]
-        return self._maybe_detach(torch.stack(embeddings, dim=-2))
+        with self._encoder_grad():
+            return torch.stack([encoder(pixels) for _, encoder in self.observation_encoders()], dim=-2)
 
-    def _maybe_detach(self, x: Tensor) -> Tensor:
-        return x.detach() if self.config.detach_encoders else x
+    def _encoder_grad(self) -> contextlib.AbstractContextManager:
+        """``no_grad`` when ``detach_encoders`` (the DT loss then neither reaches nor records the encoders)."""
+        return torch.no_grad() if self.config.detach_encoders else contextlib.nullcontext()
 
     # ------------------------------------------------------------------------------------ tokens
     def target_token(self, target_embedding: Tensor) -> Tensor:
