@@ -10,9 +10,10 @@ update. The script times, per configuration (median over ``--repeats``, after on
   fraction of the large-matmul floor (fp32 and bf16), measured in the same run just before and after each
   configuration (the mean of the two), since the load of a shared machine drifts.
 
-FLOPs: ``torch.utils.flop_counter`` on one fp32 iteration of each kind (convolutions, linears, ...) plus
-the causal attention counted analytically (the counter does not see CPU SDPA): forward
-``2 * B * H * L^2 * d_head`` per block (the causal half), backward twice that.
+FLOPs: ``torch.utils.flop_counter``'s formulas on one iteration of each kind (convolutions, linears, ...)
+plus the causal attention counted analytically (the counter does not see CPU SDPA): forward
+``2 * B * H * L^2 * d_head`` per block (the causal half), backward twice that. Counted separately with
+``detach_encoders`` (no encoder backward in the DT loss), so GFLOP/s is the work each configuration executes.
 
 Configurations (levers are ``NavFormerConfig`` / ``BYOLLoss`` options the training loop can set):
 ``fp32`` (NCHW, one chunk), ``bf16`` (autocast bfloat16 + channels_last), ``bf16_mb`` (+ encoder
@@ -162,19 +163,22 @@ def main() -> None:
           f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}")  # fmt: skip
     print(f"# matmul floor (2048^3): fp32 {fp32_floor:.0f} GFLOP/s, bf16 {bf16_floor:.0f} GFLOP/s")
 
-    reference = Trainer(NavFormerConfig())
-    flops = {}
-    for name, batch, n_t in (("A", batch_a, args.batch_a), ("B", batch_b, args.batch_b)):
-        with CountFlops() as counter:
-            reference.iteration(batch, pairs)
-        flops[name] = counter.total + attention_flops(reference.model.config, *n_t)
-    del reference
-    mean_flops = (flops["A"] + flops["B"]) / 2
+    def count_flops(config: NavFormerConfig) -> dict[str, float]:
+        """FLOPs of one iteration A and B (fp32 ops; autocast runs the same ops in bf16)."""
+        trainer, flops = Trainer(config), {}
+        for kind, batch, n_t in (("A", batch_a, args.batch_a), ("B", batch_b, args.batch_b)):
+            with CountFlops() as counter:
+                trainer.iteration(batch, pairs)
+            flops[kind] = counter.total + attention_flops(config, *n_t)
+        return flops
+
+    flops_by_detach = {False: count_flops(NavFormerConfig())}
+    paper = flops_by_detach[False]
+    paper_mean = (paper["A"] + paper["B"]) / 2
     print(
-        f"# counted FLOPs per iteration: A {flops['A'] / 1e9:.0f} G, B {flops['B'] / 1e9:.0f} G, mean {mean_flops / 1e9:.0f} G"
-    )
-    print(
-        f"# floors for the mean iteration: fp32 {mean_flops / fp32_floor / 1e9:.2f} s, bf16 {mean_flops / bf16_floor / 1e9:.2f} s"
+        f"# counted FLOPs per iteration: A {paper['A'] / 1e9:.0f} G, B {paper['B'] / 1e9:.0f} G, "
+        f"mean {paper_mean / 1e9:.0f} G; floors for the mean iteration: fp32 {paper_mean / fp32_floor / 1e9:.2f} s, "
+        f"bf16 {paper_mean / bf16_floor / 1e9:.2f} s"
     )
     print(
         "| config | aug ms | A ms | B ms | mean s/iter | frames/s | GFLOP/s | fp32 / bf16 floor GFLOP/s "
@@ -189,7 +193,11 @@ def main() -> None:
         a_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_a, pairs), args.repeats)
         b_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_b, pairs), args.repeats)
         mean_s = (a_ms + b_ms) / 2e3
-        gflops = mean_flops / mean_s / 1e9
+        detach = bool(options.get("detach_encoders", False))
+        if detach not in flops_by_detach:
+            flops_by_detach[detach] = count_flops(NavFormerConfig(detach_encoders=detach))
+        flops = flops_by_detach[detach]
+        gflops = (flops["A"] + flops["B"]) / 2 / mean_s / 1e9  # FLOPs this configuration really executes
         # floors again right after this configuration: on a shared machine the load drifts
         fp32_after, bf16_after = matmul_gflops(torch.float32), matmul_gflops(torch.bfloat16)
         fp32_now, bf16_now = (fp32_floor + fp32_after) / 2, (bf16_floor + bf16_after) / 2

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from tensordict import TensorDict
 
 from navformer_rl.constants import MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.data.schema import TASK_ID, DatasetKind, ssl_rows, trajectory_rows
@@ -126,7 +127,8 @@ class RobotTrajectory:
     succeeded: bool = False
     robot_collisions: int = 0
 
-    def rows(self, task: int, episode: int, target_position: np.ndarray):
+    def rows(self, task: int, episode: int, target_position: np.ndarray) -> TensorDict:
+        """The trajectory in the schema (``target_id == episode``: one target image per trajectory)."""
         T = len(self.actions)
         reward = np.zeros(T, np.float32)
         reward[-1] = 1.0 if self.succeeded else 0.0

@@ -239,15 +239,20 @@ def _gather_into(source: torch.Tensor, index: torch.Tensor, buffer: torch.Tensor
 class TrajectoryBatcher:
     """Fast padded trajectory batches: ``sample() -> TensorDict`` with batch size ``[N]``.
 
-    Per-step keys have shape ``[N, T, ...]``: every trajectory key of the schema (``pixels`` uint8 ``[N, T, 84, 84, 3]``, ``action`` ``[N, T, 2]``,
-    ``return_to_go`` ``[N, T, 1]``, ``step`` ``[N, T]``, ...), ``mask`` bool ``[N, T]`` (False on padding, which
-    repeats the last valid step). Per-trajectory keys: ``target_pixels`` uint8 ``[N, 84, 84, 3]`` (from the targets table via
-    ``target_id``) and ``trajectory`` int64 ``[N]``. T is the longest window in the batch. (The root batch size is ``[N]``
-    because the target image is per trajectory; ``td["pixels"]`` is ``[N, T, 84, 84, 3]``.)
+    Per-step keys have shape ``[N, T, ...]``: every trajectory key of the schema (``pixels`` uint8
+    ``[N, T, 84, 84, 3]``, ``action`` ``[N, T, 2]``, ``return_to_go`` ``[N, T, 1]``, ``step`` ``[N, T]``, ...)
+    and ``mask`` bool ``[N, T]`` (False on padding, which repeats the last valid step). Per-trajectory keys:
+    ``target_pixels`` uint8 ``[N, 84, 84, 3]`` (from the targets table via ``target_id``) and ``trajectory``
+    int64 ``[N]``. T is the longest window in the batch. (The root batch size is ``[N]`` because the target
+    image is per trajectory.)
 
-    With ``reuse_buffers=True`` (default) the returned tensors are views of buffers allocated once and
-    overwritten by the next ``sample()``: consume (or ``.clone()``) a batch before drawing the next.
+    With ``reuse_buffers=True`` (default) every key is gathered with ``index_select(out=)`` into buffers that
+    are reused across calls (grown in steps of 32 timesteps up to ``N * context_steps`` rows when a batch
+    needs more), so the returned tensors are overwritten by the next ``sample()``: consume (or ``.clone()``)
+    a batch before drawing the next. ``reuse_buffers=False`` allocates fresh tensors per batch.
     """
+
+    _GROWTH_STEPS = 32
 
     def __init__(
         self,
@@ -262,23 +267,30 @@ class TrajectoryBatcher:
         self.rows = rows
         self.targets = targets.as_subclass(torch.Tensor)
         self.sampler = sampler
-        fields: dict[tuple[str, ...], FieldSpec] = (
+        self.fields: dict[tuple[str, ...], FieldSpec] = (
             TRAJECTORY_FIELDS if keys is None else {tuple(k): TRAJECTORY_FIELDS[tuple(k)] for k in keys}
         )
-        self.fields = fields
         self.reuse_buffers = reuse_buffers
-        capacity = sampler.num_trajectories * sampler.context_steps
-        self._sources = {key: rows.get(key).as_subclass(torch.Tensor) for key in fields}
-        self._buffers = (
-            {key: torch.empty((capacity, *spec.shape), dtype=spec.dtype) for key, spec in fields.items()}
-            if reuse_buffers
-            else {}
-        )
+        self._sources = {key: rows.get(key).as_subclass(torch.Tensor) for key in self.fields}
+        self._buffers: dict[tuple[str, ...], torch.Tensor] = {}
         self._target_buffer = (
             torch.empty((sampler.num_trajectories, *targets.shape[1:]), dtype=targets.dtype)
             if reuse_buffers
             else None
         )
+
+    def _buffer(self, key: tuple[str, ...], n_rows: int, N: int) -> torch.Tensor | None:
+        """The reusable buffer of ``key`` with at least ``n_rows`` rows (None without reuse)."""
+        if not self.reuse_buffers:
+            return None
+        buffer = self._buffers.get(key)
+        if buffer is None or buffer.shape[0] < n_rows:
+            steps = -(-n_rows // (N * self._GROWTH_STEPS)) * self._GROWTH_STEPS
+            rows = min(N * min(steps, self.sampler.context_steps), N * self.sampler.context_steps)
+            spec = self.fields[key]
+            buffer = torch.empty((max(rows, n_rows), *spec.shape), dtype=spec.dtype)
+            self._buffers[key] = buffer
+        return buffer
 
     def sample(self) -> TensorDict:
         draw = self.sampler.draw()
@@ -286,11 +298,10 @@ class TrajectoryBatcher:
         flat = draw.index.reshape(-1)
         out = TensorDict(batch_size=[N])
         for key, spec in self.fields.items():
-            buffer = self._buffers[key] if self.reuse_buffers else None
+            buffer = self._buffer(key, flat.numel(), N)
             out.set(key, _gather_into(self._sources[key], flat, buffer).view(N, T, *spec.shape))
         target_rows = self.sampler.episodes.target_id[draw.trajectory]
-        tbuf = self._target_buffer if self.reuse_buffers else None
-        out.set("target_pixels", _gather_into(self.targets, target_rows, tbuf))
+        out.set("target_pixels", _gather_into(self.targets, target_rows, self._target_buffer))
         out.set("mask", draw.mask)
         out.set("trajectory", draw.trajectory)
         return out

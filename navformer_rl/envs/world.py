@@ -334,29 +334,28 @@ def sample_free_positions(
     avoid_separation: float = 0.0,
     max_tries: int = 2000,
 ) -> np.ndarray:
-    """Sample ``n`` positions float64 ``[n, 2]`` in the largest free component of ``inflate(clearance)``,
-    pairwise more than ``min_separation`` apart and more than ``avoid_separation`` from every row of
-    ``avoid`` (float ``[K, 2]``). Raises ValueError when they do not fit (after ``max_tries`` draws)."""
-    cells = _free_cells(occupancy, clearance)
-    if len(cells) == 0:
+    """Sample ``n`` positions float64 ``[n, 2]`` (free cell centres) in the largest free component of
+    ``inflate(clearance)``, pairwise more than ``min_separation`` apart and more than ``avoid_separation``
+    from every row of ``avoid`` (float ``[K, 2]``). Raises ValueError when they do not fit (after
+    ``max_tries`` draws)."""
+    centres = occupancy.cell_to_world(_free_cells(occupancy, clearance))
+    if avoid is not None and len(centres):
+        avoid = np.asarray(avoid, dtype=np.float64).reshape(-1, 2)
+        gaps = np.hypot(centres[:, None, 0] - avoid[None, :, 0], centres[:, None, 1] - avoid[None, :, 1])
+        centres = centres[(gaps > avoid_separation).all(axis=1)]
+    if len(centres) == 0:
         raise ValueError(f"no free space with clearance {clearance} m to place {n} objects")
-    avoid = np.zeros((0, 2)) if avoid is None else np.asarray(avoid, dtype=np.float64).reshape(-1, 2)
-    chosen: list[np.ndarray] = []
-    tries = 0
-    while len(chosen) < n:
-        tries += 1
-        if tries > max_tries:
-            raise ValueError(
-                f"could not place {n} objects with clearance {clearance} m and separation {min_separation} m "
-                f"in this {occupancy.shape[0] * occupancy.resolution:.1f} m world (placed {len(chosen)})"
-            )
-        xy = occupancy.cell_to_world(cells[int(rng.integers(len(cells)))])
-        if chosen and np.min(np.hypot(*(np.array(chosen) - xy).T)) <= min_separation:
-            continue
-        if len(avoid) and np.min(np.hypot(*(avoid - xy).T)) <= avoid_separation:
-            continue
-        chosen.append(xy)
-    return np.array(chosen, dtype=np.float64).reshape(n, 2)
+    chosen: list[tuple[float, float]] = []
+    for _ in range(max_tries):
+        x, y = centres[int(rng.integers(len(centres)))]
+        if all((x - cx) ** 2 + (y - cy) ** 2 > min_separation**2 for cx, cy in chosen):
+            chosen.append((float(x), float(y)))
+            if len(chosen) == n:
+                return np.array(chosen, dtype=np.float64)
+    raise ValueError(
+        f"could not place {n} objects with clearance {clearance} m and separation {min_separation} m "
+        f"in this {occupancy.shape[0] * occupancy.resolution:.1f} m world (placed {len(chosen)})"
+    )
 
 
 def sample_start_poses(
@@ -375,19 +374,19 @@ def sample_start_poses(
         SUCCESS_RADIUS + cfg.start_target_margin if min_target_distance is None else min_target_distance
     )
     targets = world.target_positions.astype(np.float64)
-    clearance = radius + 0.05
-    cells = _free_cells(world.occupancy, clearance)
-    if len(cells) == 0:
+    centres = world.occupancy.cell_to_world(_free_cells(world.occupancy, radius + 0.05))
+    if len(centres) == 0:
         raise ValueError(f"no free space for a robot of radius {radius} m in this world")
-    poses: list[np.ndarray] = []
+    min_gap2 = (2 * radius + cfg.min_robot_gap) ** 2
+    poses: list[tuple[float, float, float]] = []
     for i in range(n):
         for _ in range(4000):
-            xy = world.occupancy.cell_to_world(cells[int(rng.integers(len(cells)))])
-            if poses and np.min(np.hypot(*(np.array(poses)[:, :2] - xy).T)) <= 2 * radius + cfg.min_robot_gap:
+            x, y = centres[int(rng.integers(len(centres)))]
+            if any((x - px) ** 2 + (y - py) ** 2 <= min_gap2 for px, py, _ in poses):
                 continue
-            if i < len(targets) and np.hypot(*(targets[i] - xy)) <= min_dist:
+            if i < len(targets) and math.hypot(targets[i, 0] - x, targets[i, 1] - y) <= min_dist:
                 continue
-            poses.append(np.array([xy[0], xy[1], rng.uniform(-math.pi, math.pi)]))
+            poses.append((float(x), float(y), float(rng.uniform(-math.pi, math.pi))))
             break
         else:
             raise ValueError(
@@ -480,7 +479,7 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
     """Generate the world for ``(config, seed)`` (deterministic).
 
     Walls (maze or arena), then ``n_robots`` distinct targets in reachable free space (0.9 m from walls,
-    more than 2 m apart), then collision-free starts, each more than ``SUCCESS_RADIUS +
+    more than 2 m apart, or 1.2 m where that does not fit), then collision-free starts, each more than ``SUCCESS_RADIUS +
     start_target_margin`` from its own target. The free space (inflated by ``robot_radius``) is one
     connected component. ValueError when the robots/targets do not fit.
     """
@@ -500,9 +499,14 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
 
     pairs = [(s, c) for s in dict.fromkeys(config.target_shapes) for c in dict.fromkeys(config.target_colors)]
     chosen = rng.permutation(len(pairs))[: config.n_robots]
-    target_clearance = max(TARGET_HALF_EXTENT.values()) + 2 * config.robot_radius + 0.15
-    for _ in range(50):
-        positions = sample_free_positions(wall_map, config.n_robots, target_clearance, 2.0, rng)
+    # a robot must fit between a target and a wall on either side: target + robot diameter + 5 cm
+    target_clearance = max(TARGET_HALF_EXTENT.values()) + 2 * config.robot_radius + 0.05
+    for attempt in range(40):
+        separation = 2.0 if attempt < 20 else 1.2  # targets 2 m apart, closer only where they do not fit
+        try:
+            positions = sample_free_positions(wall_map, config.n_robots, target_clearance, separation, rng)
+        except ValueError:
+            continue
         targets = [
             TargetSpec(position=positions[i].astype(np.float32), shape=pairs[k][0], color=pairs[k][1])
             for i, k in enumerate(chosen)
@@ -511,7 +515,10 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
         if _targets_reachable(occupancy, targets, config.robot_radius):
             break
     else:
-        raise ValueError(f"could not place {config.n_robots} reachable targets in this {config.size} m world")
+        raise ValueError(
+            f"could not place {config.n_robots} reachable targets in this {config.size} m {config.kind}; "
+            "use fewer robots or a larger world"
+        )
     world = WorldSpec(
         size=float(config.size),
         kind=config.kind,

@@ -50,6 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--label", help="method name in tables (default: --method), e.g. navformer-no_thsc")
     parser.add_argument("--seed", type=int, default=0, help="seed of stochastic policies (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--fresh", action="store_true", help="recompute every episode (default: reuse finished ones in --out)"
+    )
     parser.set_defaults(run=_run_evaluate)
 
     commands = parser.add_subparsers(dest="evaluate_command", metavar="{make-episodes,report}")
@@ -127,6 +130,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         maps_per_setup=args.maps,
         videos_per_setup=args.videos,
         progress=not args.no_progress,
+        resume=not args.fresh,
     )
     print((result.out_dir / "summary.md").read_text(), end="")
     print(f"results in {result.out_dir}")

@@ -327,15 +327,22 @@ def _run_tasks(
                 runner.close()
                 torch.set_num_threads(threads)
         else:
-            with ProcessPoolExecutor(
+            pool = ProcessPoolExecutor(
                 max_workers=min(workers, len(todo)),
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_worker,
                 initargs=(spec, max_steps, video_fps),
-            ) as pool:
+            )
+            try:
                 futures = {pool.submit(_run_in_worker, task): task for task in todo}
                 for future in as_completed(futures):
                     finish(futures[future], future.result())
+            except BaseException:
+                # An error or Ctrl-C: drop the queued episodes instead of running them all first
+                # (finished ones are already stored for resuming).
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+            pool.shutdown()
     finally:
         bar.close()
     return [r for r in results if r is not None]
@@ -443,29 +450,7 @@ class EpisodeRunner:
             path = save_map_png(image, Path(task.out_dir) / "maps" / f"{name}.png", f"{title} | {outcome}")
             maps.append(str(path.relative_to(task.out_dir)))
         final_distance = np.hypot(*(poses[:, :2] - world.target_positions.astype(np.float64)).T)
-        records = [
-            RobotTrial(
-                method=task.label,
-                episode_id=episode.episode_id,
-                setup=episode.setup,
-                size=episode.size,
-                n_robots=episode.n_robots,
-                world_seed=episode.world_seed,
-                trial=episode.trial,
-                robot=i,
-                robot_style=episode.robots[i],
-                measured=episode.measured[i],
-                success=bool(tracker.success[i]),
-                success_step=int(tracker.success_step[i]) if tracker.success[i] else None,
-                steps=int(tracker.steps[i]),
-                collisions=int(tracker.collisions[i]),
-                path_length=round(float(tracker.path_length[i]), 6),
-                shortest_path=episode.shortest_paths[i],
-                shortest_path_to_disc=episode.shortest_paths_to_disc[i],
-                final_distance=round(float(final_distance[i]), 6),
-            )
-            for i in range(episode.n_robots)
-        ]
+        records = robot_trials(task.label, episode, tracker, final_distance)
         return {"records": records, "maps": maps, "videos": videos}
 
     @staticmethod
@@ -489,6 +474,37 @@ class EpisodeRunner:
         if len({spec.name for spec in specs}) > 1:  # mixed line-up (Table III): name each robot's style
             status = [f"{spec.name}, {text}" for spec, text in zip(specs, status)]
         return compose_frame(map_image, cameras, targets, ROBOT_COLORS, status, f"{title} | step {t}")
+
+
+def robot_trials(
+    label: str, episode: Episode, tracker: TrialTracker, final_distance: np.ndarray
+) -> list[RobotTrial]:
+    """One :class:`RobotTrial` per robot of a finished ``episode`` from its ``tracker`` (p, N_c, N_e,
+    success) and ``final_distance`` float ``[R]`` (metres to the target at the end); ℓ comes from the
+    episode."""
+    return [
+        RobotTrial(
+            method=label,
+            episode_id=episode.episode_id,
+            setup=episode.setup,
+            size=episode.size,
+            n_robots=episode.n_robots,
+            world_seed=episode.world_seed,
+            trial=episode.trial,
+            robot=i,
+            robot_style=episode.robots[i],
+            measured=episode.measured[i],
+            success=bool(tracker.success[i]),
+            success_step=int(tracker.success_step[i]) if tracker.success[i] else None,
+            steps=int(tracker.steps[i]),
+            collisions=int(tracker.collisions[i]),
+            path_length=round(float(tracker.path_length[i]), 6),
+            shortest_path=episode.shortest_paths[i],
+            shortest_path_to_disc=episode.shortest_paths_to_disc[i],
+            final_distance=round(float(final_distance[i]), 6),
+        )
+        for i in range(episode.n_robots)
+    ]
 
 
 def make_eval_env(robots: tuple[str, ...], max_steps: int):

@@ -23,7 +23,8 @@ Definitions (``i`` runs over the ``N_tau`` robot-trials):
 
 Secondary measure: **SPL-disc**, eq. 12 with ``l_i`` replaced by the shortest path to the 1.5 m success
 disc around the target (``RobotTrial.shortest_path_to_disc``); it does not give the 1.5 m of slack that
-``l_i`` to the target gives a robot that stops at the disc's edge. Reported in the CSV only.
+``l_i`` to the target gives a robot that stops at the disc's edge. Reported in ``summary.csv`` and the
+report, not in the Table I-layout ``summary.md``.
 
 Confidence intervals (95 % by default): Wilson score interval for SR; a percentile bootstrap for SPL and
 CR that resamples whole trials (the robots of one trial share a world, so they are not independent),

@@ -38,4 +38,5 @@ def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult
         maps_per_setup=int(cfg.maps_per_setup),
         videos_per_setup=int(cfg.videos_per_setup),
         progress=bool(cfg.progress),
+        resume=bool(cfg.resume),
     )

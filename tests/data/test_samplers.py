@@ -191,3 +191,12 @@ def test_cross_task_resume(e_dataset, ca_dataset):
 def test_batch_larger_than_dataset_is_refused_up_front(e_dataset):
     with pytest.raises(ValueError, match=r"13 trajectories per batch requested from .* which holds 12"):
         open_dataset(e_dataset).trajectory_batcher(13)
+
+
+def test_reused_buffers_grow_to_the_batch_and_never_past_the_context(e_dataset):
+    ds = open_dataset(e_dataset)
+    batcher = ds.trajectory_batcher(4, context_steps=40, seed=0)
+    for _ in range(6):
+        batch = batcher.sample()
+        rows = batcher._buffers[("pixels",)].shape[0]
+        assert batch["mask"].numel() <= rows <= 4 * 40

@@ -1,9 +1,14 @@
 """Tiny episode sets for the evaluation tests (7.5 m maze, 2 Jackals, a few steps)."""
 
-import pytest
+import dataclasses
 
+import pytest
+import torch
+
+from navformer_rl.checkpoint import save_checkpoint
 from navformer_rl.evaluation.episodes import Setup, make_episode_set
 from navformer_rl.evaluation.harness import evaluate
+from navformer_rl.modules import NavFormerConfig, NavFormerModel
 
 TINY_SETUP = Setup("7.5m-2r", 7.5, ("jackal", "jackal"), (True, True))
 
@@ -22,3 +27,28 @@ def vrw_run(tmp_path_factory, tiny_episodes):
     out = tmp_path_factory.mktemp("eval") / "vrw"
     result = evaluate("vrw", tiny_episodes, out, maps_per_setup=1, videos_per_setup=1, progress=False, seed=3)
     return out, result
+
+
+def _checkpoint(run_dir, config):
+    torch.manual_seed(0)
+    model = NavFormerModel(config)
+    state = model.state_dict()
+    save_checkpoint(
+        run_dir,
+        1,
+        model_state=state,
+        model_config=dataclasses.asdict(config),
+        train_config={},
+        resume_state=None,
+    )
+    return run_dir
+
+
+@pytest.fixture(scope="session")
+def checkpoints(tmp_path_factory):
+    """Untrained (seeded) NavFormer and DT-baseline checkpoints: ``{"navformer": dir, "dt": dir}``."""
+    root = tmp_path_factory.mktemp("ckpt")
+    return {
+        "navformer": _checkpoint(root / "navformer", NavFormerConfig()),
+        "dt": _checkpoint(root / "dt", NavFormerConfig.dt_baseline()),
+    }

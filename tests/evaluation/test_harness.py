@@ -112,19 +112,16 @@ def test_vrw_is_deterministic(tmp_path, vrw_run, tiny_episodes):
 
 
 @pytest.mark.slow
-def test_worker_count_does_not_change_results(tmp_path, vrw_run, tiny_episodes):
-    out, _ = vrw_run
-    evaluate(
-        "vrw",
-        tiny_episodes,
-        tmp_path / "two",
-        workers=2,
-        maps_per_setup=0,
-        videos_per_setup=0,
-        progress=False,
-        seed=3,
-    )
-    assert (tmp_path / "two" / "episodes.jsonl").read_text() == (out / "episodes.jsonl").read_text()
+@pytest.mark.parametrize("method", ["vrw", "navformer"])
+def test_worker_count_does_not_change_results(tmp_path, tiny_episodes, checkpoints, method):
+    """Spawned workers (one torch thread each) give byte-identical rows to the in-process run."""
+    checkpoint = checkpoints.get(method) if method == "navformer" else None
+    kwargs = dict(checkpoint=checkpoint, maps_per_setup=0, videos_per_setup=0, progress=False, seed=3)
+    evaluate(method, tiny_episodes, tmp_path / "one", workers=1, **kwargs)
+    evaluate(method, tiny_episodes, tmp_path / "two", workers=2, **kwargs)
+    assert (tmp_path / "two" / "episodes.jsonl").read_text() == (
+        tmp_path / "one" / "episodes.jsonl"
+    ).read_text()
 
 
 def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes):

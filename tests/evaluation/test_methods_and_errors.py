@@ -4,35 +4,9 @@ import dataclasses
 import json
 
 import pytest
-import torch
 
-from navformer_rl.checkpoint import save_checkpoint
 from navformer_rl.evaluation.episodes import save_episode_set
 from navformer_rl.evaluation.harness import METHODS, evaluate
-from navformer_rl.modules import NavFormerConfig, NavFormerModel
-
-
-def _checkpoint(run_dir, config):
-    torch.manual_seed(0)
-    model = NavFormerModel(config)
-    save_checkpoint(
-        run_dir,
-        1,
-        model_state=model.state_dict(),
-        model_config=dataclasses.asdict(config),
-        train_config={},
-        resume_state=None,
-    )
-    return run_dir
-
-
-@pytest.fixture(scope="module")
-def checkpoints(tmp_path_factory):
-    root = tmp_path_factory.mktemp("ckpt")
-    return {
-        "navformer": _checkpoint(root / "navformer", NavFormerConfig()),
-        "dt": _checkpoint(root / "dt", NavFormerConfig.dt_baseline()),
-    }
 
 
 @pytest.mark.parametrize("method", ["navformer", "dt"])
