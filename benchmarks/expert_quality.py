@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=10_000, help="first world seed")
-    parser.add_argument("--sizes", type=float, nargs="+", default=[7.5, 12.5, 17.5])
+    parser.add_argument("--sizes", type=float, nargs="*", default=[7.5, 12.5, 17.5])
     parser.add_argument("--skip-ca", action="store_true")
     parser.add_argument("--fca", action="store_true", help="also run FCA teams (3-9 robots) in 12.5 m mazes")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/experts.md"))

@@ -156,29 +156,30 @@ def run_episode(world, sim, expert, max_steps: int, record: bool = True) -> list
     """Drive every robot of ``sim`` with ``expert`` until each reached its target or ``max_steps``.
 
     ``expert`` follows ``navformer_rl.experts.policies``: ``act(sim, active) -> float32 [R, 2]`` and a bool
-    ``[R]`` ``failed`` flag. At step t each still-active robot renders o_t, the expert gives a_t, the simulator
-    moves; a robot that ends the step within ``SUCCESS_RADIUS`` of its target finishes its trajectory
-    (reward 1 on that step) and stays in place. An expert that flags a robot ``failed`` ends that robot's
-    trajectory as a failure. ``record=False`` skips the cameras (to time the planners alone; such
-    trajectories have no frames). Returns one :class:`RobotTrajectory` per robot.
+    ``[R]`` ``failed`` flag. At step t the expert gives a_t for the still-active robots and the simulator
+    moves them; a robot that ends the step within ``SUCCESS_RADIUS`` of its target finishes its trajectory
+    (reward 1 on that step) and stays in place; one the expert flags ``failed`` ends as a failure.
+
+    The cameras run after the episode, and only for robots that succeeded: every robot is put back at its
+    pose of step t and o_t is rendered (the scene is then exactly as it was at t), so failed episodes cost no
+    rendering. ``record=False`` skips the cameras altogether (to time the planners alone). Returns one
+    :class:`RobotTrajectory` per robot.
     """
     R = sim.n_robots
     trajs = [RobotTrajectory([], [], [], []) for _ in range(R)]
     active = ~_reached(sim, world)
+    history: list[tuple[np.ndarray, np.ndarray]] = []  # (poses float32 [R, 3] before step t, active [R])
     for _ in range(max_steps):
         if not active.any():
             break
-        if record:
-            frames = sim.render_all(active)
         poses = sim.poses
+        history.append((poses, active.copy()))
         actions = np.asarray(expert.act(sim, active), dtype=np.float32).reshape(R, 2)
         contacts = sim.step(np.where(active[:, None], actions, 0.0), active)
         reached = _reached(sim, world)
         failed = np.asarray(expert.failed, dtype=bool).reshape(R)
         for i in np.flatnonzero(active):
             t = trajs[i]
-            if record:
-                t.frames.append(frames[i])
             t.actions.append(np.clip(actions[i], -1.0, 1.0))
             t.collisions.append(bool(contacts.collided[i]))
             t.robot_collisions += int(contacts.kind[i] == COLLISION_ROBOT)
@@ -186,7 +187,24 @@ def run_episode(world, sim, expert, max_steps: int, record: bool = True) -> list
             if reached[i]:
                 t.succeeded = True
         active &= ~reached & ~failed
+    if record:
+        _render_successes(sim, trajs, history)
     return trajs
+
+
+def _render_successes(
+    sim, trajs: list[RobotTrajectory], history: list[tuple[np.ndarray, np.ndarray]]
+) -> None:
+    """Fill ``frames`` of the successful trajectories: for each step, restore every robot's pose and render
+    the robots that were active then."""
+    keep = np.array([t.succeeded for t in trajs])
+    for poses, active in history:
+        todo = np.flatnonzero(active & keep)
+        if len(todo) == 0:
+            continue
+        sim.set_poses(poses)
+        for i in todo:
+            trajs[i].frames.append(sim.render(int(i)))
 
 
 # ------------------------------------------------------------------------------------------- units

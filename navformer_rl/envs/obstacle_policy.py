@@ -71,7 +71,9 @@ class GoalSeekingPolicy:
     where the margin closes a gap), sampled ``coarsening`` times coarser. Steering: it walks
     ``lookahead`` metres down the distance field from its cell (steepest descent over the 8 neighbours, so
     the waypoint is always reachable), turns toward that waypoint with a proportional gain, slows down
-    for large heading errors, and yields (slows, veers right) when another robot is close ahead.
+    for large heading errors, and yields (slows, veers right) when another robot is close ahead. After a
+    step in which its motion was blocked (executed speed below 30 % of the command) it backs off while
+    turning for ``backing_steps`` steps.
 
     Args:
         lookahead: metres of steepest descent to the waypoint.
@@ -80,17 +82,20 @@ class GoalSeekingPolicy:
         speed: fraction of ``v_max`` used when cruising.
         coarsening: planning cells are ``coarsening`` occupancy cells wide (0.2 m by default: a new goal's
             distance field then costs well under a millisecond).
+        backing_steps: steps of reversing after a blocked step.
     """
 
     def __init__(
         self,
-        lookahead: float = 0.8,
+        lookahead: float = 0.4,
         margin: float = 0.15,
         patience: int = 25,
         speed: float = 0.8,
         coarsening: int = 4,
+        backing_steps: int = 3,
     ):
         self.coarsening = coarsening
+        self.backing_steps = backing_steps
         self.lookahead = lookahead
         self.margin = margin
         self.patience = patience
@@ -111,6 +116,8 @@ class GoalSeekingPolicy:
         self._fields: list[dict[int, tuple[np.ndarray, np.ndarray]]] = [{} for _ in range(n)]
         self._best = np.full(n, np.inf)
         self._stalled = np.zeros(n, dtype=np.int64)
+        self._commanded = np.zeros(n)  # linear speed (m/s) commanded last step
+        self._backing = np.zeros(n, dtype=np.int64)  # steps of reversing left after a blocked step
         for i in range(n):
             if self._targets[i] is None:
                 self._set_goal(i, self._random_goal(i), _WANDER)
@@ -194,7 +201,14 @@ class GoalSeekingPolicy:
         spec = sim.robot_specs[i]
         w_cmd = min(1.0, max(-1.0, 2.0 * heading_error / spec.w_max))
         v_cmd = self.speed * max(0.0, math.cos(heading_error)) ** 2
-        return self._yield_to_robots(i, poses, spec.radius, v_cmd, w_cmd)
+        v_cmd, w_cmd = self._yield_to_robots(i, poses, spec.radius, v_cmd, w_cmd)
+        if self._commanded[i] > 0.1 and sim.velocities[i, 0] < 0.3 * self._commanded[i]:
+            self._backing[i] = self.backing_steps  # pushed into something: back off while turning
+        if self._backing[i] > 0:
+            self._backing[i] -= 1
+            v_cmd, w_cmd = -0.3, 1.0 if heading_error >= 0 else -1.0
+        self._commanded[i] = max(v_cmd, 0.0) * spec.v_max
+        return v_cmd, w_cmd
 
     @staticmethod
     def _yield_to_robots(i: int, poses: np.ndarray, radius: float, v: float, w: float) -> tuple[float, float]:

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 
 @dataclass(frozen=True)
 class RobotSpec:
@@ -49,10 +47,6 @@ class RobotSpec:
     accent_color: tuple[float, float, float, float]
     body_shape: str
     body_size: tuple[float, float, float]
-
-    def scale_action(self, action: np.ndarray) -> np.ndarray:
-        """Map normalised actions ``float [..., 2]`` (already clipped to [-1, 1]) to ``(v, w)`` in SI units."""
-        return np.asarray(action, dtype=np.float64) * np.array([self.v_max, self.w_max])
 
 
 JACKAL = RobotSpec(

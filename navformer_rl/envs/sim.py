@@ -51,21 +51,6 @@ def validate_actions(actions, n: int) -> np.ndarray:
     return np.clip(a, -1.0, 1.0)
 
 
-def unicycle_pose(pose: np.ndarray, v: float, w: float, t) -> np.ndarray:
-    """Exact unicycle integration: pose ``(x, y, yaw)`` after driving ``(v, w)`` for times ``t`` (float or
-    ``[S]``) -> float64 ``[S, 3]`` (yaw not wrapped)."""
-    x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
-    t = np.atleast_1d(np.asarray(t, dtype=np.float64))
-    th_t = th + w * t
-    if abs(w) > 1e-9:
-        xs = x + v / w * (np.sin(th_t) - math.sin(th))
-        ys = y - v / w * (np.cos(th_t) - math.cos(th))
-    else:
-        xs = x + v * t * math.cos(th)
-        ys = y + v * t * math.sin(th)
-    return np.stack([xs, ys, th_t], axis=-1)
-
-
 def _arc_point(x: float, y: float, th: float, v: float, w: float, t: float) -> tuple[float, float]:
     """Position after driving the unicycle ``(v, w)`` for ``t`` seconds from ``(x, y, th)`` (scalar math)."""
     if abs(w) > 1e-9:

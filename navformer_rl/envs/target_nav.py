@@ -126,7 +126,7 @@ class TargetNavEnv(gym.Env):
             raise ValueError(
                 f"the episode has {world.n_robots} robots, this env drives {len(self.robot_specs)}"
             )
-        same_layout = self.simulator is not None and self.world is not None and _same_scene(world, self.world)
+        same_layout = self.simulator is not None and self.world is not None and same_scene(world, self.world)
         if same_layout:
             self.simulator.world = world
             self.simulator.set_poses(world.starts)
@@ -222,7 +222,7 @@ def compose_frame(topdown: np.ndarray, views: list[np.ndarray], view_px: int | N
     return np.concatenate([topdown, column], axis=1)
 
 
-def _same_scene(a: WorldSpec, b: WorldSpec) -> bool:
+def same_scene(a: WorldSpec, b: WorldSpec) -> bool:
     """True when two worlds share walls and targets (only the starts differ)."""
     return (
         a.size == b.size

@@ -43,7 +43,7 @@ WORLD_KINDS = ("maze", "arena")
 OCCUPANCY_RESOLUTION = 0.05
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: identity equality, hashable
 class TargetSpec:
     """One target object: ``position`` float32 ``[2]`` (x, y) of its centre, ``shape``, ``color``."""
 
@@ -146,7 +146,7 @@ class WorldConfig:
         return max(2, round(self.size / self.cell_size))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: identity equality, hashable
 class WorldSpec:
     """A generated world (read-only). Robot ``i`` starts at ``starts[i]`` and looks for ``targets[i]``.
 
@@ -207,7 +207,7 @@ class WorldSpec:
         return self.occupancy.shortest_path_length(start_xy, goal, clearance, goal_radius)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: identity equality, hashable
 class EpisodeSpec:
     """A fixed episode for evaluation: a world from ``(config, world_seed)`` (or a given ``world``), with
     optional overriding ``starts`` float ``[R, 3]`` and ``targets``.

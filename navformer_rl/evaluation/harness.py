@@ -38,7 +38,7 @@ from navformer_rl.evaluation._io import atomic_write_text
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
-from navformer_rl.evaluation.video import VideoWriter, compose_frame, draw_map, save_map_png
+from navformer_rl.evaluation.video import MAP_PNG_PX, VideoWriter, compose_frame, draw_map, save_map_png
 
 METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
 """Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
@@ -445,8 +445,11 @@ class EpisodeRunner:
             videos = [str(video.close().relative_to(task.out_dir))] if video is not None else []
         maps = []
         if task.save_map:
-            image = draw_map(world, [np.array(p) for p in paths], poses, specs)
-            outcome = ", ".join(f"{i}:{'ok' if s else 'fail'}" for i, s in enumerate(tracker.success))
+            image = draw_map(world, [np.array(p) for p in paths], poses, specs, side=MAP_PNG_PX)
+            outcome = ", ".join(
+                f"{i}:{'ok' if ok else 'fail'}" + ("" if measured else " (obstacle)")
+                for i, (ok, measured) in enumerate(zip(tracker.success, episode.measured))
+            )
             path = save_map_png(image, Path(task.out_dir) / "maps" / f"{name}.png", f"{title} | {outcome}")
             maps.append(str(path.relative_to(task.out_dir)))
         final_distance = np.hypot(*(poses[:, :2] - world.target_positions.astype(np.float64)).T)

@@ -23,21 +23,27 @@ _BACKGROUND = (255, 255, 255)
 _TEXT = (20, 20, 20)
 
 
-def topdown_scale(size: float) -> float:
-    """Pixels per metre so that a ``size`` m world fills :data:`MAP_PX` (12 px margin each side)."""
-    return (MAP_PX - 24) / float(size)
+MAP_PNG_PX = 720
+"""Side of the stand-alone top-down map images (PNG), in pixels."""
 
 
-def draw_map(world, trajectories: Sequence[np.ndarray], poses: np.ndarray, robot_specs) -> np.ndarray:
-    """Top-down map uint8 ``[MAP_PX, MAP_PX, 3]`` RGB: walls, targets with their 1.5 m discs, each robot's
+def topdown_scale(size: float, side: int = MAP_PX) -> float:
+    """Pixels per metre so that a ``size`` m world fills ``side`` pixels (12 px margin each side)."""
+    return (side - 24) / float(size)
+
+
+def draw_map(
+    world, trajectories: Sequence[np.ndarray], poses: np.ndarray, robot_specs, side: int = MAP_PX
+) -> np.ndarray:
+    """Top-down map uint8 ``[side, side, 3]`` RGB: walls, targets with their 1.5 m discs, each robot's
     trajectory (float ``[T, 2]``) and current pose (float ``[R, 3]``) in its own colour."""
     from navformer_rl.envs.topdown import draw_topdown
 
     image = draw_topdown(
-        world, trajectories, poses, robot_specs, px_per_m=topdown_scale(world.size), margin_px=12
+        world, trajectories, poses, robot_specs, px_per_m=topdown_scale(world.size, side), margin_px=12
     )
-    if image.shape[:2] != (MAP_PX, MAP_PX):
-        image = cv2.resize(image, (MAP_PX, MAP_PX), interpolation=cv2.INTER_AREA)
+    if image.shape[:2] != (side, side):
+        image = cv2.resize(image, (side, side), interpolation=cv2.INTER_AREA)
     return image
 
 

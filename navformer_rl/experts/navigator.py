@@ -211,6 +211,15 @@ class FrontierNavigator:
         if start is None:
             self._reset_goal()
             return
+        if self.target_known and not self.target_mode:
+            # Privileged (FCA): once the mapped free space reaches the known target, go there.
+            tcell = tuple(int(v) for v in self.map.world_to_cell(self.target))
+            goal = nearest_true_cell(traversable, tcell, max_radius=int(round(c.target_approach / c.resolution)))
+            path = None if goal is None else astar(~traversable, start, goal)
+            if path is not None:
+                self.target_mode = True
+                self._set_path(pose, path, goal)
+                return
         bias_cell = None
         if self.target_known and self.frontier_bias > 0:
             bias_cell = tuple(int(v) for v in self.map.world_to_cell(self.target))
@@ -234,7 +243,10 @@ class FrontierNavigator:
         if goal is None and self.camera is not None:
             goal = self._unviewed_goal(traversable, start)
         if goal is None:
-            self.exhausted = not self.target_mode
+            if self.target_known and not self.target_mode:
+                self.target_mode = True  # nothing left to explore: head for the known target optimistically
+            else:
+                self.exhausted = not self.target_mode
             self._reset_goal()
             return
         path = astar(~traversable, start, goal)

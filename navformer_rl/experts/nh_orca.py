@@ -171,8 +171,8 @@ class NHORCA:
     """NH-ORCA for a team: ``step(poses, velocities, preferred, active, walls) -> (v, w) [N, 2]``.
 
     Keeps each robot's last holonomic velocity ``u`` (the neighbours' velocities in the next step).
-    Inactive robots (stopped, e.g. finished) are non-reciprocal static agents: others take full
-    responsibility for avoiding them. Symmetric jams (all ``u`` ~ 0 while robots want to move, see
+    Inactive robots (stopped, e.g. finished) are non-reciprocal static agents, inflated by the safety margin
+    only (they have no tracking error): others take full responsibility for avoiding them. Symmetric jams (all ``u`` ~ 0 while robots want to move, see
     ``docs/experts.md``) are broken by the right-hand rule of :class:`NHORCAConfig` ``deadlock_turn``.
     """
 
@@ -212,7 +212,8 @@ class NHORCA:
             self.reset(poses, velocities)
         u_prev = np.where(active[:, None], self.u, 0.0)
         radius = c.radius + c.tracking_error + c.safety
-        radii = np.full(n, radius)
+        # Stopped robots have no tracking error: only the safety margin inflates them.
+        radii = np.where(active, radius, c.radius + c.safety)
         commands = np.zeros((n, 2))
         u_new = np.zeros((n, 2))
         obst_range = c.tau_obst * c.v_max + radius

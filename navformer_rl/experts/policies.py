@@ -275,7 +275,7 @@ class NHORCAExpert(_ExpertBase):
         base = self.world.occupancy
         circles = np.array(
             [
-                (poses[j, 0], poses[j, 1], self.radii[j] + self.inflation)
+                (poses[j, 0], poses[j, 1], self.radii[j] + self.planner.config.safety)
                 for j in np.flatnonzero(stopped)
                 if j != i
             ]
@@ -391,11 +391,11 @@ class FCAController(_ExpertBase):
             scans = self._scans(sim, idx, poses)
             radii = sim.radii
             # Stopped robots (arrived, failed, or held inactive) are static obstacles for planning, drawn
-            # with NH-ORCA's inflated radius so planned gaps are gaps ORCA lets a robot through.
+            # with NH-ORCA's radius for static agents (radius + safety).
             cfg = self.planner.config
             parked = np.flatnonzero(~run)
             discs = np.concatenate(
-                [poses[parked, :2], radii[parked, None] + 2 * (cfg.tracking_error + cfg.safety)], axis=1
+                [poses[parked, :2], radii[parked, None] + cfg.safety], axis=1
             )
             for k, i in enumerate(idx):
                 self.navigators[i].set_static_discs(discs)

@@ -152,3 +152,37 @@ def test_settings_overrides_are_checked():
     assert settings_for("e", "paper").n_trajectories == 3496
     assert settings_for("ca", "paper").n_trajectories == 7467
     assert np.isclose(min(settings_for("e").world_sizes), 5.0)
+
+
+def test_deferred_rendering_equals_live_cameras():
+    """run_episode renders after the episode (restoring poses); the frames equal live rendering at each step."""
+    from navformer_rl.envs.robots import JACKAL
+    from navformer_rl.envs.sim import Simulator
+    from navformer_rl.experts.policies import NHORCAExpert
+
+    s = settings_for("ca", "small", seed=1, other_robots=(2, 2))
+
+    def episode():
+        world, rng = collect_module.collision_avoidance_world(s, 0)
+        sim = Simulator(world, JACKAL)
+        expert = NHORCAExpert()
+        expert.reset(world, sim, rng)
+        return world, sim, expert
+
+    world, sim, expert = episode()
+    live = []
+    active = ~collect_module._reached(sim, world)
+    while active.any() and len(live) < 200:
+        live.append(sim.render_all(active))
+        actions = expert.act(sim, active)
+        sim.step(np.where(active[:, None], actions, 0.0), active)
+        active &= ~collect_module._reached(sim, world) & ~expert.failed
+    sim.close()
+    world, sim, expert = episode()
+    trajs = collect_module.run_episode(world, sim, expert, 200)
+    sim.close()
+    assert all(t.succeeded for t in trajs)
+    for i, traj in enumerate(trajs):
+        assert len(traj.frames) == len(traj.actions)
+        for t, frame in enumerate(traj.frames):
+            assert np.array_equal(frame, live[t][i])

@@ -1,12 +1,13 @@
 """Simulator: unicycle kinematics with known answers, blocked motion, collision kinds, cameras and rays."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from navformer_rl.envs.robots import JACKAL, TURTLEBOT3
-from navformer_rl.envs.sim import COLLISION_NONE, COLLISION_ROBOT, COLLISION_WALL, Simulator, unicycle_pose
+from navformer_rl.envs.sim import COLLISION_NONE, COLLISION_ROBOT, COLLISION_WALL, Simulator
 
 FAR_TARGET = [(4.4, 4.4, "sphere", "red")]
 
@@ -38,10 +39,12 @@ def test_turning_known_answers(make_open_world):
     sim.step(np.array([[0.5, 1.0]]))  # arc: v = 0.5, w = 1.5 for 0.2 s
     r = 0.5 / 1.5
     assert np.allclose(sim.poses[0], [2.0 + r * math.sin(0.3), 2.0 + r * (1 - math.cos(0.3)), 0.3], atol=1e-6)
-    # a quarter circle of radius 2/pi: v = 1, w = pi/2 for 1 s
-    assert np.allclose(
-        unicycle_pose(np.zeros(3), 1.0, math.pi / 2, 1.0)[0], [2 / math.pi, 2 / math.pi, math.pi / 2]
-    )
+    # a quarter circle of radius 2/pi: v = 1 m/s, w = pi/2 rad/s for 5 steps of 0.2 s
+    quarter = Simulator(sim.world, [dataclasses.replace(JACKAL, w_max=math.pi / 2)], textured=False)
+    quarter.set_poses([[1.0, 1.0, 0.0]])
+    for _ in range(5):
+        assert not quarter.step(np.array([[1.0, 1.0]])).collided[0]
+    assert np.allclose(quarter.poses[0], [1.0 + 2 / math.pi, 1.0 + 2 / math.pi, math.pi / 2], atol=1e-5)
 
 
 def test_actions_are_clipped_and_validated(make_open_world):

@@ -91,3 +91,30 @@ def test_bad_inputs_raise_value_error():
         sim.close()
     with pytest.raises(ValueError, match="stop_radius"):
         ExpertConfig(stop_radius=2.0)
+
+
+def test_nh_orca_goes_around_a_parked_robot():
+    """Robot 1 is parked (inactive) on robot 0's straight route, 0.6 m below a box target: the gap above it
+    is too narrow for NH-ORCA's inflated radii, so robot 0 must re-plan around it."""
+    from navformer_rl.envs.world import TargetSpec, replace_layout
+
+    base = generate_world(WorldConfig(size=12.5, kind="arena", n_robots=2, arena_inner_walls=(0, 0)), 0)
+    targets = [
+        TargetSpec(np.array([9.5, 6.0], dtype=np.float32), "sphere", "green"),
+        TargetSpec(np.array([6.0, 7.1], dtype=np.float32), "box", "red"),
+    ]
+    starts = np.array([[2.5, 6.0, 0.0], [6.0, 6.0, 0.0]], dtype=np.float32)
+    world = replace_layout(base, starts, targets)
+    sim = Simulator(world, JACKAL, textured=False)
+    try:
+        expert = NHORCAExpert()
+        expert.reset(world, sim, np.random.default_rng(0))
+        active = np.array([True, False])
+        for _ in range(300):
+            contacts = sim.step(expert.act(sim, active), active)
+            assert contacts.kind[0] != COLLISION_ROBOT
+            if np.hypot(*(sim.poses[0, :2] - targets[0].position)) <= SUCCESS_RADIUS:
+                break
+        assert np.hypot(*(sim.poses[0, :2] - targets[0].position)) <= SUCCESS_RADIUS
+    finally:
+        sim.close()
