@@ -19,8 +19,8 @@ Keys (A robots):
 - ``("agents", "step_count")`` int64 ``[A, 1]``: steps since reset (0 right after a reset).
 - ``("privileged", k)``: ``pose`` float32 ``[A, 3]``, ``velocity`` ``[A, 2]``, ``target_position``
   ``[A, 2]``, ``success`` bool ``[A, 1]``, ``path_length`` float32 ``[A, 1]`` (metres driven),
-  ``shortest_path_length`` float32 ``[A, 1]`` (geodesic from the start to the 1.5 m success region, the
-  SPL reference), ``collisions`` int64 ``[A, 1]`` (steps in collision so far).
+  ``shortest_path_length`` float32 ``[A, 1]`` (geodesic from the start to the 1.5 m success region; the
+  evaluation harness's SPL uses the paper's start-to-target length, see ``docs/evaluation.md``), ``collisions`` int64 ``[A, 1]`` (steps in collision so far).
 - root ``done``, ``terminated``, ``truncated``: bool ``[1]``.
 """
 

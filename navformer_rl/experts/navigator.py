@@ -68,8 +68,9 @@ class NavigatorConfig:
     progress_min: float = 0.3
     """No ``progress_min`` metres of progress toward the goal within ``progress_window`` steps -> stuck."""
     blacklist_radius: float = 0.8
-    target_approach: float = 1.0
-    """In target mode the A* goal is the free cell nearest to the target within this radius."""
+    target_approach: float = 1.1
+    """In target mode the A* goal is the free cell nearest to the target within this radius (if that cell is
+    cut off, the reachable cell within it nearest to the robot by path); inside the 1.2 m stop radius."""
 
 
 class FrontierNavigator:
@@ -202,6 +203,9 @@ class FrontierNavigator:
             approach = int(round(c.target_approach / c.resolution))
             goal = nearest_true_cell(passable, tcell, max_radius=approach)
             path = None if start is None or goal is None else astar(~passable, start, goal)
+            if path is None and start is not None:  # the cell nearest the target is cut off: try the others
+                goal = self._approach_goal(passable, start)
+                path = None if goal is None else astar(~passable, start, goal)
             if path is not None:
                 self._set_path(pose, path, goal)
                 return
@@ -213,8 +217,7 @@ class FrontierNavigator:
             return
         if self.target_known and not self.target_mode:
             # Privileged (FCA): once the mapped free space reaches the known target, go there.
-            tcell = tuple(int(v) for v in self.map.world_to_cell(self.target))
-            goal = nearest_true_cell(traversable, tcell, max_radius=int(round(c.target_approach / c.resolution)))
+            goal = self._approach_goal(traversable, start)
             path = None if goal is None else astar(~traversable, start, goal)
             if path is not None:
                 self.target_mode = True
@@ -255,6 +258,18 @@ class FrontierNavigator:
             self._reset_goal()
             return
         self._set_path(pose, path, goal)
+
+    def _approach_goal(self, passable: np.ndarray, start: tuple[int, int]) -> tuple[int, int] | None:
+        """The passable cell within ``target_approach`` of the target nearest to ``start`` by path, or None."""
+        c = self.config
+        grid = np.stack(np.mgrid[0 : passable.shape[0], 0 : passable.shape[1]], -1)
+        near = ((self.map.cell_to_world(grid) - self.target) ** 2).sum(-1) <= c.target_approach**2
+        candidates = near & passable
+        if not candidates.any():
+            return None
+        dist = np.where(candidates, distance_field(passable, [start]), np.inf)
+        k = int(np.argmin(dist))
+        return divmod(k, dist.shape[1]) if np.isfinite(dist.flat[k]) else None
 
     def _explored_around(self, cell: tuple[int, int]) -> bool:
         """Whether ``cell`` and its 4-neighbours are all explored (the goal no longer borders unexplored space)."""

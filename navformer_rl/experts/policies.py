@@ -353,13 +353,6 @@ class FCAController(_ExpertBase):
     def reset(self, world, sim, rng: np.random.Generator) -> None:
         super().reset(world, sim, rng)
         spec = self.specs[0]
-        nav_cfg = self.config.navigator
-        if nav_cfg.robot_radius != spec.radius:
-            nav_cfg = NavigatorConfig(**{**nav_cfg.__dict__, "robot_radius": spec.radius})
-        self.navigators = [
-            FrontierNavigator(world.size, nav_cfg, self.targets[i], True, self.frontier_bias)
-            for i in range(sim.n_robots)
-        ]
         self.planner = NHORCA(
             self.nh_config
             or NHORCAConfig(
@@ -372,6 +365,17 @@ class FCAController(_ExpertBase):
             )
         )
         self.planner.reset(sim.poses, sim.velocities)
+        # Plan with at least NH-ORCA's inflation (E + safety): a gap A* uses must be one ORCA lets through.
+        orca = self.planner.config
+        nav_cfg = self.config.navigator
+        margin = max(nav_cfg.inflation_margin, orca.tracking_error + orca.safety)
+        nav_cfg = NavigatorConfig(
+            **{**nav_cfg.__dict__, "robot_radius": spec.radius, "inflation_margin": margin}
+        )
+        self.navigators = [
+            FrontierNavigator(world.size, nav_cfg, self.targets[i], True, self.frontier_bias)
+            for i in range(sim.n_robots)
+        ]
 
     @property
     def stuck_events(self) -> np.ndarray:
@@ -394,9 +398,7 @@ class FCAController(_ExpertBase):
             # with NH-ORCA's radius for static agents (radius + safety).
             cfg = self.planner.config
             parked = np.flatnonzero(~run)
-            discs = np.concatenate(
-                [poses[parked, :2], radii[parked, None] + cfg.safety], axis=1
-            )
+            discs = np.concatenate([poses[parked, :2], radii[parked, None] + cfg.safety], axis=1)
             for k, i in enumerate(idx):
                 self.navigators[i].set_static_discs(discs)
                 pref[i] = self._preferred_one(int(i), poses, radii, scans[k])
