@@ -3,8 +3,9 @@
 For each batch size (robots) and episode position T the script measures, with the paper model in eval mode
 and under ``torch.no_grad``:
 
-- ``kv``: one ``IncrementalNavFormer.step`` at timestep T (encoding the new frame with f_s and f_g, the
-  transformer on the 4 new tokens against the cache, the THSC head); median over ``--steps`` consecutive steps.
+- ``kv``: one ``IncrementalNavFormer.step`` at timestep T (encoding the new frame with f_s and f_g as one
+  fused stack, the transformer on the 4 new tokens against the cache, the THSC head); median over
+  ``--steps`` consecutive steps.
 - ``recompute``: the same decision by re-running the transformer over the whole context (target + T steps,
   i.e. 4T tokens), with the frame embeddings of past steps cached and only the new frame encoded; median
   over ``--repeats``.
@@ -41,10 +42,14 @@ def random_frames(*shape: int, seed: int) -> torch.Tensor:
     return torch.randint(0, 256, (*shape, 84, 84, 3), dtype=torch.uint8, generator=gen)
 
 
-def recompute_step(model: NavFormerModel, cached: dict[str, torch.Tensor], pixels: torch.Tensor, steps: int):
-    """Decide the action at step ``steps - 1`` by running the transformer over the whole context."""
+def recompute_step(
+    decoder: IncrementalNavFormer, cached: dict[str, torch.Tensor], pixels: torch.Tensor, steps: int
+):
+    """Decide the action at step ``steps - 1`` by running the transformer over the whole context
+    (the new frame is encoded exactly as the KV step encodes it)."""
+    model = decoder.model
     tps = model.config.tokens_per_step
-    obs = torch.cat([cached["obs"][:, : steps - 1], model.encode_observations(pixels)[:, None]], dim=1)
+    obs = torch.cat([cached["obs"][:, : steps - 1], decoder.encode_observations(pixels)[:, None]], dim=1)
     tokens = model.step_tokens(
         obs, cached["rtg"][:, :steps], cached["action"][:, :steps], cached["step"][:, :steps]
     )
@@ -105,12 +110,16 @@ def main() -> None:
                 kv_ms = statistics.median(samples)
                 pixels = frames[:, (t - 1) % 8]
                 recompute_ms = timed(
-                    lambda t=t, pixels=pixels, cached=cached: recompute_step(model, cached, pixels, t),
+                    lambda t=t, pixels=pixels, cached=cached, decoder=decoder: recompute_step(
+                        decoder, cached, pixels, t
+                    ),
                     args.repeats,
                 )
                 if window_ms is None:
                     window_ms = timed(
-                        lambda pixels=pixels, cached=cached: recompute_step(model, cached, pixels, window),
+                        lambda pixels=pixels, cached=cached, decoder=decoder: recompute_step(
+                            decoder, cached, pixels, window
+                        ),
                         args.repeats,
                     )
                 tps = model.config.tokens_per_step

@@ -2,7 +2,6 @@
 
 import pytest
 import torch
-from tensordict import TensorDict
 
 
 def make_batch(n: int, steps: int, seed: int = 0, action_dim: int = 2) -> dict[str, torch.Tensor]:
@@ -21,11 +20,3 @@ def make_batch(n: int, steps: int, seed: int = 0, action_dim: int = 2) -> dict[s
 @pytest.fixture
 def batch_factory():
     return make_batch
-
-
-@pytest.fixture
-def td_factory():
-    def factory(n: int, steps: int, seed: int = 0) -> TensorDict:
-        return TensorDict(make_batch(n, steps, seed), batch_size=[n])
-
-    return factory

@@ -5,6 +5,7 @@ import torch
 
 from navformer_rl.modules import ConvEncoder, NavFormerConfig, NavFormerModel, ResNet18Encoder
 from navformer_rl.modules.models import MODEL_ABLATIONS
+from navformer_rl.modules.models.cnn import FusedConvEncoders
 from navformer_rl.objectives import masked_action_mse
 
 KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
@@ -73,6 +74,20 @@ def test_conv_encoder_shapes_microbatches_and_layouts():
     # the float path on the same images gives the same embeddings
     floats = pixels.reshape(-1, 84, 84, 3).permute(0, 3, 1, 2).float() / 255
     torch.testing.assert_close(enc.forward_float(floats).reshape(2, 5, 128), out, rtol=1e-5, atol=1e-5)
+
+
+def test_fused_encoders_equal_the_separate_ones_and_follow_weight_updates():
+    torch.manual_seed(0)
+    first, second = ConvEncoder(), ConvEncoder()
+    fused = FusedConvEncoders(first, second)
+    pixels = torch.randint(0, 256, (3, 84, 84, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        torch.testing.assert_close(fused(pixels), torch.stack([first(pixels), second(pixels)], 1))
+        second.convs[2].weight.mul_(-1.5)  # an in-place update, like an optimizer step
+        first.linear.bias.add_(0.3)
+        torch.testing.assert_close(fused(pixels), torch.stack([first(pixels), second(pixels)], 1))
+    with pytest.raises(ValueError, match="ConvEncoder"):
+        FusedConvEncoders(first, ResNet18Encoder())
 
 
 def test_encoder_rejects_bad_images():

@@ -1,6 +1,6 @@
 """Plain ``nn.Module`` models on tensors: encoders, the causal transformer and ``NavFormerModel``."""
 
-from navformer_rl.modules.models.cnn import ConvEncoder, ImageEncoder, images_to_float
+from navformer_rl.modules.models.cnn import ConvEncoder, FusedConvEncoders, ImageEncoder, images_to_float
 from navformer_rl.modules.models.config import MODEL_ABLATIONS, NavFormerConfig
 from navformer_rl.modules.models.incremental import IncrementalNavFormer
 from navformer_rl.modules.models.navformer import (
@@ -17,6 +17,7 @@ __all__ = [
     "MODEL_ABLATIONS",
     "CausalTransformer",
     "ConvEncoder",
+    "FusedConvEncoders",
     "ImageEncoder",
     "IncrementalNavFormer",
     "KVCache",

@@ -17,6 +17,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from navformer_rl.modules.models.cnn import ConvEncoder, FusedConvEncoders
 from navformer_rl.modules.models.navformer import NavFormerModel
 from navformer_rl.modules.models.transformer import KVCache
 
@@ -52,6 +53,12 @@ class IncrementalNavFormer:
         self.steps_done = torch.zeros(batch, dtype=torch.long, device=self.device)
         self.target_hidden = torch.zeros(batch, config.d_embed, dtype=dtype, device=self.device)
         self._offsets = torch.arange(self.tokens_per_step - 1, device=self.device)
+        encoders = [encoder for _, encoder in model.observation_encoders()]
+        self._fused_encoders = (
+            FusedConvEncoders(*encoders)
+            if len(encoders) == 2 and all(isinstance(e, ConvEncoder) for e in encoders)
+            else None
+        )
 
     def reset(self, robots: Tensor | None = None) -> None:
         """Forget the episode of the robots where ``robots`` (bool ``[batch]``) is True (all if None)."""
@@ -61,6 +68,12 @@ class IncrementalNavFormer:
         else:
             self.steps_done[robots] = 0
             self.slot_pos[robots] = -1
+
+    def encode_observations(self, pixels: Tensor) -> Tensor:
+        """``[B, H, W, 3]`` u8 -> ``[B, n_enc, d]``; both paper CNNs run as one fused stack (same values)."""
+        if self._fused_encoders is not None:
+            return self._fused_encoders(pixels)
+        return self.model.encode_observations(pixels)
 
     @torch.no_grad()
     def step(
@@ -91,7 +104,8 @@ class IncrementalNavFormer:
 
         # new tokens [B, tps, d]: first token (a_{t-1}, or g on a first step), R_t, e_t...
         first_token = model.action_token(prev_action.to(self.device), prev_timestep)
-        if bool(first.any()):
+        any_first = bool(first.any())
+        if any_first:
             target = model.target_token(
                 model.encode_target(target_pixels[first.to(target_pixels.device)].to(self.device))
             )
@@ -100,7 +114,7 @@ class IncrementalNavFormer:
             [
                 first_token.unsqueeze(1),
                 model.return_token(return_to_go.to(self.device), timestep).unsqueeze(1),
-                model.observation_tokens(model.encode_observations(pixels.to(self.device)), timestep),
+                model.observation_tokens(self.encode_observations(pixels.to(self.device)), timestep),
             ],
             dim=1,
         )
@@ -114,7 +128,8 @@ class IncrementalNavFormer:
         new_pos = torch.cat(
             [torch.where(first, 0, t * tps)[:, None], (1 + t * tps)[:, None] + self._offsets], 1
         )
-        self.slot_pos[first] = -1
+        if any_first:
+            self.slot_pos[first] = -1
         self.slot_pos.scatter_(1, (group + tps - 1)[:, None], -1)  # a_{t-W} leaves with step t-W
         self.slot_pos.scatter_(1, write_index, new_pos)
         used = min(self.slot_pos.shape[1], 1 + tps * (int(t.max()) + 1))  # slots beyond are still empty
