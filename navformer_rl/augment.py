@@ -2,24 +2,41 @@
 
 from __future__ import annotations
 
-import kornia.augmentation as K
+import math
+
 import torch
+from kornia.enhance import (
+    adjust_brightness_accumulative,
+    adjust_contrast_with_mean_subtraction,
+    adjust_hue,
+    adjust_saturation_with_gray_subtraction,
+)
+from kornia.geometry.transform import crop_and_resize
 from torch import Tensor, nn
 
 from navformer_rl.modules.models.cnn import check_images, images_to_float
+
+_CROP_TRIES = 10  # torchvision / kornia RandomResizedCrop: tries before falling back to the whole image
 
 
 class BYOLAugmentation(nn.Module):
     """uint8 HWC ``[B, H, W, 3]`` -> augmented float NCHW ``[B, 3, H, W]`` in [0, 1], on the input's device.
 
-    Pipeline (kornia, parameters drawn per sample): ``RandomResizedCrop(size=H, scale, ratio)`` then, with
-    probability ``jitter_p``, ``ColorJitter(brightness, contrast, saturation, hue)``.
+    Pipeline, parameters drawn per sample, every op one batched kornia call:
 
-    Seeding: the module owns a ``torch.Generator`` (``seed``); each call draws a seed from it and runs
-    kornia inside ``torch.random.fork_rng`` seeded with it, so results are reproducible and the global
-    RNG is left untouched. Defaults follow BYOL's view 1 (colour jitter 0.4/0.4/0.2, p = 0.8) with a crop
-    scale of [0.3, 1] instead of [0.08, 1] (84 px navigation views) and hue 0: kornia's hue shift costs
-    about 2.5 ms per 84x84 image on one CPU core (see ``docs/model.md``).
+    1. random resized crop (torchvision's ``RandomResizedCrop`` sampling: area fraction in ``scale``,
+       log-uniform aspect ratio in ``ratio``, up to 10 tries per sample, else the whole image; integer box
+       at a uniform position) resampled bilinearly to ``H x H`` by ``kornia.geometry.crop_and_resize``;
+    2. with probability ``jitter_p`` per sample, colour jitter (the ``kornia.augmentation.ColorJitter``
+       ops: brightness factor in ``[1 - b, 1 + b]`` multiplicative, contrast ``[1 - c, 1 + c]`` around the
+       grey mean, saturation ``[1 - s, 1 + s]`` blended with grey, hue shift in ``[-h, h]`` turns), in an
+       order drawn once per call as kornia does; samples without jitter get the neutral factors.
+
+    Seeding: the module owns a CPU ``torch.Generator`` (``seed``) and draws every parameter from it (then
+    moves them to the batch's device), so results are reproducible and the global RNG is untouched.
+    Defaults follow BYOL's view 1 (colour jitter 0.4/0.4/0.2, p = 0.8) with a crop scale of [0.3, 1]
+    instead of [0.08, 1] (84 px navigation views) and hue 0: kornia's hue shift goes through HSV and
+    costs more than the other three ops together (see ``docs/model.md``).
     """
 
     def __init__(
@@ -37,16 +54,64 @@ class BYOLAugmentation(nn.Module):
         super().__init__()
         if not (0.0 < scale[0] <= scale[1] <= 1.0):
             raise ValueError(f"scale={scale!r}: expected 0 < low <= high <= 1")
+        if not (0.0 < ratio[0] <= ratio[1]):
+            raise ValueError(f"ratio={ratio!r}: expected 0 < low <= high")
         if not 0.0 <= jitter_p <= 1.0:
             raise ValueError(f"jitter_p={jitter_p!r}: expected a probability in [0, 1]")
+        for name, value, high in (("brightness", brightness, 1.0), ("contrast", contrast, 1.0)):
+            if not 0.0 <= value <= high:
+                raise ValueError(f"{name}={value!r}: expected a value in [0, {high}]")
+        if not 0.0 <= saturation:
+            raise ValueError(f"saturation={saturation!r}: expected a value >= 0")
+        if not 0.0 <= hue <= 0.5:
+            raise ValueError(f"hue={hue!r}: expected a value in [0, 0.5]")
         self.image_size = image_size
-        self.crop = K.RandomResizedCrop((image_size, image_size), scale=scale, ratio=ratio)
-        self.jitter = (
-            K.ColorJitter(brightness, contrast, saturation, hue, p=jitter_p)
-            if max(brightness, contrast, saturation, hue) > 0 and jitter_p > 0
-            else None
-        )
+        self.scale = scale
+        self.log_ratio = (math.log(ratio[0]), math.log(ratio[1]))
+        self.jitter = {"brightness": brightness, "contrast": contrast, "saturation": saturation, "hue": hue}
+        self.jitter_p = jitter_p if max(self.jitter.values()) > 0 else 0.0
         self.generator = torch.Generator().manual_seed(seed)
+
+    def _uniform(self, n: int, low: float, high: float, tries: int = 1) -> Tensor:
+        shape = (n,) if tries == 1 else (n, tries)
+        return torch.rand(shape, generator=self.generator) * (high - low) + low
+
+    def crop_boxes(self, n: int) -> Tensor:
+        """``n`` crop boxes ``[n, 4, 2]`` (x, y corners: top-left, top-right, bottom-right, bottom-left)."""
+        size = self.image_size
+        area = self._uniform(n, *self.scale, tries=_CROP_TRIES) * size * size
+        aspect = torch.exp(self._uniform(n, *self.log_ratio, tries=_CROP_TRIES))
+        width = torch.sqrt(area * aspect).round()
+        height = torch.sqrt(area / aspect).round()
+        valid = (width >= 1) & (width <= size) & (height >= 1) & (height <= size)
+        first = valid.to(torch.uint8).argmax(dim=1, keepdim=True)  # first valid try (0 if none)
+        found = valid.any(dim=1)
+        width = torch.where(found, width.gather(1, first).squeeze(1), torch.full((n,), float(size)))
+        height = torch.where(found, height.gather(1, first).squeeze(1), torch.full((n,), float(size)))
+        # integer offsets uniform in [0, size - extent]
+        x0 = (torch.rand(n, generator=self.generator) * (size - width + 1)).floor()
+        y0 = (torch.rand(n, generator=self.generator) * (size - height + 1)).floor()
+        x1, y1 = x0 + width - 1, y0 + height - 1
+        return torch.stack(
+            [
+                torch.stack([x0, y0], -1),
+                torch.stack([x1, y0], -1),
+                torch.stack([x1, y1], -1),
+                torch.stack([x0, y1], -1),
+            ],
+            dim=1,
+        )
+
+    def jitter_factors(self, n: int) -> dict[str, Tensor]:
+        """Per-sample colour factors ``{name: [n]}``; samples drawn without jitter get the neutral factor."""
+        applied = torch.rand(n, generator=self.generator) < self.jitter_p
+        factors = {}
+        for name, strength in self.jitter.items():
+            neutral = 0.0 if name == "hue" else 1.0
+            low, high = (-strength, strength) if name == "hue" else (max(0.0, 1 - strength), 1 + strength)
+            drawn = self._uniform(n, low, high)
+            factors[name] = torch.where(applied, drawn, torch.full((n,), neutral))
+        return factors
 
     def forward(self, pixels: Tensor) -> Tensor:
         check_images(pixels, self.image_size)
@@ -54,14 +119,25 @@ class BYOLAugmentation(nn.Module):
             raise ValueError(
                 f"pixels: expected [B, {self.image_size}, {self.image_size}, 3], got {tuple(pixels.shape)}"
             )
+        n, size = pixels.shape[0], self.image_size
         images = images_to_float(pixels, channels_last=False)
-        call_seed = int(torch.randint(0, 2**62, (1,), generator=self.generator))
-        devices = [pixels.device] if pixels.device.type == "cuda" else []
-        with torch.random.fork_rng(devices=devices):
-            torch.manual_seed(call_seed)
-            views = self.crop(images)
-            if self.jitter is not None:
-                views = self.jitter(views)
+        boxes = self.crop_boxes(n).to(pixels.device)
+        views = crop_and_resize(images, boxes, (size, size), mode="bilinear", align_corners=True)
+        if self.jitter_p == 0.0:
+            return views
+        factors = {k: v.to(pixels.device) for k, v in self.jitter_factors(n).items()}
+        steps = {
+            "brightness": adjust_brightness_accumulative,
+            "contrast": adjust_contrast_with_mean_subtraction,
+            "saturation": adjust_saturation_with_gray_subtraction,
+            "hue": lambda image, turns: adjust_hue(image, turns * 2 * math.pi),
+        }
+        active = [name for name, strength in self.jitter.items() if strength > 0]
+        order = torch.randperm(len(active), generator=self.generator).tolist()
+        views = views.clamp(0.0, 1.0)
+        for index in order:
+            name = active[index]
+            views = steps[name](views, factors[name])
         return views
 
     def rng_state(self) -> Tensor:

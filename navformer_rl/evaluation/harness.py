@@ -27,6 +27,7 @@ import json
 import multiprocessing
 import os
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,9 +61,18 @@ class PolicySpec:
     method: str
     checkpoint: str | None = None
     seed: int = 0
+    factory: Callable[[], Any] | None = None
+    """For your own policy: a picklable zero-argument callable (e.g. a module-level function) returning a
+    ``TensorDictModuleBase`` that writes ``("agents", "action")``; ``method`` is then its label."""
 
     def validate(self) -> dict[str, Any]:
         """Check the method and (by loading it) the checkpoint; returns a description for ``run.json``."""
+        if self.factory is not None:
+            if self.checkpoint is not None:
+                raise ValueError("a policy factory takes no checkpoint; load it inside the factory")
+            return {
+                "factory": f"{getattr(self.factory, '__module__', '?')}.{getattr(self.factory, '__qualname__', self.factory)}"
+            }
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
         if self.method in CHECKPOINT_METHODS:
@@ -82,6 +92,8 @@ class PolicySpec:
 
     def build_with_config(self):
         """``(policy, model config or None)``."""
+        if self.factory is not None:
+            return self.factory(), None
         if self.method == "navformer":
             from navformer_rl.baselines.navformer import load_navformer_policy
 
@@ -127,7 +139,7 @@ class EvaluationResult:
 
 
 def evaluate(
-    method: str,
+    method: str | Callable[[], Any],
     episode_set: EpisodeSet | str | os.PathLike,
     out_dir: str | os.PathLike,
     *,
@@ -145,7 +157,10 @@ def evaluate(
     """Run ``method`` on every episode of ``episode_set`` and write the outputs (module docstring).
 
     Args:
-        method: one of :data:`METHODS`; ValueError listing them otherwise.
+        method: one of :data:`METHODS` (ValueError listing them otherwise), or your own policy as a picklable
+            zero-argument factory returning a ``TensorDictModuleBase`` that reads the ``MultiRobotNavEnv``
+            tensordict and writes ``("agents", "action")`` (a ``bind(env, seed)`` method, if present, is called
+            after every reset); its label defaults to the factory's name.
         episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
         out_dir: output folder (created; files in it are overwritten).
         checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``.
@@ -169,7 +184,11 @@ def evaluate(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if maps_per_setup < 0 or videos_per_setup < 0:
         raise ValueError("maps_per_setup and videos_per_setup must be >= 0")
-    spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed))
+    if callable(method):
+        factory, method = method, getattr(method, "__name__", "custom")
+    else:
+        factory = None
+    spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory)
     description = spec.validate()
     label = label or method
     out_dir = Path(out_dir)
