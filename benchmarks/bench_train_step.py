@@ -64,8 +64,11 @@ def matmul_gflops(dtype: torch.dtype, n: int = 2048, repeats: int = 5) -> float:
     return 2 * n**3 / median_ms(lambda: a @ b, repeats) / 1e6
 
 
-def trajectory_batch(n: int, steps: int, seed: int) -> TensorDict:
+def trajectory_batch(n: int, steps: int, seed: int, min_valid: float = 1.0) -> TensorDict:
+    """Right-padded trajectories: each keeps a uniform number of valid steps in [min_valid * steps, steps]."""
     gen = torch.Generator().manual_seed(seed)
+    low = max(1, round(min_valid * steps))
+    lengths = torch.randint(low, steps + 1, (n, 1), generator=gen)
     return TensorDict(
         {
             "target_pixels": torch.randint(0, 256, (n, 84, 84, 3), dtype=torch.uint8, generator=gen),
@@ -73,7 +76,7 @@ def trajectory_batch(n: int, steps: int, seed: int) -> TensorDict:
             "return_to_go": torch.ones(n, steps, 1),
             "action": torch.rand(n, steps, 2, generator=gen) * 2 - 1,
             "step": torch.arange(steps).expand(n, steps).clone(),
-            "mask": torch.ones(n, steps, dtype=torch.bool),
+            "mask": torch.arange(steps).expand(n, steps) < lengths,
         },
         batch_size=[n],
     )
@@ -147,6 +150,12 @@ def main() -> None:
     parser.add_argument("--batch-a", type=int, nargs=2, default=[25, 98], metavar=("N", "T"))
     parser.add_argument("--batch-b", type=int, nargs=2, default=[150, 63], metavar=("N", "T"))
     parser.add_argument("--pairs", type=int, default=512)
+    parser.add_argument(
+        "--min-valid",
+        type=float,
+        default=1.0,
+        help="trajectories keep U[min_valid * T, T] valid steps (1.0: no padding); padded frames are not encoded",
+    )
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -154,13 +163,16 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"unknown configs {sorted(unknown)}: expected some of {sorted(CONFIGS)}")
 
-    batch_a, batch_b = trajectory_batch(*args.batch_a, seed=1), trajectory_batch(*args.batch_b, seed=2)
+    batch_a = trajectory_batch(*args.batch_a, seed=1, min_valid=args.min_valid)
+    batch_b = trajectory_batch(*args.batch_b, seed=2, min_valid=args.min_valid)
     pairs = pair_batch(args.pairs, seed=3)
     frames_a, frames_b = args.batch_a[0] * args.batch_a[1], args.batch_b[0] * args.batch_b[1]
 
     fp32_floor, bf16_floor = matmul_gflops(torch.float32), matmul_gflops(torch.bfloat16)
     print(f"# torch {torch.__version__}, threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}, "
           f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}")  # fmt: skip
+    valid = (batch_a["mask"].float().mean().item(), batch_b["mask"].float().mean().item())
+    print(f"# valid fraction of trajectory steps: A {valid[0]:.2f}, B {valid[1]:.2f}")
     print(f"# matmul floor (2048^3): fp32 {fp32_floor:.0f} GFLOP/s, bf16 {bf16_floor:.0f} GFLOP/s")
 
     def count_flops(config: NavFormerConfig) -> dict[str, float]:

@@ -19,6 +19,14 @@ from navformer_rl.modules.models.cnn import check_images, images_to_float
 _CROP_TRIES = 10  # torchvision / kornia RandomResizedCrop: tries before falling back to the whole image
 
 
+_COLOUR_OPS = {  # the ops of kornia.augmentation.ColorJitter, factors per sample
+    "brightness": adjust_brightness_accumulative,
+    "contrast": adjust_contrast_with_mean_subtraction,
+    "saturation": adjust_saturation_with_gray_subtraction,
+    "hue": lambda image, turns: adjust_hue(image, turns * 2 * math.pi),
+}
+
+
 class BYOLAugmentation(nn.Module):
     """uint8 HWC ``[B, H, W, 3]`` -> augmented float NCHW ``[B, 3, H, W]`` in [0, 1], on the input's device.
 
@@ -50,12 +58,15 @@ class BYOLAugmentation(nn.Module):
         hue: float = 0.0,
         jitter_p: float = 0.8,
         seed: int = 0,
+        chunk: int = 32,
     ) -> None:
         super().__init__()
         if not (0.0 < scale[0] <= scale[1] <= 1.0):
             raise ValueError(f"scale={scale!r}: expected 0 < low <= high <= 1")
         if not (0.0 < ratio[0] <= ratio[1]):
             raise ValueError(f"ratio={ratio!r}: expected 0 < low <= high")
+        if chunk < 1:
+            raise ValueError(f"chunk={chunk!r}: expected a positive number of images")
         if not 0.0 <= jitter_p <= 1.0:
             raise ValueError(f"jitter_p={jitter_p!r}: expected a probability in [0, 1]")
         for name, value, high in (("brightness", brightness, 1.0), ("contrast", contrast, 1.0)):
@@ -70,6 +81,7 @@ class BYOLAugmentation(nn.Module):
         self.log_ratio = (math.log(ratio[0]), math.log(ratio[1]))
         self.jitter = {"brightness": brightness, "contrast": contrast, "saturation": saturation, "hue": hue}
         self.jitter_p = jitter_p if max(self.jitter.values()) > 0 else 0.0
+        self.chunk = chunk
         self.generator = torch.Generator().manual_seed(seed)
 
     def _uniform(self, n: int, low: float, high: float, tries: int = 1) -> Tensor:
@@ -119,25 +131,20 @@ class BYOLAugmentation(nn.Module):
             raise ValueError(
                 f"pixels: expected [B, {self.image_size}, {self.image_size}, 3], got {tuple(pixels.shape)}"
             )
-        n, size = pixels.shape[0], self.image_size
-        images = images_to_float(pixels, channels_last=False)
+        n = pixels.shape[0]
         boxes = self.crop_boxes(n).to(pixels.device)
-        views = crop_and_resize(images, boxes, (size, size), mode="bilinear", align_corners=True)
-        if self.jitter_p == 0.0:
-            return views
         factors = {k: v.to(pixels.device) for k, v in self.jitter_factors(n).items()}
-        steps = {
-            "brightness": adjust_brightness_accumulative,
-            "contrast": adjust_contrast_with_mean_subtraction,
-            "saturation": adjust_saturation_with_gray_subtraction,
-            "hue": lambda image, turns: adjust_hue(image, turns * 2 * math.pi),
-        }
-        active = [name for name, strength in self.jitter.items() if strength > 0]
-        order = torch.randperm(len(active), generator=self.generator).tolist()
-        views = views.clamp(0.0, 1.0)
-        for index in order:
-            name = active[index]
-            views = steps[name](views, factors[name])
+        active = [name for name, strength in self.jitter.items() if strength > 0 and self.jitter_p > 0]
+        order = [active[i] for i in torch.randperm(len(active), generator=self.generator).tolist()]
+        size = self.image_size
+        views = torch.empty(n, 3, size, size, device=pixels.device)
+        for start in range(0, n, self.chunk):  # chunks keep the ~10 elementwise passes in cache
+            part = slice(start, start + self.chunk)
+            chunk = images_to_float(pixels[part], channels_last=False)
+            chunk = crop_and_resize(chunk, boxes[part], (size, size), mode="bilinear", align_corners=True)
+            for name in order:
+                chunk = _COLOUR_OPS[name](chunk, factors[name][part])
+            views[part] = chunk.clamp_(0.0, 1.0)
         return views
 
     def rng_state(self) -> Tensor:

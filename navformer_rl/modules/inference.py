@@ -77,13 +77,14 @@ class NavFormerPolicy(TensorDictModuleBase):
         robots = int(torch.Size(lead).numel())
         pixels = pixels.reshape(robots, *pixels.shape[-3:])
         target = tensordict.get(self.target_pixels_key).reshape(robots, *pixels.shape[-3:])
-        new_episode = self._new_episode_flags(tensordict, robots)
-        if self._decoder is None or self._decoder.batch != robots:
-            self._decoder = IncrementalNavFormer(self.model, robots, device=self.device)
-            self._return_to_go = torch.full((robots, 1), self.initial_return_to_go, device=self.device)
-            self._prev_action = torch.zeros(robots, self.model.config.action_dim, device=self.device)
-            new_episode = torch.ones(robots, dtype=torch.bool, device=self.device)
-        reward = self._reward(tensordict, robots)
+        device = self.device  # looked up once per call: parameters() is not free at batch 1
+        new_episode = self._new_episode_flags(tensordict, robots, device)
+        if self._decoder is None or self._decoder.batch != robots or self._decoder.device != device:
+            self._decoder = IncrementalNavFormer(self.model, robots, device=device)
+            self._return_to_go = torch.full((robots, 1), self.initial_return_to_go, device=device)
+            self._prev_action = torch.zeros(robots, self.model.config.action_dim, device=device)
+            new_episode = torch.ones(robots, dtype=torch.bool, device=device)
+        reward = self._reward(tensordict, robots, device)
         self._return_to_go = torch.where(
             new_episode[:, None],
             torch.full_like(self._return_to_go, self.initial_return_to_go),
@@ -96,16 +97,14 @@ class NavFormerPolicy(TensorDictModuleBase):
         tensordict.set(self.action_key, action.reshape(*lead, -1).to(out_device))
         return tensordict
 
-    def _new_episode_flags(self, tensordict: TensorDictBase, robots: int) -> Tensor:
-        if self.step_count_key is None:
-            return torch.zeros(robots, dtype=torch.bool, device=self.device)
-        step_count = tensordict.get(self.step_count_key, None)
+    def _new_episode_flags(self, tensordict: TensorDictBase, robots: int, device: torch.device) -> Tensor:
+        step_count = None if self.step_count_key is None else tensordict.get(self.step_count_key, None)
         if step_count is None:
-            return torch.zeros(robots, dtype=torch.bool, device=self.device)
-        return (step_count.reshape(robots) == 0).to(self.device)
+            return torch.zeros(robots, dtype=torch.bool, device=device)
+        return (step_count.reshape(robots) == 0).to(device)
 
-    def _reward(self, tensordict: TensorDictBase, robots: int) -> Tensor:
+    def _reward(self, tensordict: TensorDictBase, robots: int, device: torch.device) -> Tensor:
         reward = None if self.reward_key is None else tensordict.get(self.reward_key, None)
         if reward is None:
-            return torch.zeros(robots, 1, device=self.device)
-        return reward.reshape(robots, 1).to(self.device, torch.float32)
+            return torch.zeros(robots, 1, device=device)
+        return reward.reshape(robots, 1).to(device, torch.float32)

@@ -78,10 +78,19 @@ class NavFormerModel(nn.Module):
         with self._encoder_grad():
             return self.target_encoder(target_pixels)
 
-    def encode_observations(self, pixels: Tensor) -> Tensor:
-        """pixels: uint8 ``[..., H, W, 3]`` -> ``[..., n_encoders, d]`` (static first, then general)."""
+    def encode_observations(self, pixels: Tensor, mask: Tensor | None = None) -> Tensor:
+        """pixels: uint8 ``[..., H, W, 3]`` -> ``[..., n_encoders, d]`` (static first, then general).
+
+        mask: optional bool ``[...]`` (pixels' leading shape), True on valid frames: only those are encoded
+        and padded frames get zero embeddings (they only feed padded tokens, which no valid token attends).
+        """
+        encoders = self.observation_encoders()
         with self._encoder_grad():
-            return torch.stack([encoder(pixels) for _, encoder in self.observation_encoders()], dim=-2)
+            if mask is None or bool(mask.all()):
+                return torch.stack([encoder(pixels) for _, encoder in encoders], dim=-2)
+            valid = pixels[mask]
+            embedding = torch.stack([encoder(valid) for _, encoder in encoders], dim=-2)
+            return embedding.new_zeros(*mask.shape, *embedding.shape[1:]).index_put((mask,), embedding)
 
     def _encoder_grad(self) -> contextlib.AbstractContextManager:
         """``no_grad`` when ``detach_encoders`` (the DT loss then neither reaches nor records the encoders)."""
@@ -184,7 +193,7 @@ class NavFormerModel(nn.Module):
         )
         with autocast:
             target = self.target_token(self.encode_target(target_pixels))
-            tokens = self.step_tokens(self.encode_observations(pixels), return_to_go, action, step)
+            tokens = self.step_tokens(self.encode_observations(pixels, mask), return_to_go, action, step)
             sequence = torch.cat([target.unsqueeze(1), tokens.reshape(batch, steps * tps, -1)[:, :-1]], dim=1)
             attn_mask = None
             if window_steps is not None and window_steps < steps:
