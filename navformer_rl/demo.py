@@ -51,7 +51,7 @@ class DemoConfig:
     collision_trajectories: int = 96
     ssl_worlds: int = 8
     ssl_pairs_per_world: int = 64
-    iterations: int = 300
+    iterations: int = 200
     exploration_batch: int = 8
     collision_batch: int = 24
     ssl_batch: int = 128
