@@ -21,7 +21,8 @@ micro-batches of ``--micro-batch``), ``bf16_mb_detach`` (+ ``detach_encoders``: 
 back-propagate into the encoders).
 
 Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
-(``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors.)
+(``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors;
+``--min-valid 0.5`` right-pads the trajectory batches, whose padded frames the encoders skip.)
 """
 
 from __future__ import annotations

@@ -69,11 +69,9 @@ class BYOLAugmentation(nn.Module):
             raise ValueError(f"chunk={chunk!r}: expected a positive number of images")
         if not 0.0 <= jitter_p <= 1.0:
             raise ValueError(f"jitter_p={jitter_p!r}: expected a probability in [0, 1]")
-        for name, value, high in (("brightness", brightness, 1.0), ("contrast", contrast, 1.0)):
-            if not 0.0 <= value <= high:
-                raise ValueError(f"{name}={value!r}: expected a value in [0, {high}]")
-        if not 0.0 <= saturation:
-            raise ValueError(f"saturation={saturation!r}: expected a value >= 0")
+        for name, value in (("brightness", brightness), ("contrast", contrast), ("saturation", saturation)):
+            if not value >= 0.0:
+                raise ValueError(f"{name}={value!r}: expected a jitter strength >= 0")
         if not 0.0 <= hue <= 0.5:
             raise ValueError(f"hue={hue!r}: expected a value in [0, 0.5]")
         self.image_size = image_size
