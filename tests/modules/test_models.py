@@ -259,3 +259,15 @@ def test_overfits_a_tiny_synthetic_batch(batch_factory):
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < losses[0] / 10, (losses[0], losses[-1])
+
+
+def test_encoding_only_valid_frames_equals_encoding_all_frames_on_valid_steps(batch_factory):
+    torch.manual_seed(0)
+    model = NavFormerModel(NavFormerConfig()).eval()
+    pixels = batch_factory(3, 5)["pixels"]
+    mask = torch.tensor([[1, 1, 1, 1, 1], [1, 1, 0, 0, 0], [1, 1, 1, 0, 0]], dtype=torch.bool)
+    with torch.no_grad():
+        full = model.encode_observations(pixels)
+        masked = model.encode_observations(pixels, mask)
+    torch.testing.assert_close(masked[mask], full[mask])
+    assert masked[~mask].abs().max() == 0

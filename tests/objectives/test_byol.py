@@ -179,3 +179,11 @@ def test_resnet18_byol_step_with_batchnorm_buffers():
     optimizer.step()
     updater.step()
     assert torch.isfinite(first) and torch.isfinite(loss(batch)["loss_byol"])
+
+
+def test_augmentation_does_not_depend_on_the_chunk_size():
+    batch = torch.randint(
+        0, 256, (10, 84, 84, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(1)
+    )
+    whole = BYOLAugmentation(seed=5, chunk=1000)(batch)
+    torch.testing.assert_close(BYOLAugmentation(seed=5, chunk=3)(batch), whole)
