@@ -10,6 +10,10 @@ PY="${PYTHON:-python3}"
 if [ ! -x "$VENV/bin/python" ]; then
     "$PY" -m venv "$VENV"
 fi
+pip_install() {
+    # pip's own warnings about this machine's unused local index folders are noise for a user
+    "$VENV/bin/pip" install --quiet "$@" 2>&1 | { grep -v "is ignored: it is neither a file nor a directory" || true; }
+}
 stamp="$VENV/.navformer-installed-$(cat pyproject.toml | sha256sum | cut -c1-16)"
 if [ ! -f "$stamp" ]; then
     # torch first, pinned, so nothing later pulls the multi-GB CUDA build from the registry.
@@ -18,8 +22,8 @@ if [ ! -f "$stamp" ]; then
     torch_args=("torch==2.13.0")
     if [ -d /opt/wheels ]; then torch_args+=(--find-links /opt/wheels); fi
     if [ -n "${NAVFORMER_TORCH_INDEX:-}" ]; then torch_args+=(--extra-index-url "$NAVFORMER_TORCH_INDEX"); fi
-    "$VENV/bin/pip" install --quiet "${torch_args[@]}"
-    "$VENV/bin/pip" install --quiet -e ".[dev]"
+    pip_install "${torch_args[@]}"
+    pip_install -e ".[dev]"
     touch "$stamp"
 fi
 export RL_LOGGING_LEVEL="${RL_LOGGING_LEVEL:-WARNING}"
