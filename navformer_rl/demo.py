@@ -64,7 +64,7 @@ class DemoConfig:
 
     @staticmethod
     def preset(name: str, **overrides) -> DemoConfig:
-        """``default`` (about 20 minutes on 2 CPU cores) or ``quick`` (a few minutes: a smoke check)."""
+        """``default`` (about 15 minutes on 2 CPU cores) or ``quick`` (a few minutes: a smoke check)."""
         presets = {
             "default": {},
             "quick": {
@@ -255,7 +255,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``demo`` and ``world-demo`` to the ``navformer`` CLI."""
     demo = subparsers.add_parser(
         "demo",
-        help="end to end: collect -> train -> evaluate -> report (about 20 min on 2 CPU cores)",
+        help="end to end: collect -> train -> evaluate -> report (about 15 min on 2 CPU cores)",
         description="Collect small D_e / D_ca / D_ssl with the experts, train NavFormer and the DT baseline, "
         "evaluate them with VRW and FCA on fixed episodes, and write report.md in --out. Rerun the same "
         "command to resume after an interruption.",
@@ -265,7 +265,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--preset",
         default="default",
         choices=("default", "quick"),
-        help="default: ~20 min on 2 cores; quick: a few minutes, a smoke check",
+        help="default: ~15 min on 2 cores; quick: a few minutes, a smoke check",
     )
     demo.add_argument("--seed", type=int, help="base seed (default 0)")
     demo.add_argument("--workers", type=int, help="processes for collection and evaluation (default 2)")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -104,6 +105,7 @@ def write_demo_report(
     report_dir = cfg.out_dir
     evaluation_md = write_report(eval_dirs, report_dir / "evaluation.md", title="Evaluation", seed=cfg.seed)
     evaluation = evaluation_md.read_text().split("\n", 1)[1]  # drop its title; ours heads the report
+    evaluation = re.sub(r"^(#+) ", r"#\1 ", evaluation, flags=re.MULTILINE)  # nest under "## Evaluation"
 
     lines = [
         "# NavFormer end-to-end demo\n",
