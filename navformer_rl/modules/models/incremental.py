@@ -27,7 +27,8 @@ class IncrementalNavFormer:
 
     Usage: ``dec = IncrementalNavFormer(model, batch)``; every control step
     ``action = dec.step(target_pixels, pixels, return_to_go, prev_action)``; ``dec.reset(robots)`` starts
-    new episodes for the robots where ``robots`` (bool ``[batch]``) is True.
+    new episodes for the robots where ``robots`` (bool ``[batch]``) is True. While every robot is at the same
+    step (never reset apart) ``step`` takes a host-side fast path (``_step_shared``, same results).
     """
 
     def __init__(
@@ -53,6 +54,16 @@ class IncrementalNavFormer:
         self.steps_done = torch.zeros(batch, dtype=torch.long, device=self.device)
         self.target_hidden = torch.zeros(batch, config.d_embed, dtype=dtype, device=self.device)
         self._offsets = torch.arange(self.tokens_per_step - 1, device=self.device)
+        # Fast path (every robot at the same step, e.g. all reset together): ``_shared_step`` mirrors
+        # ``steps_done`` on the host (None once robots diverge). Until the ring wraps (t < W) slot s holds
+        # position s, so the mask is the bottom-right-aligned causal mask: a column slice of ``_causal_mask``
+        # (bool ``[1, 1, tps, S]``, query i may attend slot s iff s <= S - tps - 1 + i).
+        self._shared_step: int | None = 0
+        self._tail_positions = torch.arange(self.tokens_per_step, device=self.device)
+        self._causal_mask = (
+            torch.arange(slots, device=self.device)[None, :]
+            <= (slots - self.tokens_per_step - 1 + self._tail_positions)[:, None]
+        )[None, None]
         encoders = [encoder for _, encoder in model.observation_encoders()]
         self._fused_encoders = (
             FusedConvEncoders(*encoders)
@@ -62,12 +73,14 @@ class IncrementalNavFormer:
 
     def reset(self, robots: Tensor | None = None) -> None:
         """Forget the episode of the robots where ``robots`` (bool ``[batch]``) is True (all if None)."""
-        if robots is None:
+        if robots is None or bool(robots.all()):
             self.steps_done.zero_()
             self.slot_pos.fill_(-1)
-        else:
+            self._shared_step = 0
+        elif bool(robots.any()):
             self.steps_done[robots] = 0
             self.slot_pos[robots] = -1
+            self._shared_step = None  # the robots' steps now differ: general path
 
     def encode_observations(self, pixels: Tensor) -> Tensor:
         """``[B, H, W, 3]`` u8 -> ``[B, n_enc, d]``; both paper CNNs run as one fused stack (same values)."""
@@ -75,7 +88,7 @@ class IncrementalNavFormer:
             return self._fused_encoders(pixels)
         return self.model.encode_observations(pixels)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def step(
         self, target_pixels: Tensor, pixels: Tensor, return_to_go: Tensor, prev_action: Tensor
     ) -> Tensor:
@@ -95,6 +108,8 @@ class IncrementalNavFormer:
             raise ValueError("IncrementalNavFormer.step: call model.eval() first (dropout must be off)")
         if pixels.shape[0] != self.batch:
             raise ValueError(f"pixels: expected {self.batch} robots, got shape {tuple(pixels.shape)}")
+        if self._shared_step is not None:
+            return self._step_shared(target_pixels, pixels, return_to_go, prev_action)
         tps, window = self.tokens_per_step, self.window_steps
         t = self.steps_done
         first = t == 0
@@ -145,4 +160,69 @@ class IncrementalNavFormer:
         self.target_hidden = torch.where(first[:, None], hidden[:, 0], self.target_hidden)
         action = model.predict_action(self.target_hidden, hidden[:, tps - 1 : tps])[:, 0]
         self.steps_done += 1
+        return action.float()
+
+    def _step_shared(
+        self, target_pixels: Tensor, pixels: Tensor, return_to_go: Tensor, prev_action: Tensor
+    ) -> Tensor:
+        """``step`` when every robot is at step ``t = self._shared_step`` (same arguments and result).
+
+        Same maths as the general path with the bookkeeping done on the host: the first token is the
+        target token or the action token (not both), the new tokens' slots are one contiguous ``slice``
+        (except when the ring wraps: a_{t-1} sits in the last slot), and before the ring wraps the mask is
+        a view of ``_causal_mask``. No host synchronisation.
+        """
+        model = self.model
+        tps, window, slots = self.tokens_per_step, self.window_steps, self.slot_pos.shape[1]
+        t = self._shared_step
+        first = t == 0
+        max_step = model.config.max_timestep - 1
+        timestep = self.steps_done.clamp(max=max_step)
+
+        if first:
+            first_token = model.target_token(model.encode_target(target_pixels.to(self.device)))
+        else:
+            first_token = model.action_token(
+                prev_action.to(self.device), (self.steps_done - 1).clamp(0, max_step)
+            )
+        tokens = torch.cat(
+            [
+                first_token.unsqueeze(1),
+                model.return_token(return_to_go.to(self.device), timestep).unsqueeze(1),
+                model.observation_tokens(self.encode_observations(pixels.to(self.device)), timestep),
+            ],
+            dim=1,
+        )
+
+        group = 1 + (t % window) * tps
+        first_slot = 0 if first else 1 + ((t - 1) % window) * tps + tps - 1
+        if first:
+            self.slot_pos.fill_(-1)
+        self.slot_pos[:, group + tps - 1] = -1  # a_{t-W} leaves with step t-W
+        new_pos = t * tps + self._tail_positions  # [tps]
+        if first_slot == group - 1:
+            write_index: Tensor | slice = slice(first_slot, first_slot + tps)
+            self.slot_pos[:, write_index] = new_pos
+        else:  # the ring wrapped: a_{t-1} sits in the last slot, the rest at the start
+            write_index = torch.tensor([first_slot, *range(group, group + tps - 1)], device=self.device)
+            self.slot_pos[:, write_index] = new_pos
+            write_index = write_index.expand(self.batch, tps)
+        used = min(slots, 1 + tps * (t + 1))
+        if t < window:
+            attn_mask = self._causal_mask[..., slots - used :]
+        else:
+            slot_pos = self.slot_pos[:, None, :used]
+            attn_mask = ((slot_pos >= 0) & (slot_pos <= new_pos[None, :, None])).unsqueeze(1)
+
+        hidden, _ = model.transformer(
+            model.prepare_tokens(tokens).to(self.cache.keys[0].dtype),
+            attn_mask=attn_mask,
+            kv_cache=self.cache,
+            write_index=write_index,
+        )
+        if first:
+            self.target_hidden = hidden[:, 0].clone()
+        action = model.predict_action(self.target_hidden, hidden[:, tps - 1 : tps])[:, 0]
+        self.steps_done += 1
+        self._shared_step = t + 1
         return action.float()

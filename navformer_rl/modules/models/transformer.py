@@ -58,21 +58,26 @@ class CausalSelfAttention(nn.Module):
         x: Tensor,
         attn_mask: Tensor | None,
         cache: tuple[Tensor, Tensor] | None,
-        write_index: Tensor | None,
+        write_index: Tensor | slice | None,
     ) -> Tensor:
         """x: ``[B, L, d]``. Without ``attn_mask``: plain causal attention among the L tokens.
 
         With ``cache = (keys, values)`` (``[B, H, S, d_head]``), the new keys/values are written at
-        ``write_index`` (long ``[B, L]``, slots) and the queries attend over the first S' slots under
-        ``attn_mask`` (bool ``[B, 1, L, S']``, True = may attend, S' <= S).
+        ``write_index`` (long ``[B, L]``, slots; or a ``slice`` of L slots shared by every sequence, one
+        copy instead of a scatter) and the queries attend over the first S' slots under ``attn_mask``
+        (bool ``[B or 1, 1, L, S']``, True = may attend, S' <= S).
         """
         batch, length, _ = x.shape
         q, k, v = self.qkv(x).view(batch, length, 3, self.n_heads, self.d_head).permute(2, 0, 3, 1, 4)
         if cache is not None:
             cache_k, cache_v = cache
-            index = write_index[:, None, :, None].expand(batch, self.n_heads, length, self.d_head)
-            cache_k.scatter_(2, index, k.to(cache_k.dtype))
-            cache_v.scatter_(2, index, v.to(cache_v.dtype))
+            if isinstance(write_index, slice):  # every sequence writes the same contiguous slots
+                cache_k[:, :, write_index] = k
+                cache_v[:, :, write_index] = v
+            else:
+                index = write_index[:, None, :, None].expand(batch, self.n_heads, length, self.d_head)
+                cache_k.scatter_(2, index, k.to(cache_k.dtype))
+                cache_v.scatter_(2, index, v.to(cache_v.dtype))
             used = attn_mask.shape[-1]  # the caller may restrict attention to the first slots in use
             k, v = cache_k[:, :, :used], cache_v[:, :, :used]
         dropout_p = self.dropout if self.training else 0.0
@@ -103,7 +108,7 @@ class TransformerBlock(nn.Module):
         x: Tensor,
         attn_mask: Tensor | None,
         cache: tuple[Tensor, Tensor] | None,
-        write_index: Tensor | None,
+        write_index: Tensor | slice | None,
     ) -> Tensor:
         x = x + self.attn(self.ln_attn(x), attn_mask, cache, write_index)
         return x + self.mlp(self.ln_mlp(x))
@@ -136,14 +141,15 @@ class CausalTransformer(nn.Module):
         x: Tensor,
         attn_mask: Tensor | None = None,
         kv_cache: KVCache | None = None,
-        write_index: Tensor | None = None,
+        write_index: Tensor | slice | None = None,
     ) -> tuple[Tensor, KVCache | None]:
         """x: ``[B, L, d]`` -> (hidden ``[B, L, d]``, the updated ``kv_cache``).
 
         attn_mask: bool, True = may attend; ``[B or 1, 1, L, L]`` without a cache, ``[B, 1, L, S']`` with
         one (attention over the first S' <= S slots); None means causal among the L tokens (no cache only).
         kv_cache / write_index: incremental mode (inference, no autograd): the L new tokens' keys and
-        values are written in place at slots ``write_index`` (long ``[B, L]``) before attending.
+        values are written in place at slots ``write_index`` (long ``[B, L]``, or a ``slice`` of L slots
+        shared by the whole batch) before attending.
         """
         if kv_cache is not None and (write_index is None or attn_mask is None):
             raise ValueError("CausalTransformer: a kv_cache needs both write_index and attn_mask")
