@@ -188,6 +188,19 @@ class ExplorationExpert(_ExpertBase):
         return np.array([res.v, res.w])
 
 
+def nh_orca_config(spec: RobotSpec, dt: float, **overrides) -> NHORCAConfig:
+    """NH-ORCA parameters from a robot's radius and limits (``overrides``: any other NHORCAConfig field)."""
+    return NHORCAConfig(
+        radius=spec.radius,
+        v_max=spec.v_max,
+        w_max=spec.w_max,
+        a_max=spec.a_max,
+        alpha_max=spec.alpha_max,
+        dt=dt,
+        **overrides,
+    )
+
+
 def preferred_velocity(
     field: np.ndarray, free: np.ndarray, occupancy, pose: np.ndarray, v_max: float, lookahead_cells: int
 ) -> np.ndarray:
@@ -238,18 +251,7 @@ class NHORCAExpert(_ExpertBase):
 
     def reset(self, world, sim, rng: np.random.Generator) -> None:
         super().reset(world, sim, rng)
-        spec = self.specs[0]
-        self.planner = NHORCA(
-            self.nh_config
-            or NHORCAConfig(
-                radius=spec.radius,
-                v_max=spec.v_max,
-                w_max=spec.w_max,
-                a_max=spec.a_max,
-                alpha_max=spec.alpha_max,
-                dt=sim.dt,
-            )
-        )
+        self.planner = NHORCA(self.nh_config or nh_orca_config(self.specs[0], sim.dt))
         self.planner.reset(sim.poses, sim.velocities)
         cfg = self.planner.config
         # Plan with ORCA's own inflated radius so that planned gaps are gaps ORCA lets the robot through.
@@ -358,19 +360,9 @@ class FCAController(_ExpertBase):
 
     def reset(self, world, sim, rng: np.random.Generator) -> None:
         super().reset(world, sim, rng)
-        spec = self.specs[0]
         self.planner = NHORCA(
             self.nh_config
-            or NHORCAConfig(
-                radius=spec.radius,
-                v_max=spec.v_max,
-                w_max=spec.w_max,
-                a_max=spec.a_max,
-                alpha_max=spec.alpha_max,
-                dt=sim.dt,
-                tracking_error=self.tracking_error,
-                safety=self.safety,
-            )
+            or nh_orca_config(self.specs[0], sim.dt, tracking_error=self.tracking_error, safety=self.safety)
         )
         self.planner.reset(sim.poses, sim.velocities)
         # Plan with at least NH-ORCA's inflation (E + safety): a gap A* uses must be one ORCA lets through.
@@ -378,7 +370,7 @@ class FCAController(_ExpertBase):
         nav_cfg = self.config.navigator
         margin = max(nav_cfg.inflation_margin, orca.tracking_error + orca.safety)
         nav_cfg = NavigatorConfig(
-            **{**nav_cfg.__dict__, "robot_radius": spec.radius, "inflation_margin": margin}
+            **{**nav_cfg.__dict__, "robot_radius": self.specs[0].radius, "inflation_margin": margin}
         )
         self.navigators = [
             FrontierNavigator(world.size, nav_cfg, self.targets[i], True, self.frontier_bias)
