@@ -37,9 +37,8 @@ from torchrl.envs import EnvBase
 
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.envs.robots import get_robot_spec
-from navformer_rl.envs.sim import Simulator, validate_actions
+from navformer_rl.envs.sim import Simulator, simulator_for_world, validate_actions
 from navformer_rl.envs.target_image import render_target_image
-from navformer_rl.envs.target_nav import same_scene
 from navformer_rl.envs.world import EpisodeSpec, WorldConfig, WorldSpec, generate_world, sample_start_poses
 
 _SEED_HIGH = 2**31 - 1
@@ -182,13 +181,7 @@ class MultiRobotNavEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         world = self._draw_world()
-        if self.simulator is not None and self.world is not None and same_scene(world, self.world):
-            self.simulator.world = world
-            self.simulator.set_poses(world.starts)
-        else:
-            if self.simulator is not None:
-                self.simulator.close()
-            self.simulator = Simulator(world, self.robot_specs, textured=self.textured)
+        self.simulator = simulator_for_world(world, self.robot_specs, self.textured, self.simulator)
         self.world = world
         a = self.n_agents
         self._target_xy = world.target_positions.astype(np.float64)

@@ -463,3 +463,31 @@ class Simulator:
     def __del__(self) -> None:
         if getattr(self, "_client", None) is not None:
             self.close()
+
+
+def same_scene(a: WorldSpec, b: WorldSpec) -> bool:
+    """True when two worlds share walls and targets (only the starts differ)."""
+    return (
+        a.size == b.size
+        and a.walls.shape == b.walls.shape
+        and np.array_equal(a.walls, b.walls)
+        and len(a.targets) == len(b.targets)
+        and all(
+            ta.shape == tb.shape and ta.color == tb.color and np.array_equal(ta.position, tb.position)
+            for ta, tb in zip(a.targets, b.targets)
+        )
+    )
+
+
+def simulator_for_world(
+    world: WorldSpec, specs: list[RobotSpec], textured: bool, previous: Simulator | None
+) -> Simulator:
+    """A simulator showing ``world``: ``previous`` re-posed when it already shows the same walls and targets
+    (a new episode in the same maze costs no scene rebuild), otherwise a new one (``previous`` is closed)."""
+    if previous is not None and same_scene(world, previous.world):
+        previous.world = world
+        previous.set_poses(world.starts)
+        return previous
+    if previous is not None:
+        previous.close()
+    return Simulator(world, specs, textured=textured)

@@ -18,7 +18,7 @@ import numpy as np
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy, ObstaclePolicy
 from navformer_rl.envs.robots import RobotSpec, get_robot_spec
-from navformer_rl.envs.sim import Simulator, validate_actions
+from navformer_rl.envs.sim import Simulator, simulator_for_world, validate_actions
 from navformer_rl.envs.target_image import render_target_image
 from navformer_rl.envs.topdown import draw_topdown
 from navformer_rl.envs.world import EpisodeSpec, WorldConfig, WorldSpec, generate_world, sample_start_poses
@@ -126,14 +126,7 @@ class TargetNavEnv(gym.Env):
             raise ValueError(
                 f"the episode has {world.n_robots} robots, this env drives {len(self.robot_specs)}"
             )
-        same_layout = self.simulator is not None and self.world is not None and same_scene(world, self.world)
-        if same_layout:
-            self.simulator.world = world
-            self.simulator.set_poses(world.starts)
-        else:
-            if self.simulator is not None:
-                self.simulator.close()
-            self.simulator = Simulator(world, self.robot_specs, textured=self.textured)
+        self.simulator = simulator_for_world(world, self.robot_specs, self.textured, self.simulator)
         self.world = world
         self._episodes_in_world += 1
         self.obstacle_policy.reset(world, self.simulator, self.np_random)
@@ -220,17 +213,3 @@ def compose_frame(topdown: np.ndarray, views: list[np.ndarray], view_px: int | N
             view, (view_px, view_px), interpolation=cv2.INTER_NEAREST
         )
     return np.concatenate([topdown, column], axis=1)
-
-
-def same_scene(a: WorldSpec, b: WorldSpec) -> bool:
-    """True when two worlds share walls and targets (only the starts differ)."""
-    return (
-        a.size == b.size
-        and a.walls.shape == b.walls.shape
-        and np.array_equal(a.walls, b.walls)
-        and len(a.targets) == len(b.targets)
-        and all(
-            ta.shape == tb.shape and ta.color == tb.color and np.array_equal(ta.position, tb.position)
-            for ta, tb in zip(a.targets, b.targets)
-        )
-    )
