@@ -5,7 +5,7 @@ import torch
 
 from navformer_rl.modules import ConvEncoder, NavFormerConfig, NavFormerModel, ResNet18Encoder
 from navformer_rl.modules.models import MODEL_ABLATIONS
-from navformer_rl.modules.models.cnn import FusedConvEncoders
+from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
 from navformer_rl.objectives import masked_action_mse
 
 KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")

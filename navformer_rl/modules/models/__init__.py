@@ -1,7 +1,8 @@
 """Plain ``nn.Module`` models on tensors: encoders, the causal transformer and ``NavFormerModel``."""
 
-from navformer_rl.modules.models.cnn import ConvEncoder, FusedConvEncoders, ImageEncoder, images_to_float
+from navformer_rl.modules.models.cnn import ConvEncoder, ImageEncoder, images_to_float
 from navformer_rl.modules.models.config import MODEL_ABLATIONS, NavFormerConfig
+from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
 from navformer_rl.modules.models.incremental import IncrementalNavFormer
 from navformer_rl.modules.models.navformer import (
     MODALITIES,

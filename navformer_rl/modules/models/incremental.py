@@ -17,7 +17,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from navformer_rl.modules.models.cnn import ConvEncoder, FusedConvEncoders
+from navformer_rl.modules.models.cnn import ConvEncoder
+from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
 from navformer_rl.modules.models.navformer import NavFormerModel
 from navformer_rl.modules.models.transformer import KVCache
 
