@@ -17,8 +17,9 @@ plus the causal attention counted analytically (the counter does not see CPU SDP
 
 Configurations (levers are ``NavFormerConfig`` / ``BYOLLoss`` options the training loop can set):
 ``fp32`` (NCHW, one chunk), ``bf16`` (autocast bfloat16 + channels_last), ``bf16_mb`` (+ encoder
-micro-batches of ``--micro-batch``), ``bf16_mb_detach`` (+ ``detach_encoders``: the DT loss does not
-back-propagate into the encoders).
+micro-batches of ``--micro-batch``), ``bf16_mb_s2d`` (+ ``space_to_depth`` first convolution: the
+training default), ``bf16_mb_s2d_detach`` (+ ``detach_encoders``: the DT loss does not back-propagate
+into the encoders).
 
 Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
 (``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors;
@@ -42,10 +43,21 @@ from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer
 from navformer_rl.objectives import BYOLLoss, NavFormerLoss, joint_parameters
 
 CONFIGS = {
-    "fp32": {"channels_last": False},
-    "bf16": {"autocast_dtype": "bfloat16"},
-    "bf16_mb": {"autocast_dtype": "bfloat16", "encoder_micro_batch": "MB"},
-    "bf16_mb_detach": {"autocast_dtype": "bfloat16", "encoder_micro_batch": "MB", "detach_encoders": True},
+    "fp32": {"channels_last": False, "space_to_depth": False},
+    "bf16": {"autocast_dtype": "bfloat16", "space_to_depth": False},
+    "bf16_mb": {"autocast_dtype": "bfloat16", "encoder_micro_batch": "MB", "space_to_depth": False},
+    "bf16_mb_detach": {
+        "autocast_dtype": "bfloat16",
+        "encoder_micro_batch": "MB",
+        "detach_encoders": True,
+        "space_to_depth": False,
+    },
+    "bf16_mb_s2d": {"autocast_dtype": "bfloat16", "encoder_micro_batch": "MB"},
+    "bf16_mb_s2d_detach": {
+        "autocast_dtype": "bfloat16",
+        "encoder_micro_batch": "MB",
+        "detach_encoders": True,
+    },
     "fp32_mb": {"encoder_micro_batch": "MB"},
 }
 
@@ -144,7 +156,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--configs", nargs="+", default=["fp32", "bf16", "bf16_mb", "bf16_mb_detach"])
+    parser.add_argument(
+        "--configs", nargs="+", default=["fp32", "bf16", "bf16_mb", "bf16_mb_s2d", "bf16_mb_s2d_detach"]
+    )
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--micro-batch", type=int, default=512)
     parser.add_argument("--threads", type=int, default=None)

@@ -7,8 +7,9 @@ import contextlib
 import torch
 from torch import Tensor, nn
 
-from navformer_rl.modules.models.cnn import ConvEncoder, ImageEncoder, check_images
+from navformer_rl.modules.models.cnn import ConvEncoder, ImageEncoder, check_images, encode_images
 from navformer_rl.modules.models.config import NavFormerConfig
+from navformer_rl.modules.models.dropout import Dropout
 from navformer_rl.modules.models.resnet import ResNet18Encoder
 from navformer_rl.modules.models.transformer import CausalTransformer
 
@@ -18,8 +19,17 @@ MODALITIES = ("target", "return_to_go", "static", "general", "action")
 
 def make_encoder(config: NavFormerConfig) -> ImageEncoder:
     """A fresh, randomly initialised image encoder of ``config.encoder`` kind (d_out = d_embed)."""
-    cls = ConvEncoder if config.encoder == "cnn" else ResNet18Encoder
-    return cls(config.d_embed, config.image_size, config.encoder_micro_batch, config.channels_last)
+    if config.encoder == "resnet18":
+        return ResNet18Encoder(
+            config.d_embed, config.image_size, config.encoder_micro_batch, config.channels_last
+        )
+    return ConvEncoder(
+        config.d_embed,
+        config.image_size,
+        config.encoder_micro_batch,
+        config.channels_last,
+        config.space_to_depth,
+    )
 
 
 class NavFormerModel(nn.Module):
@@ -50,7 +60,7 @@ class NavFormerModel(nn.Module):
         self.timestep_embed = nn.Embedding(config.max_timestep, d)
         self.modality_embed = nn.Embedding(len(MODALITIES), d)
         self.embed_ln = nn.LayerNorm(d)
-        self.embed_dropout = nn.Dropout(config.dropout)
+        self.embed_dropout = Dropout(config.dropout)
         self.transformer = CausalTransformer(
             d, config.n_blocks, config.n_heads, config.d_head, config.mlp_ratio, config.dropout
         )
@@ -81,15 +91,16 @@ class NavFormerModel(nn.Module):
     def encode_observations(self, pixels: Tensor, mask: Tensor | None = None) -> Tensor:
         """pixels: uint8 ``[..., H, W, 3]`` -> ``[..., n_encoders, d]`` (static first, then general).
 
+        Both encoders share each micro-batch's uint8 -> float conversion (``encode_images``).
+
         mask: optional bool ``[...]`` (pixels' leading shape), True on valid frames: only those are encoded
         and padded frames get zero embeddings (they only feed padded tokens, which no valid token attends).
         """
-        encoders = self.observation_encoders()
+        encoders = [encoder for _, encoder in self.observation_encoders()]
         with self._encoder_grad():
             if mask is None or bool(mask.all()):
-                return torch.stack([encoder(pixels) for _, encoder in encoders], dim=-2)
-            valid = pixels[mask]
-            embedding = torch.stack([encoder(valid) for _, encoder in encoders], dim=-2)
+                return encode_images(encoders, pixels)
+            embedding = encode_images(encoders, pixels[mask])
             return embedding.new_zeros(*mask.shape, *embedding.shape[1:]).index_put((mask,), embedding)
 
     def _encoder_grad(self) -> contextlib.AbstractContextManager:

@@ -8,6 +8,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from navformer_rl.modules.models.dropout import Dropout, keep_mask
+
 
 @dataclass
 class KVCache:
@@ -51,7 +53,7 @@ class CausalSelfAttention(nn.Module):
         self.n_heads, self.d_head, self.dropout = n_heads, d_head, dropout
         self.qkv = nn.Linear(d_embed, 3 * n_heads * d_head)
         self.proj = nn.Linear(n_heads * d_head, d_embed)
-        self.resid_dropout = nn.Dropout(dropout)
+        self.resid_dropout = Dropout(dropout)
 
     def forward(
         self,
@@ -81,15 +83,47 @@ class CausalSelfAttention(nn.Module):
             used = attn_mask.shape[-1]  # the caller may restrict attention to the first slots in use
             k, v = cache_k[:, :, :used], cache_v[:, :, :used]
         dropout_p = self.dropout if self.training else 0.0
-        y = F.scaled_dot_product_attention(
-            q, k, v, attn_mask=attn_mask, dropout_p=dropout_p, is_causal=attn_mask is None
-        )
+        if dropout_p > 0.0 and x.device.type == "cpu":
+            y = attention_with_dropout(q, k, v, attn_mask, dropout_p)
+        else:
+            y = F.scaled_dot_product_attention(
+                q, k, v, attn_mask=attn_mask, dropout_p=dropout_p, is_causal=attn_mask is None
+            )
         y = y.transpose(1, 2).reshape(batch, length, self.n_heads * self.d_head)
         return self.resid_dropout(self.proj(y))
 
 
+def attention_with_dropout(q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor | None, p: float) -> Tensor:
+    """``softmax(q k^T / sqrt(d_head) | mask)`` with dropout p on the weights, then ``@ v``.
+
+    What ``F.scaled_dot_product_attention(..., dropout_p=p)`` computes on CPU (its math path: the fused
+    kernels do not support dropout there), with the mask drawn by ``keep_mask``, far cheaper than SDPA's
+    ``bernoulli_`` on the ``[B, H, L, S]`` weights; the 1 / (1 - p) rescaling is applied to the smaller
+    output. q: ``[B, H, L, d_head]``, k / v: ``[B, H, S, d_head]``; attn_mask bool ``[B or 1, 1, L, S]``
+    (True = may attend) or None (causal, L = S) -> ``[B, H, L, d_head]``.
+    """
+    batch, heads, length, d_head = q.shape
+    slots = k.shape[-2]
+    if attn_mask is None:
+        attn_mask = torch.ones(length, slots, dtype=torch.bool, device=q.device).tril_()
+    bias = torch.zeros(attn_mask.shape, dtype=q.dtype, device=q.device).masked_fill_(
+        ~attn_mask, float("-inf")
+    )
+    if bias.dim() == 4:  # [B or 1, 1, L, S] -> broadcastable to the [B * H, L, S] scores
+        bias = bias[0, 0] if bias.shape[0] == 1 else bias.expand(batch, heads, length, slots).flatten(0, 1)
+    scores = torch.baddbmm(
+        bias, q.flatten(0, 1), k.flatten(0, 1).transpose(1, 2), alpha=d_head**-0.5
+    )  # [B * H, L, S]
+    weights = torch.softmax(scores, dim=-1)
+    kept = torch.where(keep_mask(weights.shape, 1.0 - p, weights.device), weights, 0)
+    out = torch.bmm(kept, v.flatten(0, 1)).mul_(1.0 / (1.0 - p))
+    return out.view(batch, heads, length, d_head)
+
+
 class TransformerBlock(nn.Module):
-    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))`` with MLP = Linear(d, 4d) - GELU - Linear(4d, d)."""
+    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))`` with MLP = Linear(d, 4d) - GELU - Linear(4d, d).
+
+    GELU is the exact (erf) one: GPT-2's tanh approximation differs by < 1e-3 and costs 2-3x more on CPU."""
 
     def __init__(self, d_embed: int, n_heads: int, d_head: int, mlp_ratio: int, dropout: float) -> None:
         super().__init__()
@@ -98,9 +132,9 @@ class TransformerBlock(nn.Module):
         self.ln_mlp = nn.LayerNorm(d_embed)
         self.mlp = nn.Sequential(
             nn.Linear(d_embed, mlp_ratio * d_embed),
-            nn.GELU(approximate="tanh"),
+            nn.GELU(),
             nn.Linear(mlp_ratio * d_embed, d_embed),
-            nn.Dropout(dropout),
+            Dropout(dropout),
         )
 
     def forward(
