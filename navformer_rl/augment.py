@@ -123,7 +123,14 @@ class BYOLAugmentation(nn.Module):
             factors[name] = torch.where(applied, drawn, torch.full((n,), neutral))
         return factors
 
-    def forward(self, pixels: Tensor) -> Tensor:
+    def forward(
+        self, pixels: Tensor, dtype: torch.dtype = torch.float32, channels_last: bool = False
+    ) -> Tensor:
+        """pixels: uint8 ``[B, H, W, 3]`` -> views ``[B, 3, H, W]`` of ``dtype`` (channels_last memory if asked).
+
+        The views are computed in float32 chunk by chunk and written straight into the output's dtype and
+        layout, so an encoder running in bf16 / channels_last needs no further conversion pass.
+        """
         check_images(pixels, self.image_size)
         if pixels.dim() != 4:
             raise ValueError(
@@ -135,7 +142,8 @@ class BYOLAugmentation(nn.Module):
         active = [name for name, strength in self.jitter.items() if strength > 0 and self.jitter_p > 0]
         order = [active[i] for i in torch.randperm(len(active), generator=self.generator).tolist()]
         size = self.image_size
-        views = torch.empty(n, 3, size, size, device=pixels.device)
+        memory_format = torch.channels_last if channels_last else torch.contiguous_format
+        views = torch.empty(n, 3, size, size, dtype=dtype, device=pixels.device, memory_format=memory_format)
         for start in range(0, n, self.chunk):  # chunks keep the ~10 elementwise passes in cache
             part = slice(start, start + self.chunk)
             chunk = images_to_float(pixels[part], channels_last=False)

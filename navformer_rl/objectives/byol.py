@@ -182,24 +182,26 @@ class BYOLLoss(LossModule):
         return ["loss_byol"] + [f"loss_byol_{name}" for name in self.encoder_names]
 
     def make_views(self, tensordict: TensorDictBase) -> dict[str, tuple[Tensor, Tensor]]:
-        """The two augmented views (float ``[B, 3, H, W]``) of each encoder.
+        """The two augmented views (``[B, 3, H, W]``, in the autocast dtype if any) of each encoder.
 
         One augmentation of o^d serves as the static encoder's v' and the general encoder's v (the two
         losses are separate, so sharing it changes neither; it saves a quarter of the augmentation cost).
         """
-        dynamic_view = self.augmentation(tensordict.get(self.tensor_keys.pixels_dynamic))
+        dynamic_view = self._augment(tensordict.get(self.tensor_keys.pixels_dynamic))
         views = {}
         if "static" in self.encoder_names:
-            views["static"] = (
-                self.augmentation(tensordict.get(self.tensor_keys.pixels_static)),
-                dynamic_view,
-            )
+            views["static"] = (self._augment(tensordict.get(self.tensor_keys.pixels_static)), dynamic_view)
         if "general" in self.encoder_names:
-            views["general"] = (
-                dynamic_view,
-                self.augmentation(tensordict.get(self.tensor_keys.pixels_dynamic)),
-            )
+            views["general"] = (dynamic_view, self._augment(tensordict.get(self.tensor_keys.pixels_dynamic)))
         return views
+
+    def _augment(self, pixels: Tensor) -> Tensor:
+        """Augmented views written in the encoders' compute dtype (the autocast dtype) and memory layout."""
+        dtype = AUTOCAST_DTYPES[self.autocast_dtype] if self.autocast_dtype is not None else torch.float32
+        channels_last = all(
+            getattr(self.online_network[name].encoder, "channels_last", False) for name in self.encoder_names
+        )
+        return self.augmentation(pixels, dtype=dtype, channels_last=channels_last)
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
