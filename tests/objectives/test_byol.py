@@ -187,3 +187,13 @@ def test_augmentation_does_not_depend_on_the_chunk_size():
     )
     whole = BYOLAugmentation(seed=5, chunk=1000)(batch)
     torch.testing.assert_close(BYOLAugmentation(seed=5, chunk=3)(batch), whole)
+
+
+def test_augmentation_writes_the_requested_dtype_and_layout():
+    pixels = torch.randint(
+        0, 256, (6, 84, 84, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(1)
+    )
+    reference = BYOLAugmentation(seed=4)(pixels)
+    views = BYOLAugmentation(seed=4)(pixels, dtype=torch.bfloat16, channels_last=True)
+    assert views.dtype == torch.bfloat16 and views.is_contiguous(memory_format=torch.channels_last)
+    assert torch.equal(views, reference.to(torch.bfloat16))  # the same views, rounded once
