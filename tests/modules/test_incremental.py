@@ -5,6 +5,10 @@ import torch
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
 from navformer_rl.modules.models import sliding_window_mask
+from navformer_rl.modules.models.incremental import additive_mask
+from navformer_rl.modules.models.step_layers import StepLayers
+from navformer_rl.modules.models.transformer import KVCache
+from navformer_rl.modules.models.transformer_step import TransformerStep
 
 KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
 
@@ -27,15 +31,16 @@ def decode(decoder, batch, t):
     return decoder.step(batch["target_pixels"], batch["pixels"][:, t], batch["return_to_go"][:, t], prev)
 
 
+@pytest.mark.parametrize("robots", [1, 3, 6])  # 1, 3: im2col encoders; 6: oneDNN convolutions
 @pytest.mark.parametrize("ablation", ["navformer", "dt"])
-def test_cached_step_equals_full_forward_at_every_step_across_the_slide(batch_factory, ablation):
+def test_cached_step_equals_full_forward_at_every_step_across_the_slide(batch_factory, ablation, robots):
     model = small_context_model(
         **({} if ablation == "navformer" else {"use_static_encoder": False, "thsc": False})
     )
     window = model.config.window_steps
     steps = window * 2 + 3
-    batch = batch_factory(3, steps, seed=1)
-    decoder = IncrementalNavFormer(model, 3)
+    batch = batch_factory(robots, steps, seed=1)
+    decoder = IncrementalNavFormer(model, robots)
     reference = full(model, batch, steps, window_steps=window)
     for t in range(steps):
         action = decode(decoder, batch, t)
@@ -98,3 +103,80 @@ def test_decoder_requires_eval_mode_and_matching_batch(batch_factory):
     model.train()
     with pytest.raises(ValueError, match="eval"):
         decode(decoder, batch, 0)
+
+
+@pytest.mark.parametrize("thsc", [True, False])
+def test_step_layers_equal_the_models_layers_and_follow_parameter_updates(thsc):
+    model = small_context_model(thsc=thsc, max_timestep=8)
+    layers = StepLayers(model)
+    gen = torch.Generator().manual_seed(3)
+    prev_action, rtg = torch.rand(4, 2, generator=gen), torch.rand(4, 1, generator=gen)
+    obs, target = torch.randn(4, 2, 128, generator=gen), torch.randn(4, 128, generator=gen)
+    hidden_g, hidden_obs = torch.randn(4, 128, generator=gen), torch.randn(4, 128, generator=gen)
+    first = torch.tensor([True, False, False, False])
+    t = torch.tensor([0, 1, 7, 12])  # 12 > max_timestep: timesteps clamp
+
+    def check():
+        step, prev_step = t.clamp(max=7), (t - 1).clamp(0, 7)
+        first_token = model.action_token(prev_action, prev_step)
+        first_token[first] = model.target_token(target[first])
+        raw = torch.cat(
+            [
+                first_token[:, None],
+                model.return_token(rtg, step)[:, None],
+                model.observation_tokens(obs, step),
+            ],
+            dim=1,
+        )
+        expected = model.prepare_tokens(raw)
+        tokens = layers.tokens(prev_action, rtg, obs, t.clamp(max=8), target[first], first)
+        torch.testing.assert_close(tokens, expected)
+        shared = layers.tokens(prev_action[1:2], rtg[1:2], obs[1:2], 1)  # an int row: the shared path
+        torch.testing.assert_close(shared, expected[1:2])
+        expected_action = model.predict_action(hidden_g, hidden_obs[:, None])[:, 0]
+        torch.testing.assert_close(layers.action(hidden_g, hidden_obs), expected_action)
+
+    with torch.no_grad():
+        check()
+        for param in (model.timestep_embed.weight, model.action_embed.bias, model.head.weight):
+            param.add_(0.5)  # in-place updates: the tables are rebuilt
+            check()
+
+
+@pytest.mark.parametrize("write", ["slice", "index"])
+def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(write):
+    model = small_context_model()
+    config = model.config
+    step = TransformerStep(model.transformer)
+    gen = torch.Generator().manual_seed(4)
+    x = torch.randn(2, 4, config.d_embed, generator=gen)
+    allowed = torch.rand(2, 1, 4, 9, generator=gen) > 0.3
+    allowed[..., 0] = True  # every query attends at least one slot
+    masks = (allowed, additive_mask(allowed, torch.float32))
+    write_index = slice(5, 9) if write == "slice" else torch.tensor([[4, 6, 7, 8], [8, 5, 6, 7]])
+
+    def check():
+        for mask in masks:
+            caches = [KVCache.empty(config.n_blocks, 2, config.n_heads, 12, config.d_head) for _ in range(2)]
+            for cache in caches:
+                for tensor in cache.keys + cache.values:
+                    tensor.copy_(torch.randn(tensor.shape, generator=torch.Generator().manual_seed(5)))
+            expected, _ = model.transformer(x, attn_mask=mask, kv_cache=caches[0], write_index=write_index)
+            torch.testing.assert_close(step(x, mask, caches[1], write_index), expected)
+            for got, want in zip(caches[1].keys + caches[1].values, caches[0].keys + caches[0].values):
+                torch.testing.assert_close(got, want)
+
+    with torch.no_grad():
+        check()
+        model.transformer.blocks[1].mlp[0].weight.mul_(-2.0)  # an in-place update
+        check()
+        qkv = model.transformer.blocks[0].attn.qkv
+        qkv.weight.data = torch.randn(qkv.weight.shape, generator=gen)  # a replaced tensor
+        check()
+
+
+def test_transformer_step_rejects_an_unknown_block_structure():
+    model = small_context_model()
+    model.transformer.blocks[0].mlp[1] = torch.nn.ReLU()
+    with pytest.raises(ValueError, match="GELU"):
+        TransformerStep(model.transformer)

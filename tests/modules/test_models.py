@@ -76,18 +76,53 @@ def test_conv_encoder_shapes_microbatches_and_layouts():
     torch.testing.assert_close(enc.forward_float(floats).reshape(2, 5, 128), out, rtol=1e-5, atol=1e-5)
 
 
-def test_fused_encoders_equal_the_separate_ones_and_follow_weight_updates():
+@pytest.mark.parametrize("robots", [1, 3, 6])
+@pytest.mark.parametrize("gemm_max_batch", [0, 4, 8], ids=["conv", "gemm-small-batch", "gemm"])
+def test_fused_encoders_equal_the_separate_ones_and_follow_weight_updates(robots, gemm_max_batch):
+    torch.manual_seed(0)
+    first, second = ConvEncoder(), ConvEncoder()
+    fused = FusedConvEncoders(first, second, gemm_max_batch=gemm_max_batch)
+    pixels = torch.randint(0, 256, (robots, 84, 84, 3), dtype=torch.uint8)
+
+    def check():
+        torch.testing.assert_close(fused(pixels), torch.stack([first(pixels), second(pixels)], 1))
+
+    with torch.no_grad():
+        check()
+        check()  # the gemm path's reused buffers give the same result again
+        second.convs[2].weight.mul_(-1.5)  # an in-place update, like an optimizer step
+        first.linear.bias.add_(0.3)
+        check()
+        first.convs[0].weight.data = torch.randn_like(first.convs[0].weight)  # a replaced tensor
+        check()
+
+
+def test_fused_encoders_equal_space_to_depth_encoders():
+    torch.manual_seed(0)
+    first, second = ConvEncoder(space_to_depth=True), ConvEncoder(space_to_depth=True)
+    pixels = torch.randint(0, 256, (2, 84, 84, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        expected = torch.stack([first(pixels), second(pixels)], 1)
+        for gemm_max_batch in (0, 4):  # the conv2d path and the im2col path
+            torch.testing.assert_close(FusedConvEncoders(first, second, gemm_max_batch)(pixels), expected)
+
+
+def test_fused_encoders_buffers_work_in_and_out_of_inference_mode():
     torch.manual_seed(0)
     first, second = ConvEncoder(), ConvEncoder()
     fused = FusedConvEncoders(first, second)
-    pixels = torch.randint(0, 256, (3, 84, 84, 3), dtype=torch.uint8)
-    with torch.no_grad():
-        torch.testing.assert_close(fused(pixels), torch.stack([first(pixels), second(pixels)], 1))
-        second.convs[2].weight.mul_(-1.5)  # an in-place update, like an optimizer step
-        first.linear.bias.add_(0.3)
-        torch.testing.assert_close(fused(pixels), torch.stack([first(pixels), second(pixels)], 1))
+    pixels = torch.randint(0, 256, (1, 84, 84, 3), dtype=torch.uint8)
+    with torch.inference_mode():
+        expected = fused(pixels).clone()
+    with torch.no_grad():  # the scratch buffers made under inference mode stay writable here
+        torch.testing.assert_close(fused(pixels), expected)
+
+
+def test_fused_encoders_reject_bad_arguments():
     with pytest.raises(ValueError, match="ConvEncoder"):
-        FusedConvEncoders(first, ResNet18Encoder())
+        FusedConvEncoders(ConvEncoder(), ResNet18Encoder())
+    with pytest.raises(ValueError, match="gemm_max_batch"):
+        FusedConvEncoders(ConvEncoder(), ConvEncoder(), gemm_max_batch=-1)
 
 
 def test_encoder_rejects_bad_images():

@@ -20,7 +20,9 @@ from torch import Tensor
 from navformer_rl.modules.models.cnn import ConvEncoder
 from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
 from navformer_rl.modules.models.navformer import NavFormerModel
+from navformer_rl.modules.models.step_layers import StepLayers
 from navformer_rl.modules.models.transformer import KVCache
+from navformer_rl.modules.models.transformer_step import TransformerStep
 
 
 class IncrementalNavFormer:
@@ -30,6 +32,12 @@ class IncrementalNavFormer:
     ``action = dec.step(target_pixels, pixels, return_to_go, prev_action)``; ``dec.reset(robots)`` starts
     new episodes for the robots where ``robots`` (bool ``[batch]``) is True. While every robot is at the same
     step (never reset apart) ``step`` takes a host-side fast path (``_step_shared``, same results).
+
+    Per step at batch 1 every op is tiny, so the step avoids per-op overhead: both paper CNNs run as one
+    fused stack (``FusedConvEncoders``, im2col + matmuls for up to 4 robots), the token embeddings and the
+    THSC head use precomputed tables (``StepLayers``), the transformer runs as a loop of plain tensor ops
+    (``TransformerStep``) and the attention mask is additive (SDPA would convert a bool one in every block).
+    Each helper follows in-place parameter updates, so an evaluation between optimizer steps stays exact.
     """
 
     def __init__(
@@ -55,16 +63,19 @@ class IncrementalNavFormer:
         self.steps_done = torch.zeros(batch, dtype=torch.long, device=self.device)
         self.target_hidden = torch.zeros(batch, config.d_embed, dtype=dtype, device=self.device)
         self._offsets = torch.arange(self.tokens_per_step - 1, device=self.device)
+        self._layers = StepLayers(model)
+        self._transformer = TransformerStep(model.transformer)
         # Fast path (every robot at the same step, e.g. all reset together): ``_shared_step`` mirrors
         # ``steps_done`` on the host (None once robots diverge). Until the ring wraps (t < W) slot s holds
-        # position s, so the mask is the bottom-right-aligned causal mask: a column slice of ``_causal_mask``
-        # (bool ``[1, 1, tps, S]``, query i may attend slot s iff s <= S - tps - 1 + i).
+        # position s, so the mask is the bottom-right-aligned causal mask: a column slice of ``_causal_bias``
+        # (additive ``[1, 1, tps, S]``, query i may attend slot s iff s <= S - tps - 1 + i).
         self._shared_step: int | None = 0
         self._tail_positions = torch.arange(self.tokens_per_step, device=self.device)
-        self._causal_mask = (
+        causal = (
             torch.arange(slots, device=self.device)[None, :]
             <= (slots - self.tokens_per_step - 1 + self._tail_positions)[:, None]
-        )[None, None]
+        )
+        self._causal_bias = additive_mask(causal[None, None], dtype)
         encoders = [encoder for _, encoder in model.observation_encoders()]
         self._fused_encoders = (
             FusedConvEncoders(*encoders)
@@ -114,25 +125,17 @@ class IncrementalNavFormer:
         tps, window = self.tokens_per_step, self.window_steps
         t = self.steps_done
         first = t == 0
-        max_step = model.config.max_timestep - 1
-        timestep = t.clamp(max=max_step)
-        prev_timestep = (t - 1).clamp(0, max_step)
-
-        # new tokens [B, tps, d]: first token (a_{t-1}, or g on a first step), R_t, e_t...
-        first_token = model.action_token(prev_action.to(self.device), prev_timestep)
         any_first = bool(first.any())
+        target = None
         if any_first:
-            target = model.target_token(
-                model.encode_target(target_pixels[first.to(target_pixels.device)].to(self.device))
-            )
-            first_token = first_token.index_put((first,), target.to(first_token.dtype))
-        tokens = torch.cat(
-            [
-                first_token.unsqueeze(1),
-                model.return_token(return_to_go.to(self.device), timestep).unsqueeze(1),
-                model.observation_tokens(self.encode_observations(pixels.to(self.device)), timestep),
-            ],
-            dim=1,
+            target = model.encode_target(target_pixels[first.to(target_pixels.device)].to(self.device))
+        tokens = self._layers.tokens(
+            prev_action.to(self.device),
+            return_to_go.to(self.device),
+            self.encode_observations(pixels.to(self.device)),
+            t.clamp(max=model.config.max_timestep),
+            target,
+            first,
         )
 
         # slots and sequence positions of the new tokens
@@ -150,18 +153,14 @@ class IncrementalNavFormer:
         self.slot_pos.scatter_(1, write_index, new_pos)
         used = min(self.slot_pos.shape[1], 1 + tps * (int(t.max()) + 1))  # slots beyond are still empty
         slot_pos = self.slot_pos[:, None, :used]
-        attn_mask = ((slot_pos >= 0) & (slot_pos <= new_pos[:, :, None])).unsqueeze(1)
+        allowed = ((slot_pos >= 0) & (slot_pos <= new_pos[:, :, None])).unsqueeze(1)
 
-        hidden, _ = model.transformer(
-            model.prepare_tokens(tokens).to(self.cache.keys[0].dtype),
-            attn_mask=attn_mask,
-            kv_cache=self.cache,
-            write_index=write_index,
-        )
+        dtype = self.cache.keys[0].dtype
+        hidden = self._transformer(tokens.to(dtype), additive_mask(allowed, dtype), self.cache, write_index)
         self.target_hidden = torch.where(first[:, None], hidden[:, 0], self.target_hidden)
-        action = model.predict_action(self.target_hidden, hidden[:, tps - 1 : tps])[:, 0]
+        action = self._layers.action(self.target_hidden, hidden[:, tps - 1])
         self.steps_done += 1
-        return action.float()
+        return action
 
     def _step_shared(
         self, target_pixels: Tensor, pixels: Tensor, return_to_go: Tensor, prev_action: Tensor
@@ -171,28 +170,19 @@ class IncrementalNavFormer:
         Same maths as the general path with the bookkeeping done on the host: the first token is the
         target token or the action token (not both), the new tokens' slots are one contiguous ``slice``
         (except when the ring wraps: a_{t-1} sits in the last slot), and before the ring wraps the mask is
-        a view of ``_causal_mask``. No host synchronisation.
+        a view of ``_causal_bias``. No host synchronisation.
         """
         model = self.model
         tps, window, slots = self.tokens_per_step, self.window_steps, self.slot_pos.shape[1]
         t = self._shared_step
         first = t == 0
-        max_step = model.config.max_timestep - 1
-        timestep = self.steps_done.clamp(max=max_step)
-
-        if first:
-            first_token = model.target_token(model.encode_target(target_pixels.to(self.device)))
-        else:
-            first_token = model.action_token(
-                prev_action.to(self.device), (self.steps_done - 1).clamp(0, max_step)
-            )
-        tokens = torch.cat(
-            [
-                first_token.unsqueeze(1),
-                model.return_token(return_to_go.to(self.device), timestep).unsqueeze(1),
-                model.observation_tokens(self.encode_observations(pixels.to(self.device)), timestep),
-            ],
-            dim=1,
+        target = model.encode_target(target_pixels.to(self.device)) if first else None
+        tokens = self._layers.tokens(
+            prev_action.to(self.device),
+            return_to_go.to(self.device),
+            self.encode_observations(pixels.to(self.device)),
+            min(t, model.config.max_timestep),
+            target,
         )
 
         group = 1 + (t % window) * tps
@@ -210,20 +200,26 @@ class IncrementalNavFormer:
             write_index = write_index.expand(self.batch, tps)
         used = min(slots, 1 + tps * (t + 1))
         if t < window:
-            attn_mask = self._causal_mask[..., slots - used :]
+            attn_mask = self._causal_bias[..., slots - used :]
         else:
             slot_pos = self.slot_pos[:, None, :used]
-            attn_mask = ((slot_pos >= 0) & (slot_pos <= new_pos[None, :, None])).unsqueeze(1)
+            allowed = ((slot_pos >= 0) & (slot_pos <= new_pos[None, :, None])).unsqueeze(1)
+            attn_mask = additive_mask(allowed, self.cache.keys[0].dtype)
 
-        hidden, _ = model.transformer(
-            model.prepare_tokens(tokens).to(self.cache.keys[0].dtype),
-            attn_mask=attn_mask,
-            kv_cache=self.cache,
-            write_index=write_index,
-        )
+        hidden = self._transformer(tokens.to(self.cache.keys[0].dtype), attn_mask, self.cache, write_index)
         if first:
             self.target_hidden = hidden[:, 0].clone()
-        action = model.predict_action(self.target_hidden, hidden[:, tps - 1 : tps])[:, 0]
+        action = self._layers.action(self.target_hidden, hidden[:, tps - 1])
         self.steps_done += 1
         self._shared_step = t + 1
-        return action.float()
+        return action
+
+
+def additive_mask(allowed: Tensor, dtype: torch.dtype) -> Tensor:
+    """Bool attention mask (True = may attend) -> the additive one SDPA adds to the scores (0 / -inf).
+
+    SDPA converts a bool mask to this form in every call (every block); converting once per step is cheaper.
+    """
+    return torch.zeros(allowed.shape, dtype=dtype, device=allowed.device).masked_fill_(
+        allowed.logical_not(), float("-inf")
+    )

@@ -1,0 +1,106 @@
+"""Inference helper: the causal transformer on a few new tokens against a KV cache, without module calls."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from navformer_rl.modules.models.transformer import CausalTransformer, KVCache
+
+
+class LayerNormWeights(NamedTuple):
+    """A LayerNorm's parameters; ``eps`` and the shape are read from ``module`` at every call."""
+
+    weight: Tensor
+    bias: Tensor
+    module: nn.LayerNorm
+
+    def __call__(self, x: Tensor) -> Tensor:
+        return F.layer_norm(x, self.module.normalized_shape, self.weight, self.bias, self.module.eps)
+
+
+class BlockWeights(NamedTuple):
+    """One ``TransformerBlock``'s parameters: ``(weight [out, in], bias)`` per Linear, as ``F.linear`` takes.
+
+    ``gelu``: the MLP's ``nn.GELU`` (its ``approximate`` is read at every call).
+    """
+
+    ln_attn: LayerNormWeights
+    qkv: tuple[Tensor, Tensor]
+    proj: tuple[Tensor, Tensor]
+    ln_mlp: LayerNormWeights
+    fc: tuple[Tensor, Tensor]
+    out: tuple[Tensor, Tensor]
+    gelu: nn.GELU
+
+
+class TransformerStep:
+    """``CausalTransformer.forward`` with a KV cache (eval mode), as a loop of plain tensor ops.
+
+    ``step(x, attn_mask, cache, write_index)`` equals ``transformer(x, attn_mask, cache, write_index)[0]``
+    (same maths, no dropout). With 4 new tokens every op is tiny, so module calls (``nn.Module.__call__``
+    and ``__getattr__`` cost microseconds each), reshapes and 3-d ``F.linear`` cost about as much as the
+    maths: this loop takes ~0.7x the time of the module path. It holds the blocks' ``Parameter`` objects,
+    so updates in place or through ``.data`` (``model.to``, ``load_state_dict``) are seen; a sub-module
+    replaced by a new one is not: make a new ``TransformerStep`` then.
+    """
+
+    def __init__(self, transformer: CausalTransformer) -> None:
+        self.transformer = transformer
+        self.blocks = tuple(block_weights(block) for block in transformer.blocks)
+        self.ln_final = layer_norm_weights(transformer.ln_final)
+
+    def __call__(self, x: Tensor, attn_mask: Tensor, cache: KVCache, write_index: Tensor | slice) -> Tensor:
+        """x ``[B, L, d]`` -> hidden ``[B, L, d]``; the L new keys/values are written to ``cache``.
+
+        attn_mask: bool or additive float ``[B or 1, 1, L, S']``, attention over the first S' slots.
+        write_index: a ``slice`` of L slots shared by every sequence, or long ``[B, L]`` slots.
+        """
+        batch, length, d = x.shape
+        heads, d_head = self.transformer.n_heads, self.transformer.d_head
+        used = attn_mask.shape[-1]
+        h = x.reshape(batch * length, d)
+        for block, keys, values in zip(self.blocks, cache.keys, cache.values):
+            qkv = F.linear(block.ln_attn(h), *block.qkv)
+            q, k, v = qkv.view(batch, length, 3, heads, d_head).permute(2, 0, 3, 1, 4)
+            write_slots(keys, k, write_index)
+            write_slots(values, v, write_index)
+            y = F.scaled_dot_product_attention(q, keys[:, :, :used], values[:, :, :used], attn_mask=attn_mask)
+            h = F.linear(y.transpose(1, 2).reshape(batch * length, heads * d_head), *block.proj).add_(h)
+            hidden = F.gelu(F.linear(block.ln_mlp(h), *block.fc), approximate=block.gelu.approximate)
+            h = F.linear(hidden, *block.out).add_(h)
+        return self.ln_final(h).view(batch, length, d)
+
+
+def write_slots(cache: Tensor, new: Tensor, write_index: Tensor | slice) -> None:
+    """Write ``new`` ``[B, H, L, d_head]`` into ``cache`` ``[B, H, S, d_head]`` at slots ``write_index``."""
+    if isinstance(write_index, slice):
+        cache[:, :, write_index] = new
+    else:
+        index = write_index[:, None, :, None].expand(new.shape)
+        cache.scatter_(2, index, new.to(cache.dtype))
+
+
+def layer_norm_weights(norm: nn.LayerNorm) -> LayerNormWeights:
+    return LayerNormWeights(norm.weight, norm.bias, norm)
+
+
+def block_weights(block: nn.Module) -> BlockWeights:
+    """A ``TransformerBlock``'s parameters (raises ``ValueError`` on an unexpected structure)."""
+    fc, gelu, out = block.mlp[0], block.mlp[1], block.mlp[2]
+    if not isinstance(gelu, nn.GELU):
+        raise ValueError(
+            f"TransformerStep: expected the block's MLP to use nn.GELU, got {type(gelu).__name__}"
+        )
+    attn = block.attn
+    return BlockWeights(
+        layer_norm_weights(block.ln_attn),
+        (attn.qkv.weight, attn.qkv.bias),
+        (attn.proj.weight, attn.proj.bias),
+        layer_norm_weights(block.ln_mlp),
+        (fc.weight, fc.bias),
+        (out.weight, out.bias),
+        gelu,
+    )
