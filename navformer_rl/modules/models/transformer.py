@@ -67,7 +67,7 @@ class CausalSelfAttention(nn.Module):
         With ``cache = (keys, values)`` (``[B, H, S, d_head]``), the new keys/values are written at
         ``write_index`` (long ``[B, L]``, slots; or a ``slice`` of L slots shared by every sequence, one
         copy instead of a scatter) and the queries attend over the first S' slots under ``attn_mask``
-        (bool ``[B or 1, 1, L, S']``, True = may attend, S' <= S).
+        (bool ``[B or 1, 1, L, S']``, True = may attend, or additive float 0 / -inf; S' <= S).
         """
         batch, length, _ = x.shape
         q, k, v = self.qkv(x).view(batch, length, 3, self.n_heads, self.d_head).permute(2, 0, 3, 1, 4)
