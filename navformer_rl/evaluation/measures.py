@@ -26,9 +26,11 @@ disc around the target (``RobotTrial.shortest_path_to_disc``); it does not give 
 ``l_i`` to the target gives a robot that stops at the disc's edge. Reported in ``summary.csv`` and the
 report, not in the Table I-layout ``summary.md``.
 
-Confidence intervals (95 % by default): Wilson score interval for SR; a percentile bootstrap for SPL and
-CR that resamples whole trials (the robots of one trial share a world, so they are not independent),
-seeded so that the same records always give the same interval.
+Confidence intervals (95 % by default). The robots of one trial share a world and each other's company, so
+they are not independent: for SR, a Wilson score interval on Kish's effective sample size
+``n / deff`` (``clustered_wilson_interval``: the design effect ``deff`` compares the trial-clustered
+variance of SR with the binomial one, never below 1); for SPL and CR, a percentile bootstrap that resamples
+whole trials, seeded so that the same records always give the same interval.
 """
 
 from __future__ import annotations
@@ -95,13 +97,13 @@ def collision_rate(collisions: np.ndarray, steps: np.ndarray) -> float:
     return float(collision_rate_terms(collisions, steps).mean())
 
 
-def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """Wilson score interval for a binomial proportion ``successes / n``.
+def wilson_interval(successes: float, n: float, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion ``successes / n`` (``n`` may be an effective size).
 
     ``centre = (p + z^2 / 2n) / (1 + z^2 / n)``,
     ``half = z * sqrt(p (1 - p) / n + z^2 / 4n^2) / (1 + z^2 / n)``, ``z`` the normal quantile.
     """
-    if n <= 0 or not 0 <= successes <= n:
+    if not (n > 0 and 0 <= successes <= n):
         raise ValueError(f"need 0 <= successes <= n and n > 0, got successes={successes}, n={n}")
     z = _normal_quantile(confidence)
     p = successes / n
@@ -109,6 +111,35 @@ def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[f
     centre = (p + z * z / (2 * n)) / denominator
     half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denominator
     return max(0.0, float(centre - half)), min(1.0, float(centre + half))
+
+
+def clustered_wilson_interval(
+    success: np.ndarray, groups: np.ndarray, confidence: float = 0.95
+) -> tuple[float, float]:
+    """Wilson interval of the success rate of ``success`` (bool ``[N]``) clustered by ``groups`` (``[N]``).
+
+    Design effect ``deff = var_c / (p (1 - p) / N)`` with the cluster-robust variance of the mean
+    ``var_c = sum_g (s_g - p m_g)^2 / N^2`` (``s_g`` successes and ``m_g`` members of group g); the interval
+    is ``wilson_interval(p n_eff, n_eff)`` with Kish's effective size ``n_eff = N / max(deff, 1)``. One member
+    per group gives the plain Wilson interval; groups whose members always agree give the Wilson interval
+    over groups. When every outcome is equal (p = 0 or 1) ``deff`` cannot be estimated and ``n_eff`` is the
+    number of groups (the conservative end).
+    """
+    success = _as_1d(success, "success").astype(np.float64)
+    groups = _as_1d(groups, "groups")
+    if len(success) == 0 or groups.shape != success.shape:
+        raise ValueError(
+            f"need matching non-empty success and groups, got {success.shape} and {groups.shape}"
+        )
+    _, inverse = np.unique(groups, return_inverse=True)
+    n, p = len(success), float(success.mean())
+    members = np.bincount(inverse).astype(np.float64)
+    if p in (0.0, 1.0):
+        n_eff = float(len(members))
+    else:
+        clustered_variance = ((np.bincount(inverse, weights=success) - p * members) ** 2).sum() / n**2
+        n_eff = n / max(clustered_variance / (p * (1 - p) / n), 1.0)
+    return wilson_interval(p * n_eff, n_eff, confidence)
 
 
 def bootstrap_mean_interval(
@@ -236,7 +267,7 @@ def summarize(records: Sequence[RobotTrial], confidence: float = 0.95, seed: int
         n_robot_trials=len(records),
         n_trials=int(groups.max()) + 1,
         sr=success_rate(success),
-        sr_ci=wilson_interval(int(success.sum()), len(records), confidence),
+        sr_ci=clustered_wilson_interval(success, groups, confidence),
         spl=float(spl_values.mean()),
         spl_ci=bootstrap_mean_interval(spl_values, groups, confidence, seed=seed),
         cr=float(cr_values.mean()),

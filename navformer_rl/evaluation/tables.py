@@ -151,7 +151,7 @@ def write_summary_files(
     atomic_write_text(out_dir / "summary.csv", summaries_to_csv(summaries))
     note = (
         f"SR / SPL / CR with {100 * confidence:g} % confidence intervals in brackets "
-        "(Wilson for SR, trial-level bootstrap for SPL and CR).\n\n"
+        "(Wilson on the trial-clustered effective sample size for SR, trial-level bootstrap for SPL and CR).\n\n"
     )
     atomic_write_text(out_dir / "summary.md", note + table_markdown(summaries))
     return summaries

@@ -11,7 +11,7 @@ import torch
 from navformer_rl.baselines.random_walk import RandomWalkPolicy
 from navformer_rl.evaluation.episodes import load_episode_set
 from navformer_rl.evaluation.harness import evaluate, make_eval_env
-from navformer_rl.evaluation.measures import collision_rate, spl, wilson_interval
+from navformer_rl.evaluation.measures import clustered_wilson_interval, collision_rate, spl
 
 
 def test_writes_every_output(vrw_run, tiny_episodes):
@@ -64,7 +64,7 @@ def test_summary_matches_a_recomputation_from_the_jsonl(vrw_run, tiny_episodes):
     assert float(row["sr"]) == pytest.approx(success.mean(), abs=1e-6)
     assert float(row["spl"]) == pytest.approx(spl(success, shortest, driven), abs=1e-6)
     assert float(row["cr"]) == pytest.approx(collision_rate(collisions, steps), abs=1e-6)
-    low, high = wilson_interval(int(success.sum()), len(rows))
+    low, high = clustered_wilson_interval(success, np.array([r["episode_id"] for r in rows]))
     assert float(row["sr_low"]) == pytest.approx(low, abs=1e-6) and float(row["sr_high"]) == pytest.approx(
         high, abs=1e-6
     )

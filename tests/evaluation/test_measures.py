@@ -7,6 +7,7 @@ from navformer_rl.evaluation.measures import (
     RobotTrial,
     TrialTracker,
     bootstrap_mean_interval,
+    clustered_wilson_interval,
     collision_rate,
     collision_rate_terms,
     spl,
@@ -100,6 +101,34 @@ def _trial(episode, robot, success, steps, collisions, p, shortest):
         shortest_path_to_disc=max(shortest - 1.5, 0.1),
         final_distance=1.0 if success else 4.0,
     )
+
+
+def test_clustered_wilson_known_cases():
+    # one robot per trial: the plain Wilson interval
+    success = np.array([1, 0, 1, 1, 0, 1, 1, 0], dtype=bool)
+    assert clustered_wilson_interval(success, np.arange(8)) == pytest.approx(wilson_interval(5, 8))
+    # robots of a trial always agree: the Wilson interval over trials (5 of 8 trials, 3 robots each)
+    assert clustered_wilson_interval(np.repeat(success, 3), np.repeat(np.arange(8), 3)) == pytest.approx(
+        wilson_interval(5, 8)
+    )
+    # all equal: n_eff = number of trials
+    assert clustered_wilson_interval(np.zeros(6, dtype=bool), np.repeat([0, 1, 2], 2)) == pytest.approx(
+        wilson_interval(0, 3)
+    )
+    # hand-computed design effect: trials {1,1,0,0} and {1,0,0,0}; p = 3/8, N = 8
+    # var_c = ((2 - 1.5)^2 + (1 - 1.5)^2) / 64 = 0.5 / 64; binomial p(1-p)/N = 0.234375 / 8 -> deff = 0.2667,
+    # clamped to 1 (never narrower than independent robots)
+    mixed = np.array([1, 1, 0, 0, 1, 0, 0, 0], dtype=bool)
+    assert clustered_wilson_interval(mixed, np.repeat([0, 1], 4)) == pytest.approx(wilson_interval(3, 8))
+    # trials {1,1}, {1,1}, {0,0}, {1,0}: p = 5/8, var_c = (0.75^2 * 2 + 1.25^2 + 0.25^2) / 64 = 2.75 / 64,
+    # deff = (2.75 / 64) / (0.234375 / 8) = 1.4667 -> n_eff = 8 / 1.4667 = 5.4545
+    grouped = np.array([1, 1, 1, 1, 0, 0, 1, 0], dtype=bool)
+    n_eff = 8 / ((2.75 / 64) / (0.234375 / 8))
+    assert clustered_wilson_interval(grouped, np.repeat([0, 1, 2, 3], 2)) == pytest.approx(
+        wilson_interval(0.625 * n_eff, n_eff)
+    )
+    with pytest.raises(ValueError, match="matching"):
+        clustered_wilson_interval(success, np.arange(3))
 
 
 def test_summarize_and_record_round_trip():
