@@ -27,12 +27,15 @@ from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavForme
 
 
 def timed(fn, repeats: int) -> float:
-    """Median wall time of ``fn()`` in ms over ``repeats`` calls (after one warm-up)."""
+    """Median wall time of ``fn()`` in ms over ``repeats`` calls (after one warm-up; CUDA synchronised)."""
     fn()
+    sync = torch.cuda.synchronize if torch.cuda.is_available() else (lambda: None)
+    sync()
     samples = []
     for _ in range(repeats):
         start = time.perf_counter()
         fn()
+        sync()
         samples.append((time.perf_counter() - start) * 1e3)
     return statistics.median(samples)
 

@@ -22,6 +22,7 @@ training default), ``bf16_mb_s2d_detach`` (+ ``detach_encoders``: the DT loss do
 into the encoders).
 
 Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
+(``--device cuda`` on a GPU machine: everything, the matmul floors included, runs there; times are synchronised)
 (``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors;
 ``--min-valid 0.5`` right-pads the trajectory batches, whose padded frames the encoders skip.)
 """
@@ -62,19 +63,27 @@ CONFIGS = {
 }
 
 
-def median_ms(fn, repeats: int) -> float:
+def synchronize(device: torch.device | str) -> None:
+    """Wait for queued CUDA work (a no-op on CPU), so wall-clock times cover the computation."""
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def median_ms(fn, repeats: int, device: torch.device | str = "cpu") -> float:
     fn()
+    synchronize(device)
     samples = []
     for _ in range(repeats):
         start = time.perf_counter()
         fn()
+        synchronize(device)
         samples.append((time.perf_counter() - start) * 1e3)
     return statistics.median(samples)
 
 
-def matmul_gflops(dtype: torch.dtype, n: int = 2048, repeats: int = 5) -> float:
-    a, b = torch.randn(n, n).to(dtype), torch.randn(n, n).to(dtype)
-    return 2 * n**3 / median_ms(lambda: a @ b, repeats) / 1e6
+def matmul_gflops(dtype: torch.dtype, device: torch.device, n: int = 2048, repeats: int = 5) -> float:
+    a, b = torch.randn(n, n, device=device).to(dtype), torch.randn(n, n, device=device).to(dtype)
+    return 2 * n**3 / median_ms(lambda: a @ b, repeats, device) / 1e6
 
 
 def trajectory_batch(n: int, steps: int, seed: int, min_valid: float = 1.0) -> TensorDict:
@@ -110,9 +119,9 @@ def pair_batch(n: int, seed: int) -> TensorDict:
 class Trainer:
     """Model, both losses, one AdamW over their joint parameters and the EMA updater (the paper's loop)."""
 
-    def __init__(self, config: NavFormerConfig) -> None:
+    def __init__(self, config: NavFormerConfig, device: torch.device | str = "cpu") -> None:
         torch.manual_seed(0)
-        self.model = NavFormerModel(config)
+        self.model = NavFormerModel(config).to(device)
         self.dt_loss = NavFormerLoss(make_navformer_actor(self.model))
         self.byol_loss = BYOLLoss(
             self.model.static_encoder, self.model.general_encoder, autocast_dtype=config.autocast_dtype
@@ -162,6 +171,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--micro-batch", type=int, default=512)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (times are synchronised)")
     parser.add_argument("--batch-a", type=int, nargs=2, default=[25, 98], metavar=("N", "T"))
     parser.add_argument("--batch-b", type=int, nargs=2, default=[150, 63], metavar=("N", "T"))
     parser.add_argument("--pairs", type=int, default=512)
@@ -178,13 +188,14 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"unknown configs {sorted(unknown)}: expected some of {sorted(CONFIGS)}")
 
-    batch_a = trajectory_batch(*args.batch_a, seed=1, min_valid=args.min_valid)
-    batch_b = trajectory_batch(*args.batch_b, seed=2, min_valid=args.min_valid)
-    pairs = pair_batch(args.pairs, seed=3)
+    device = torch.device(args.device)
+    batch_a = trajectory_batch(*args.batch_a, seed=1, min_valid=args.min_valid).to(device)
+    batch_b = trajectory_batch(*args.batch_b, seed=2, min_valid=args.min_valid).to(device)
+    pairs = pair_batch(args.pairs, seed=3).to(device)
     frames_a, frames_b = args.batch_a[0] * args.batch_a[1], args.batch_b[0] * args.batch_b[1]
 
-    fp32_floor, bf16_floor = matmul_gflops(torch.float32), matmul_gflops(torch.bfloat16)
-    print(f"# torch {torch.__version__}, threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}, "
+    fp32_floor, bf16_floor = matmul_gflops(torch.float32, device), matmul_gflops(torch.bfloat16, device)
+    print(f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}, "
           f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}")  # fmt: skip
     valid = (batch_a["mask"].float().mean().item(), batch_b["mask"].float().mean().item())
     print(f"# valid fraction of trajectory steps: A {valid[0]:.2f}, B {valid[1]:.2f}")
@@ -192,7 +203,7 @@ def main() -> None:
 
     def count_flops(config: NavFormerConfig) -> dict[str, float]:
         """FLOPs of one iteration A and B (fp32 ops; autocast runs the same ops in bf16)."""
-        trainer, flops = Trainer(config), {}
+        trainer, flops = Trainer(config, device), {}
         for kind, batch, n_t in (("A", batch_a, args.batch_a), ("B", batch_b, args.batch_b)):
             with CountFlops() as counter:
                 trainer.iteration(batch, pairs)
@@ -214,11 +225,13 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.configs:
         options = {k: (args.micro_batch if v == "MB" else v) for k, v in CONFIGS[name].items()}
-        trainer = Trainer(NavFormerConfig(**options))
+        trainer = Trainer(NavFormerConfig(**options), device)
         aug = trainer.byol_loss.augmentation
-        aug_ms = median_ms(lambda aug=aug: [aug(pairs["pixels_dynamic"]) for _ in range(3)], args.repeats)
-        a_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_a, pairs), args.repeats)
-        b_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_b, pairs), args.repeats)
+        aug_ms = median_ms(
+            lambda aug=aug: [aug(pairs["pixels_dynamic"]) for _ in range(3)], args.repeats, device
+        )
+        a_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_a, pairs), args.repeats, device)
+        b_ms = median_ms(lambda trainer=trainer: trainer.iteration(batch_b, pairs), args.repeats, device)
         mean_s = (a_ms + b_ms) / 2e3
         detach = bool(options.get("detach_encoders", False))
         if detach not in flops_by_detach:
@@ -226,7 +239,7 @@ def main() -> None:
         flops = flops_by_detach[detach]
         gflops = (flops["A"] + flops["B"]) / 2 / mean_s / 1e9  # FLOPs this configuration really executes
         # floors again right after this configuration: on a shared machine the load drifts
-        fp32_after, bf16_after = matmul_gflops(torch.float32), matmul_gflops(torch.bfloat16)
+        fp32_after, bf16_after = matmul_gflops(torch.float32, device), matmul_gflops(torch.bfloat16, device)
         fp32_now, bf16_now = (fp32_floor + fp32_after) / 2, (bf16_floor + bf16_after) / 2
         fp32_floor, bf16_floor = fp32_after, bf16_after
         print(
