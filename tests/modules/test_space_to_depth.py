@@ -80,3 +80,8 @@ def test_encode_images_refuses_encoders_with_different_layouts():
         encode_images([ConvEncoder(), ResNet18Encoder()], _pixels(1))
     with pytest.raises(ValueError, match="image_size % 4"):
         ConvEncoder(image_size=82, space_to_depth=True)
+
+
+def test_encode_nchw_names_a_bad_input_shape():
+    with pytest.raises(ValueError, match=r"\(2, 5, 84, 84\)"):
+        ConvEncoder().encode_nchw(torch.zeros(2, 5, 84, 84))

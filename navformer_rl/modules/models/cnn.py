@@ -177,6 +177,8 @@ class ConvEncoder(ImageEncoder):
     def encode_nchw(self, x: Tensor) -> Tensor:
         """x: float ``[M, 3, H, W]``, or its space-to-depth form ``[M, 48, H/4, W/4]`` -> ``[M, d_out]``."""
         conv1 = self.convs[0]
+        if x.dim() != 4 or x.shape[1] not in (3, 48):
+            raise ValueError(f"x: expected float [M, 3, H, W] or [M, 48, H/4, W/4], got {tuple(x.shape)}")
         if x.shape[1] == 3:
             x = conv1(x)
         else:  # kernel (o, c, 4 by + dy, 4 bx + dx) -> (o, (dy, dx, c), by, bx)
