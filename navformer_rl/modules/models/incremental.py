@@ -21,7 +21,7 @@ from navformer_rl.modules.models.cnn import ConvEncoder
 from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
 from navformer_rl.modules.models.navformer import NavFormerModel
 from navformer_rl.modules.models.step_layers import StepLayers
-from navformer_rl.modules.models.transformer import KVCache
+from navformer_rl.modules.models.transformer import KVCache, additive_mask
 from navformer_rl.modules.models.transformer_step import TransformerStep
 
 
@@ -213,13 +213,3 @@ class IncrementalNavFormer:
         self.steps_done += 1
         self._shared_step = t + 1
         return action
-
-
-def additive_mask(allowed: Tensor, dtype: torch.dtype) -> Tensor:
-    """Bool attention mask (True = may attend) -> the additive one SDPA adds to the scores (0 / -inf).
-
-    SDPA converts a bool mask to this form in every call (every block); converting once per step is cheaper.
-    """
-    return torch.zeros(allowed.shape, dtype=dtype, device=allowed.device).masked_fill_(
-        allowed.logical_not(), float("-inf")
-    )

@@ -93,6 +93,16 @@ class CausalSelfAttention(nn.Module):
         return self.resid_dropout(self.proj(y))
 
 
+def additive_mask(allowed: Tensor, dtype: torch.dtype) -> Tensor:
+    """Bool attention mask (True = may attend) -> the additive one SDPA adds to the scores (0 / -inf).
+
+    SDPA converts a bool mask to this form in every call (every block); converting once per step is cheaper.
+    """
+    return torch.zeros(allowed.shape, dtype=dtype, device=allowed.device).masked_fill_(
+        allowed.logical_not(), float("-inf")
+    )
+
+
 def attention_with_dropout(q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor | None, p: float) -> Tensor:
     """``softmax(q k^T / sqrt(d_head) | mask)`` with dropout p on the weights, then ``@ v``.
 
@@ -106,9 +116,7 @@ def attention_with_dropout(q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor | 
     slots = k.shape[-2]
     if attn_mask is None:
         attn_mask = torch.ones(length, slots, dtype=torch.bool, device=q.device).tril_()
-    bias = torch.zeros(attn_mask.shape, dtype=q.dtype, device=q.device).masked_fill_(
-        ~attn_mask, float("-inf")
-    )
+    bias = additive_mask(attn_mask, q.dtype)
     if bias.dim() == 4:  # [B or 1, 1, L, S] -> broadcastable to the [B * H, L, S] scores
         bias = bias[0, 0] if bias.shape[0] == 1 else bias.expand(batch, heads, length, slots).flatten(0, 1)
     scores = torch.baddbmm(
