@@ -18,7 +18,8 @@ plus the causal attention counted analytically (the counter does not see CPU SDP
 Configurations (levers are ``NavFormerConfig`` / ``BYOLLoss`` options the training loop can set):
 ``fp32`` (NCHW, one chunk), ``bf16`` (autocast bfloat16 + channels_last), ``bf16_mb`` (+ encoder
 micro-batches of ``--micro-batch``), ``bf16_mb_s2d`` (+ ``space_to_depth`` first convolution: the
-training default), ``bf16_mb_s2d_detach`` (+ ``detach_encoders``: the DT loss does not back-propagate
+training default; it also takes the last convolution's weight gradient as an im2col matmul, which
+``bf16_mb_s2d_onednn_w`` leaves to oneDNN), ``bf16_mb_s2d_detach`` (+ ``detach_encoders``: the DT loss does not back-propagate
 into the encoders).
 
 Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
@@ -54,6 +55,11 @@ CONFIGS = {
         "space_to_depth": False,
     },
     "bf16_mb_s2d": {"autocast_dtype": "bfloat16", "encoder_micro_batch": "MB"},
+    "bf16_mb_s2d_onednn_w": {
+        "autocast_dtype": "bfloat16",
+        "encoder_micro_batch": "MB",
+        "matmul_weight_grad": False,
+    },
     "bf16_mb_s2d_detach": {
         "autocast_dtype": "bfloat16",
         "encoder_micro_batch": "MB",
@@ -119,9 +125,14 @@ def pair_batch(n: int, seed: int) -> TensorDict:
 class Trainer:
     """Model, both losses, one AdamW over their joint parameters and the EMA updater (the paper's loop)."""
 
-    def __init__(self, config: NavFormerConfig, device: torch.device | str = "cpu") -> None:
+    def __init__(
+        self, config: NavFormerConfig, device: torch.device | str = "cpu", matmul_weight_grad: bool = True
+    ) -> None:
         torch.manual_seed(0)
         self.model = NavFormerModel(config).to(device)
+        for _, encoder in self.model.observation_encoders():
+            if hasattr(encoder, "matmul_weight_grad"):
+                encoder.matmul_weight_grad = matmul_weight_grad
         self.dt_loss = NavFormerLoss(make_navformer_actor(self.model))
         self.byol_loss = BYOLLoss(
             self.model.static_encoder, self.model.general_encoder, autocast_dtype=config.autocast_dtype
@@ -225,7 +236,8 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.configs:
         options = {k: (args.micro_batch if v == "MB" else v) for k, v in CONFIGS[name].items()}
-        trainer = Trainer(NavFormerConfig(**options), device)
+        matmul_weight_grad = options.pop("matmul_weight_grad", True)
+        trainer = Trainer(NavFormerConfig(**options), device, matmul_weight_grad)
         aug = trainer.byol_loss.augmentation
         aug_ms = median_ms(
             lambda aug=aug: [aug(pairs["pixels_dynamic"]) for _ in range(3)], args.repeats, device

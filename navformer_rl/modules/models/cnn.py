@@ -5,6 +5,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from navformer_rl.modules.models.conv_grad import conv2d_matmul_weight_grad
+
 
 def check_images(pixels: Tensor, image_size: int, name: str = "pixels") -> None:
     """Raise ``ValueError`` unless ``pixels`` is uint8 ``[..., image_size, image_size, 3]`` (HWC)."""
@@ -137,6 +139,10 @@ class ConvEncoder(ImageEncoder):
     this makes the training forward + backward of conv1 about 2x faster. Needs ``image_size % 4 == 0``.
     Only uint8 input (``forward``) is rearranged: float input (``forward_float``, the BYOL views) keeps the
     3-channel layout, where a strided float rearrangement would cost more than it saves.
+
+    matmul_weight_grad: when training in bf16 on CPU, compute the last convolution's weight gradient as
+    one matmul on its input patches (``conv2d_matmul_weight_grad``; oneDNN's kernel is slow for its 4 x 4
+    output map). Same maths; off, or on other devices and dtypes, ``nn.Conv2d`` runs.
     """
 
     def __init__(
@@ -146,8 +152,10 @@ class ConvEncoder(ImageEncoder):
         micro_batch: int | None = None,
         channels_last: bool = True,
         space_to_depth: bool = False,
+        matmul_weight_grad: bool = True,
     ) -> None:
         super().__init__(image_size, d_out, micro_batch, channels_last)
+        self.matmul_weight_grad = matmul_weight_grad
         if space_to_depth and image_size % 4:
             raise ValueError(f"ConvEncoder: space_to_depth needs image_size % 4 == 0, got {image_size}")
         self.space_to_depth = space_to_depth
@@ -184,4 +192,19 @@ class ConvEncoder(ImageEncoder):
         else:  # kernel (o, c, 4 by + dy, 4 bx + dx) -> (o, (dy, dx, c), by, bx)
             weight = conv1.weight.view(32, 3, 2, 4, 2, 4).permute(0, 3, 5, 1, 2, 4).reshape(32, 48, 2, 2)
             x = nn.functional.conv2d(x, weight, conv1.bias)
-        return self.linear(self.convs[1:](x).flatten(1))
+        x = self.convs[1:4](x)  # ReLU, conv2, ReLU
+        conv3 = self.convs[4]
+        if self._use_matmul_weight_grad(x):
+            x = conv2d_matmul_weight_grad(x, conv3.weight, conv3.bias, conv3.stride[0])
+        else:
+            x = conv3(x)
+        return self.linear(self.convs[5](x).flatten(1))
+
+    def _use_matmul_weight_grad(self, x: Tensor) -> bool:
+        return (
+            self.matmul_weight_grad
+            and x.device.type == "cpu"
+            and x.dtype == torch.bfloat16
+            and torch.is_grad_enabled()
+            and self.convs[4].weight.requires_grad
+        )
