@@ -4,7 +4,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from navformer_rl.modules.models.dropout import Dropout, fast_dropout, keep_mask
+from navformer_rl.modules.models import dropout
+from navformer_rl.modules.models.dropout import PARALLEL_WORDS, Dropout, fast_dropout, keep_mask
 from navformer_rl.modules.models.transformer import attention_with_dropout
 
 
@@ -33,6 +34,38 @@ def test_keep_mask_is_reproducible_under_manual_seed():
     first = keep_mask((33, 17), 0.9, "cpu")
     torch.manual_seed(3)
     assert torch.equal(first, keep_mask((33, 17), 0.9, "cpu"))
+
+
+def test_large_masks_from_two_generators_have_the_rate_and_independent_halves():
+    shape = (4 * PARALLEL_WORDS // 1000 + 1, 1000)  # just above the two-generator threshold
+    torch.manual_seed(0)
+    mask = keep_mask(shape, 0.9, "cpu")
+    assert mask.dtype == torch.bool and mask.shape == shape
+    flat = mask.reshape(-1).float()
+    assert abs(flat.mean().item() - 0.9) < 0.002
+    assert torch.allclose(flat.reshape(-1, 4).mean(0), torch.full((4,), 0.9), atol=0.004)
+    assert abs((flat[1:] * flat[:-1]).mean().item() - 0.81) < 0.003
+    half = flat.numel() // 2
+    first, second = flat[:half], flat[half : 2 * half]
+    assert abs((first * second).mean().item() - 0.81) < 0.003  # the halves' generators are independent
+
+
+@pytest.mark.parametrize("shape", [(7, 3), (1, 9), (16,), (5, 5, 5)])
+def test_two_generator_masks_do_not_depend_on_the_thread_count(monkeypatch, shape):
+    monkeypatch.setattr(dropout, "PARALLEL_WORDS", 1)  # odd small shapes through the two-generator path
+    threads = torch.get_num_threads()
+    masks = []
+    try:
+        for n_threads in (1, 2, 1):
+            torch.set_num_threads(n_threads)
+            torch.manual_seed(7)
+            masks.append(keep_mask(shape, 0.5, "cpu"))
+    finally:
+        torch.set_num_threads(threads)
+    assert masks[0].shape == shape
+    assert torch.equal(masks[0], masks[1]) and torch.equal(masks[0], masks[2])
+    torch.manual_seed(8)  # another seed, another mask (deterministic: the seeds are fixed)
+    assert masks[0].numel() < 16 or not torch.equal(masks[0], keep_mask(shape, 0.5, "cpu"))
 
 
 def test_fast_dropout_zeroes_and_rescales_and_its_gradient_is_the_mask():

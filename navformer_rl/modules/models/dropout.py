@@ -8,15 +8,26 @@ threshold: one generator call per four elements. The keep probability is quantis
 probability 58982 / 65536 = 0.899994). Masks come from torch's default generator, so
 ``torch.manual_seed`` makes them reproducible and a checkpoint's saved RNG state resumes them exactly.
 Other devices use ``F.dropout`` unchanged.
+
+Large masks (``PARALLEL_WORDS`` words and more: the attention weights) are drawn in two halves by two
+numpy ``SFC64`` generators in two threads, seeded from torch's default generator: torch's ``random_`` is
+serial and two torch generators in two threads do not overlap, while numpy's fills release the GIL. The
+halves are always two, whatever the thread count (one thread fills them one after the other), so a mask
+depends only on the torch RNG state.
 """
 
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+PARALLEL_WORDS = 1 << 18  # masks of at least this many int64 words (1M elements) use two numpy generators
 
 
 def keep_mask(shape: torch.Size | tuple[int, ...], keep_prob: float, device: torch.device | str) -> Tensor:
@@ -27,9 +38,46 @@ def keep_mask(shape: torch.Size | tuple[int, ...], keep_prob: float, device: tor
     if threshold > 32767:
         return torch.ones(shape, dtype=torch.bool, device=device)
     numel = math.prod(shape)
-    words = torch.empty(-(-numel // 4), dtype=torch.int64, device=device).random_(-(2**63), None)
+    n_words = -(-numel // 4)
+    if torch.device(device).type == "cpu" and n_words >= PARALLEL_WORDS:
+        return _parallel_keep_mask(numel, threshold).view(shape)
+    words = torch.empty(n_words, dtype=torch.int64, device=device).random_(-(2**63), None)
     lanes = words.view(torch.int16)[:numel]  # four uniform 16-bit lanes per 64-bit word
     return (lanes < threshold).view(shape)
+
+
+def _parallel_keep_mask(numel: int, threshold: int) -> Tensor:
+    """Flat bool ``[numel]``: two halves, each from a numpy ``SFC64`` seeded by torch's default generator."""
+    seeds = torch.randint(0, 2**62, (2,), dtype=torch.int64).tolist()
+    mask = torch.empty(numel, dtype=torch.bool)
+    half = -(-numel // 8) * 4  # a whole number of words
+    parts = [(seeds[0], mask[:half]), (seeds[1], mask[half:])]
+    if torch.get_num_threads() > 1:
+        futures = [_mask_pool().submit(_fill_mask, seed, part, threshold) for seed, part in parts]
+        for future in futures:
+            future.result()
+    else:
+        for seed, part in parts:
+            _fill_mask(seed, part, threshold)
+    return mask
+
+
+def _fill_mask(seed: int, out: Tensor, threshold: int) -> None:
+    """``out`` (bool ``[n]``) = four 16-bit lanes per ``SFC64(seed)`` word compared with ``threshold``."""
+    words = np.random.SFC64(seed).random_raw(-(-out.numel() // 4))
+    lanes = torch.from_numpy(words.view(np.int16))[: out.numel()]
+    torch.lt(lanes, threshold, out=out)
+
+
+_POOL: tuple[int, ThreadPoolExecutor] | None = None
+
+
+def _mask_pool() -> ThreadPoolExecutor:
+    """Two worker threads, made again in a forked child (threads do not survive a fork)."""
+    global _POOL
+    if _POOL is None or _POOL[0] != os.getpid():
+        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=2, thread_name_prefix="dropout-mask"))
+    return _POOL[1]
 
 
 def fast_dropout(x: Tensor, p: float, training: bool) -> Tensor:
