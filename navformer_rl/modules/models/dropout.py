@@ -65,8 +65,9 @@ def _parallel_keep_mask(numel: int, threshold: int) -> Tensor:
 def _fill_mask(seed: int, out: Tensor, threshold: int) -> None:
     """``out`` (bool ``[n]``) = four 16-bit lanes per ``SFC64(seed)`` word compared with ``threshold``."""
     words = np.random.SFC64(seed).random_raw(-(-out.numel() // 4))
-    lanes = torch.from_numpy(words.view(np.int16))[: out.numel()]
-    torch.lt(lanes, threshold, out=out)
+    # numpy, not torch, compares: a torch op in a worker thread would start its own OpenMP team, whose
+    # spinning threads then compete with the main thread's kernels
+    np.less(words.view(np.int16)[: out.numel()], threshold, out=out.numpy())
 
 
 _POOL: tuple[int, ThreadPoolExecutor] | None = None
