@@ -8,7 +8,7 @@ import torch
 from torch import Tensor, nn
 
 from navformer_rl.modules.models.cnn import ConvEncoder, check_images, images_to_float
-from navformer_rl.modules.models.derived import parameter_key
+from navformer_rl.modules.models.derived import DerivedCache
 
 KERNELS = (8, 4, 3)
 """Kernel sizes of ``ConvEncoder``'s three convolutions."""
@@ -63,21 +63,14 @@ class FusedConvEncoders:
         self.encoders = (first, second)
         self.gemm_max_batch = gemm_max_batch
         # gathered once: ``nn.Module`` attribute access costs ~2 us, more than the check itself
-        self._params = tuple(
+        params = (
             tensor
             for encoder in self.encoders
             for layer in (encoder.convs[0], encoder.convs[2], encoder.convs[4], encoder.linear)
             for tensor in (layer.weight, layer.bias)
         )
-        self._key: tuple | None = None
-        self._weights: FusedWeights | None = None
+        self._weights = DerivedCache(params, self._build_weights)
         self._buffers: dict[tuple, Tensor] = {}
-
-    def _fused_weights(self) -> FusedWeights:
-        key = parameter_key(self._params)
-        if key != self._key:
-            self._weights, self._key = self._build_weights(), key
-        return self._weights
 
     def _build_weights(self) -> FusedWeights:
         first, second = self.encoders
@@ -101,7 +94,7 @@ class FusedConvEncoders:
         size = self.encoders[0].image_size
         check_images(pixels, size)
         pixels = pixels.reshape(-1, size, size, 3)
-        weights = self._fused_weights()
+        weights = self._weights.get()
         if pixels.shape[0] <= self.gemm_max_batch:
             return self._gemm_stack(pixels, weights)
         return self._conv_stack(pixels, weights)

@@ -7,7 +7,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from navformer_rl.modules.models.derived import parameter_key
+from navformer_rl.modules.models.derived import DerivedCache
 from navformer_rl.modules.models.navformer import MODALITIES, NavFormerModel
 from navformer_rl.modules.models.transformer_step import layer_norm_weights
 
@@ -44,7 +44,7 @@ class StepLayers:
     def __init__(self, model: NavFormerModel) -> None:
         self.model = model
         # the parameters the tables come from, gathered once: ``nn.Module`` attribute access costs ~2 us
-        self._sources = (
+        sources = (
             model.action_embed.weight,
             model.action_embed.bias,
             model.return_embed.weight,
@@ -55,15 +55,11 @@ class StepLayers:
             model.head.bias,
         )
         self._embed_norm = layer_norm_weights(model.embed_ln)
-        self._key: tuple | None = None
-        self._tables: StepTables | None = None
+        self._tables = DerivedCache(sources, self._build)
 
     def tables(self) -> StepTables:
         """The current ``StepTables`` (rebuilt if a parameter changed since the last call)."""
-        key = parameter_key(self._sources)
-        if key != self._key:
-            self._tables, self._key = self._build(), key
-        return self._tables
+        return self._tables.get()
 
     def _build(self) -> StepTables:
         model = self.model

@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from navformer_rl.modules.models.derived import parameter_key
+from navformer_rl.modules.models.derived import DerivedCache
 from navformer_rl.modules.models.transformer import CausalTransformer, KVCache
 
 
@@ -56,19 +56,16 @@ class TransformerStep:
         self.transformer = transformer
         self.blocks = tuple(block_weights(block) for block in transformer.blocks)
         self.ln_final = layer_norm_weights(transformer.ln_final)
-        self._weights = tuple(
+        weights = tuple(
             linear[0] for block in self.blocks for linear in (block.qkv, block.proj, block.fc, block.out)
         )
-        self._key: tuple | None = None
-        self._transposed: tuple[Tensor, ...] = ()
+        self._transposed = DerivedCache(
+            weights, lambda: tuple(weight.detach().t().contiguous() for weight in weights)
+        )
 
     def transposed_weights(self) -> tuple[Tensor, ...]:
         """Every block's ``(qkv, proj, fc, out)`` weights as contiguous ``[in, out]`` (rebuilt if changed)."""
-        key = parameter_key(self._weights)
-        if key != self._key:
-            self._transposed = tuple(weight.detach().t().contiguous() for weight in self._weights)
-            self._key = key
-        return self._transposed
+        return self._transposed.get()
 
     def __call__(self, x: Tensor, attn_mask: Tensor, cache: KVCache, write_index: Tensor | slice) -> Tensor:
         """x ``[B, L, d]`` -> hidden ``[B, L, d]``; the L new keys/values are written to ``cache``.
