@@ -18,20 +18,25 @@ import torch.nn.functional as F
 from torch import Tensor
 
 
+def im2col_view(x: Tensor, kernel: int, stride: int) -> Tensor:
+    """Patches of a channels-last stack as a view: ``[G, M, H, W, C]`` -> ``[G, M, S, S, k, k, C]``.
+
+    S = ``(H - k) // stride + 1``: patch ``[g, m, i, j]`` is ``x[g, m, i*stride : i*stride + k, j*stride :
+    j*stride + k]``, features in (kh, kw, c) order.
+    """
+    patches = x.unfold(2, kernel, stride).unfold(3, kernel, stride)  # [G, M, S, S, C, k, k]
+    return patches.permute(0, 1, 2, 3, 5, 6, 4)
+
+
 def im2col(x: Tensor, kernel: int, stride: int) -> Tensor:
     """float ``[N, C, H, W]`` -> patches ``[N * OH * OW, kernel * kernel * C]``, column order ``(kh, kw, c)``.
 
     No padding, no dilation: ``OH = (H - kernel) // stride + 1`` (same for OW). One copy (none extra
     when ``x`` is channels_last, whose NHWC view is contiguous).
     """
-    n, c, height, width = x.shape
-    out_h, out_w = (height - kernel) // stride + 1, (width - kernel) // stride + 1
-    nhwc = x.permute(0, 2, 3, 1).contiguous()
-    s_n, s_h, s_w, s_c = nhwc.stride()
-    patches = nhwc.as_strided(
-        (n, out_h, out_w, kernel, kernel, c), (s_n, s_h * stride, s_w * stride, s_h, s_w, s_c)
-    )
-    return patches.reshape(n * out_h * out_w, kernel * kernel * c)
+    n, c = x.shape[:2]
+    patches = im2col_view(x.permute(0, 2, 3, 1)[None], kernel, stride)  # [1, N, OH, OW, k, k, C]
+    return patches.reshape(n * patches.shape[2] * patches.shape[3], kernel * kernel * c)
 
 
 class _ConvMatmulWeightGrad(torch.autograd.Function):

@@ -8,6 +8,7 @@ import torch
 from torch import Tensor, nn
 
 from navformer_rl.modules.models.cnn import ConvEncoder, check_images, images_to_float
+from navformer_rl.modules.models.conv_grad import im2col_view
 from navformer_rl.modules.models.derived import DerivedCache
 
 KERNELS = (8, 4, 3)
@@ -142,16 +143,6 @@ class FusedConvEncoders:
             with torch.inference_mode(False):
                 buffer = self._buffers[key] = torch.empty(shape, dtype=torch.float32, device=device)
         return buffer
-
-
-def im2col_view(x: Tensor, kernel: int, stride: int) -> Tensor:
-    """Patches of a channels-last stack as a view: ``[G, M, H, W, C]`` -> ``[G, M, S, S, k, k, C]``.
-
-    S = ``(H - k) // stride + 1``: patch ``[g, m, i, j]`` is ``x[g, m, i*stride : i*stride + k, j*stride :
-    j*stride + k]``, features in (kh, kw, c) order.
-    """
-    patches = x.unfold(2, kernel, stride).unfold(3, kernel, stride)  # [G, M, S, S, C, k, k]
-    return patches.permute(0, 1, 2, 3, 5, 6, 4)
 
 
 def gemm_conv_weight(weight: Tensor, groups: int, scale: float = 1.0) -> Tensor:
