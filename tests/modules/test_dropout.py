@@ -5,8 +5,8 @@ import torch
 import torch.nn.functional as F
 
 from navformer_rl.modules.models import dropout
+from navformer_rl.modules.models.attention import attention_with_dropout
 from navformer_rl.modules.models.dropout import PARALLEL_WORDS, Dropout, fast_dropout, keep_mask
-from navformer_rl.modules.models.transformer import attention_with_dropout
 
 
 def test_keep_mask_has_the_requested_rate_and_no_lane_pattern():

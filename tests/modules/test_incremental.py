@@ -5,8 +5,9 @@ import torch
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
 from navformer_rl.modules.models import sliding_window_mask
+from navformer_rl.modules.models.attention import additive_mask
 from navformer_rl.modules.models.step_layers import StepLayers
-from navformer_rl.modules.models.transformer import KVCache, additive_mask
+from navformer_rl.modules.models.transformer import KVCache
 from navformer_rl.modules.models.transformer_step import TransformerStep
 
 KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")

@@ -17,11 +17,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from navformer_rl.modules.models.attention import additive_mask
 from navformer_rl.modules.models.cnn import ConvEncoder
 from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
 from navformer_rl.modules.models.navformer import NavFormerModel
 from navformer_rl.modules.models.step_layers import StepLayers
-from navformer_rl.modules.models.transformer import KVCache, additive_mask
+from navformer_rl.modules.models.transformer import KVCache
 from navformer_rl.modules.models.transformer_step import TransformerStep
 
 

@@ -8,7 +8,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from navformer_rl.modules.models.dropout import Dropout, keep_mask
+from navformer_rl.modules.models.attention import attention_with_dropout
+from navformer_rl.modules.models.dropout import Dropout
 
 
 @dataclass
@@ -91,41 +92,6 @@ class CausalSelfAttention(nn.Module):
             )
         y = y.transpose(1, 2).reshape(batch, length, self.n_heads * self.d_head)
         return self.resid_dropout(self.proj(y))
-
-
-def additive_mask(allowed: Tensor, dtype: torch.dtype) -> Tensor:
-    """Bool attention mask (True = may attend) -> the additive one SDPA adds to the scores (0 / -inf).
-
-    SDPA converts a bool mask to this form in every call (every block); converting once per step is cheaper.
-    """
-    return torch.zeros(allowed.shape, dtype=dtype, device=allowed.device).masked_fill_(
-        allowed.logical_not(), float("-inf")
-    )
-
-
-def attention_with_dropout(q: Tensor, k: Tensor, v: Tensor, attn_mask: Tensor | None, p: float) -> Tensor:
-    """``softmax(q k^T / sqrt(d_head) | mask)`` with dropout p on the weights, then ``@ v``.
-
-    What ``F.scaled_dot_product_attention(..., dropout_p=p)`` computes on CPU (its math path: the fused
-    kernels do not support dropout there), with the mask drawn by ``keep_mask``, far cheaper than SDPA's
-    ``bernoulli_`` on the ``[B, H, L, S]`` weights; the 1 / (1 - p) rescaling is applied to the smaller
-    output. q: ``[B, H, L, d_head]``, k / v: ``[B, H, S, d_head]``; attn_mask bool ``[B or 1, 1, L, S]``
-    (True = may attend) or None (causal, L = S) -> ``[B, H, L, d_head]``.
-    """
-    batch, heads, length, d_head = q.shape
-    slots = k.shape[-2]
-    if attn_mask is None:
-        attn_mask = torch.ones(length, slots, dtype=torch.bool, device=q.device).tril_()
-    bias = additive_mask(attn_mask, q.dtype)
-    if bias.dim() == 4:  # [B or 1, 1, L, S] -> broadcastable to the [B * H, L, S] scores
-        bias = bias[0, 0] if bias.shape[0] == 1 else bias.expand(batch, heads, length, slots).flatten(0, 1)
-    scores = torch.baddbmm(
-        bias, q.flatten(0, 1), k.flatten(0, 1).transpose(1, 2), alpha=d_head**-0.5
-    )  # [B * H, L, S]
-    weights = torch.softmax(scores, dim=-1)
-    kept = torch.where(keep_mask(weights.shape, 1.0 - p, weights.device), weights, 0)
-    out = torch.bmm(kept, v.flatten(0, 1)).mul_(1.0 / (1.0 - p))
-    return out.view(batch, heads, length, d_head)
 
 
 class TransformerBlock(nn.Module):
