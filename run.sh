@@ -27,6 +27,9 @@ if [ ! -f "$stamp" ]; then
     touch "$stamp"
 fi
 export RL_LOGGING_LEVEL="${RL_LOGGING_LEVEL:-WARNING}"
+# transparent huge pages for malloc (glibc >= 2.35; older glibc ignores it): big tensors are not page-faulted
+# in afresh at every iteration (measured in docs/training.md and benchmarks/); set GLIBC_TUNABLES to override
+export GLIBC_TUNABLES="${GLIBC_TUNABLES:-glibc.malloc.hugetlb=1}"
 cmd="${1:-demo}"
 shift || true
 case "$cmd" in
