@@ -74,3 +74,7 @@ def test_bad_inputs_are_refused():
         chunked_dropout_attention(q, k.double(), v, bias, keep, 1.0)
     with pytest.raises(ValueError, match=r"keep: expected bool \[7, 6, 6\]"):
         chunked_dropout_attention(q, k, v, bias, keep[:3], 1.0)
+    with pytest.raises(ValueError, match=r"bias: expected \[6, 6\] or \[7, 6, 6\], got \(5, 6\)"):
+        chunked_dropout_attention(q, k, v, bias[:5], keep, 1.0)
+    with pytest.raises(ValueError, match="chunk=0"):
+        chunked_dropout_attention(q, k, v, bias, keep, 1.0, chunk=0)

@@ -76,8 +76,14 @@ def chunked_dropout_attention(
         raise ValueError(
             f"keep: expected bool [{n}, {length}, {slots}], got {keep.dtype} {tuple(keep.shape)}"
         )
+    if tuple(bias.shape) not in ((length, slots), (n, length, slots)):
+        raise ValueError(
+            f"bias: expected [{length}, {slots}] or [{n}, {length}, {slots}], got {tuple(bias.shape)}"
+        )
     if chunk is None:
         chunk = max(1, CHUNK_BYTES // (length * slots * q.element_size()))
+    elif chunk < 1:
+        raise ValueError(f"chunk={chunk!r}: expected a positive number of sequences or None")
     return _ChunkedDropoutAttention.apply(q, k, v, bias.to(q.dtype), keep, scale, chunk)
 
 
@@ -85,7 +91,7 @@ class _ChunkedDropoutAttention(torch.autograd.Function):
     """Forward and backward of ``chunked_dropout_attention``, chunk by chunk, autocast off (explicit dtypes)."""
 
     @staticmethod
-    def forward(ctx, q, k, v, bias, keep, scale, chunk):  # noqa: D102 - documented on the class
+    def forward(ctx, q, k, v, bias, keep, scale, chunk):
         with torch.autocast(q.device.type, enabled=False):
             alpha = q.shape[-1] ** -0.5
             weights = torch.empty(q.shape[0], q.shape[1], k.shape[1], dtype=q.dtype, device=q.device)
@@ -101,7 +107,7 @@ class _ChunkedDropoutAttention(torch.autograd.Function):
         return out
 
     @staticmethod
-    def backward(ctx, grad_out):  # noqa: D102 - documented on the class
+    def backward(ctx, grad_out):
         q, k, v, weights, keep = ctx.saved_tensors
         with torch.autocast(q.device.type, enabled=False):
             grad_out = grad_out.to(q.dtype) * ctx.scale
