@@ -4,7 +4,7 @@
 every step (scores, softmax, dropout, product) over the whole ``[B * H, L, S]`` weights: in the paper's
 batch B that is ``[300, 252, 252]``, 38 MB in bf16, so each of the ~10 elementwise passes of the forward
 and backward goes through main memory. ``attention_with_dropout`` computes the same thing chunk by chunk
-over the ``B * H`` sequences (``CHUNK_BYTES`` of weights per chunk, 32 sequences at L = S = 252 in bf16),
+over the ``B * H`` sequences (``CHUNK_BYTES`` of weights per chunk, 33 sequences at L = S = 252 in bf16),
 so the passes on a chunk stay in the core's cache; a custom backward walks the chunks again. The values
 and gradients are bit-identical to the unchunked autograd graph of the same ops (tested); a whole
 attention forward + backward takes 0.67-0.83x the time of the unchunked one (``benchmarks/model.md``).
