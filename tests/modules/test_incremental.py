@@ -89,6 +89,31 @@ def test_per_robot_reset_clears_only_that_robots_state(batch_factory):
     assert decoder.steps_done.tolist() == [steps, steps - restart]
 
 
+@pytest.mark.parametrize("ablation", ["navformer", "dt"])  # 4 and 3 tokens per step
+def test_shared_path_equals_general_path_and_leaves_its_state_for_it(batch_factory, ablation):
+    """The shared fast path (no slot bookkeeping, moving mask past the wrap) against the general path
+    (positions and masks from ``slot_pos``) over two ring wraps; then a partial reset hands the shared
+    decoder's state to the general path, which must continue exactly."""
+    model = small_context_model(
+        **({} if ablation == "navformer" else {"use_static_encoder": False, "thsc": False})
+    )
+    window = model.config.window_steps
+    steps = 2 * window + 3
+    batch = batch_factory(2, steps + 2, seed=6)
+    shared, general = IncrementalNavFormer(model, 2), IncrementalNavFormer(model, 2)
+    general.reset(torch.tensor([True, False]))  # a partial reset: the general path from the start
+    for t in range(steps):
+        torch.testing.assert_close(decode(shared, batch, t), decode(general, batch, t), rtol=0, atol=0)
+        assert shared.shared_slot_positions(t + 1).tolist() == general.slot_pos[0].tolist()
+        assert shared.steps_done.tolist() == general.steps_done.tolist() == [t + 1, t + 1]
+    shared.reset(torch.tensor([False, True]))  # the shared decoder leaves its fast path here
+    general.reset(torch.tensor([False, True]))
+    assert torch.equal(shared.slot_pos, general.slot_pos)
+    for t in range(steps, steps + 2):
+        torch.testing.assert_close(decode(shared, batch, t), decode(general, batch, t), rtol=0, atol=0)
+    assert shared.steps_done.tolist() == [steps + 2, 2]
+
+
 def test_decoder_requires_eval_mode_and_matching_batch(batch_factory):
     model = small_context_model()
     batch = batch_factory(2, 1)
@@ -143,8 +168,9 @@ def test_step_layers_equal_the_models_layers_and_follow_parameter_updates(thsc):
             check()
 
 
+@pytest.mark.parametrize("layout", ["slot_major", "separate"])
 @pytest.mark.parametrize("write", ["slice", "index"])
-def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(write):
+def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(write, layout):
     model = small_context_model()
     config = model.config
     step = TransformerStep(model.transformer)
@@ -157,7 +183,10 @@ def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(w
 
     def check():
         for mask in masks:
-            caches = [KVCache.empty(config.n_blocks, 2, config.n_heads, 12, config.d_head) for _ in range(2)]
+            shape = (config.n_blocks, 2, config.n_heads, 12, config.d_head)
+            caches = [KVCache.empty(*shape) for _ in range(2)]
+            if layout == "separate":  # keys and values as their own tensors: TransformerStep writes each
+                caches[1] = KVCache(list(torch.zeros(shape)), list(torch.zeros(shape)))
             for cache in caches:
                 for tensor in cache.keys + cache.values:
                     tensor.copy_(torch.randn(tensor.shape, generator=torch.Generator().manual_seed(5)))

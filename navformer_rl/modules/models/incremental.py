@@ -61,22 +61,29 @@ class IncrementalNavFormer:
             config.n_blocks, batch, config.n_heads, slots, config.d_head, self.device, dtype
         )
         self.slot_pos = torch.full((batch, slots), -1, dtype=torch.long, device=self.device)
-        self.steps_done = torch.zeros(batch, dtype=torch.long, device=self.device)
+        self._steps_done = torch.zeros(batch, dtype=torch.long, device=self.device)
         self.target_hidden = torch.zeros(batch, config.d_embed, dtype=dtype, device=self.device)
         self._offsets = torch.arange(self.tokens_per_step - 1, device=self.device)
         self._layers = StepLayers(model)
         self._transformer = TransformerStep(model.transformer)
-        # Fast path (every robot at the same step, e.g. all reset together): ``_shared_step`` mirrors
-        # ``steps_done`` on the host (None once robots diverge). Until the ring wraps (t < W) slot s holds
-        # position s, so the mask is the bottom-right-aligned causal mask: a column slice of ``_causal_bias``
-        # (additive ``[1, 1, tps, S]``, query i may attend slot s iff s <= S - tps - 1 + i).
+        # Fast path (every robot at the same step, e.g. all reset together): ``_shared_step`` is the number
+        # of steps done, on the host (None once robots diverge); ``slot_pos`` and ``_steps_done`` are then
+        # left alone and only written when the robots diverge (``_leave_shared_path``). Until the ring wraps
+        # (t < W) slot s holds position s, so the mask is the bottom-right-aligned causal mask: a column slice
+        # of ``_causal_bias`` (additive ``[1, 1, tps, S]``, query i may attend slot s iff s <= S - tps - 1 + i).
         self._shared_step: int | None = 0
-        self._tail_positions = torch.arange(self.tokens_per_step, device=self.device)
+        query = torch.arange(self.tokens_per_step, device=self.device)
         causal = (
             torch.arange(slots, device=self.device)[None, :]
-            <= (slots - self.tokens_per_step - 1 + self._tail_positions)[:, None]
+            <= (slots - self.tokens_per_step - 1 + query)[:, None]
         )
         self._causal_bias = additive_mask(causal[None, None], dtype)
+        # Past the wrap (t >= W) every slot is valid except step t's action slot, and the only masked entries
+        # are those of the newest step: its ``tps`` slots get the same pattern as the last ``tps`` columns of
+        # ``_causal_bias`` (token j may see the step's tokens up to itself). ``_wrapped_bias`` holds that
+        # pattern at the current group's columns (``_wrapped_at``) and zeros elsewhere.
+        self._wrapped_bias = torch.zeros_like(self._causal_bias)
+        self._wrapped_at: int | None = None
         encoders = [encoder for _, encoder in model.observation_encoders()]
         self._fused_encoders = (
             FusedConvEncoders(*encoders)
@@ -84,16 +91,49 @@ class IncrementalNavFormer:
             else None
         )
 
+    @property
+    def steps_done(self) -> Tensor:
+        """long ``[batch]``: the steps each robot has decoded since its last reset."""
+        if self._shared_step is not None:
+            return torch.full_like(self._steps_done, self._shared_step)
+        return self._steps_done
+
     def reset(self, robots: Tensor | None = None) -> None:
         """Forget the episode of the robots where ``robots`` (bool ``[batch]``) is True (all if None)."""
         if robots is None or bool(robots.all()):
-            self.steps_done.zero_()
-            self.slot_pos.fill_(-1)
-            self._shared_step = 0
+            self._shared_step = 0  # slot_pos / _steps_done are written when the robots diverge
         elif bool(robots.any()):
-            self.steps_done[robots] = 0
+            self._leave_shared_path()  # the robots' steps now differ: general path
+            self._steps_done[robots] = 0
             self.slot_pos[robots] = -1
-            self._shared_step = None  # the robots' steps now differ: general path
+
+    def _leave_shared_path(self) -> None:
+        """Write the shared path's state into ``slot_pos`` / ``_steps_done`` for the general path."""
+        if self._shared_step is None:
+            return
+        self.slot_pos.copy_(self.shared_slot_positions(self._shared_step))
+        self._steps_done.fill_(self._shared_step)
+        self._shared_step = None
+
+    def shared_slot_positions(self, steps: int) -> Tensor:
+        """long ``[S]``: every slot's sequence position (-1 = empty) after ``steps`` steps from a reset.
+
+        Slot 0 holds the target (position 0); the steps ``s`` still in the window (the last W) hold R_s and
+        the observation tokens at positions ``s * tps + 1 ..`` in their group's first ``tps - 1`` slots, and
+        a_s at position ``(s + 1) * tps`` in the group's last slot once step ``s + 1`` has fed it (the newest
+        step's action slot is empty). The same as the general path's bookkeeping (tested).
+        """
+        tps, window = self.tokens_per_step, self.window_steps
+        positions = torch.full((self.slot_pos.shape[1],), -1, dtype=torch.long, device=self.device)
+        if steps == 0:
+            return positions
+        positions[0] = 0
+        kept = torch.arange(max(0, steps - window), steps, device=self.device)  # steps in the window
+        group = 1 + (kept % window) * tps
+        positions[group[:, None] + self._offsets] = kept[:, None] * tps + 1 + self._offsets
+        acted = kept[:-1]  # a_s is fed by step s + 1
+        positions[group[:-1] + tps - 1] = (acted + 1) * tps
+        return positions
 
     def encode_observations(self, pixels: Tensor) -> Tensor:
         """``[B, H, W, 3]`` u8 -> ``[B, n_enc, d]``; both paper CNNs run as one fused stack (same values)."""
@@ -124,7 +164,7 @@ class IncrementalNavFormer:
         if self._shared_step is not None:
             return self._step_shared(target_pixels, pixels, return_to_go, prev_action)
         tps, window = self.tokens_per_step, self.window_steps
-        t = self.steps_done
+        t = self._steps_done
         first = t == 0
         any_first = bool(first.any())
         target = None
@@ -160,8 +200,24 @@ class IncrementalNavFormer:
         hidden = self._transformer(tokens.to(dtype), additive_mask(allowed, dtype), self.cache, write_index)
         self.target_hidden = torch.where(first[:, None], hidden[:, 0], self.target_hidden)
         action = self._layers.action(self.target_hidden, hidden[:, tps - 1])
-        self.steps_done += 1
+        self._steps_done += 1
         return action
+
+    def _wrapped_mask(self, group: int) -> Tensor:
+        """Additive ``[1, 1, tps, S]`` mask of a shared step past the wrap whose new step fills ``group``.
+
+        Equals the mask built from ``slot_pos`` (``(slot_pos >= 0) & (slot_pos <= new_pos)``): every slot is
+        valid and older than the new tokens except the group's own ``tps`` slots, which get the causal
+        pattern of ``_causal_bias``'s last ``tps`` columns. Two small copies instead of a comparison of the
+        whole window.
+        """
+        tps = self.tokens_per_step
+        if self._wrapped_at != group:
+            if self._wrapped_at is not None:
+                self._wrapped_bias[..., self._wrapped_at : self._wrapped_at + tps] = 0.0
+            self._wrapped_bias[..., group : group + tps] = self._causal_bias[..., -tps:]
+            self._wrapped_at = group
+        return self._wrapped_bias
 
     def _step_shared(
         self, target_pixels: Tensor, pixels: Tensor, return_to_go: Tensor, prev_action: Tensor
@@ -170,8 +226,9 @@ class IncrementalNavFormer:
 
         Same maths as the general path with the bookkeeping done on the host: the first token is the
         target token or the action token (not both), the new tokens' slots are one contiguous ``slice``
-        (except when the ring wraps: a_{t-1} sits in the last slot), and before the ring wraps the mask is
-        a view of ``_causal_bias``. No host synchronisation.
+        (except when the ring wraps: a_{t-1} sits in the last slot), the mask is a view of ``_causal_bias``
+        before the ring wraps and ``_wrapped_mask`` after, and ``slot_pos`` / ``_steps_done`` are left for
+        ``_leave_shared_path`` to write when the robots diverge. No host synchronisation.
         """
         model = self.model
         tps, window, slots = self.tokens_per_step, self.window_steps, self.slot_pos.shape[1]
@@ -188,29 +245,17 @@ class IncrementalNavFormer:
 
         group = 1 + (t % window) * tps
         first_slot = 0 if first else 1 + ((t - 1) % window) * tps + tps - 1
-        if first:
-            self.slot_pos.fill_(-1)
-        self.slot_pos[:, group + tps - 1] = -1  # a_{t-W} leaves with step t-W
-        new_pos = t * tps + self._tail_positions  # [tps]
         if first_slot == group - 1:
             write_index: Tensor | slice = slice(first_slot, first_slot + tps)
-            self.slot_pos[:, write_index] = new_pos
         else:  # the ring wrapped: a_{t-1} sits in the last slot, the rest at the start
-            write_index = torch.tensor([first_slot, *range(group, group + tps - 1)], device=self.device)
-            self.slot_pos[:, write_index] = new_pos
-            write_index = write_index.expand(self.batch, tps)
+            slots_written = [first_slot, *range(group, group + tps - 1)]
+            write_index = torch.tensor(slots_written, device=self.device).expand(self.batch, tps)
         used = min(slots, 1 + tps * (t + 1))
-        if t < window:
-            attn_mask = self._causal_bias[..., slots - used :]
-        else:
-            slot_pos = self.slot_pos[:, None, :used]
-            allowed = ((slot_pos >= 0) & (slot_pos <= new_pos[None, :, None])).unsqueeze(1)
-            attn_mask = additive_mask(allowed, self.cache.keys[0].dtype)
+        attn_mask = self._causal_bias[..., slots - used :] if t < window else self._wrapped_mask(group)
 
         hidden = self._transformer(tokens.to(self.cache.keys[0].dtype), attn_mask, self.cache, write_index)
         if first:
             self.target_hidden = hidden[:, 0].clone()
         action = self._layers.action(self.target_hidden, hidden[:, tps - 1])
-        self.steps_done += 1
         self._shared_step = t + 1
         return action

@@ -19,10 +19,17 @@ class KVCache:
     keys[i], values[i]: ``[B, n_heads, S, d_head]`` for block ``i``; ``S`` slots per sequence. Which slot
     holds which token (and whether it is valid) is the caller's business: it passes the attention mask.
     Attention is a weighted sum over keys, so slot order does not matter - a ring buffer works.
+
+    slot_major[i] (``empty`` fills it): ``[B, S, 2, n_heads, d_head]``, the storage that ``keys[i]`` and
+    ``values[i]`` are views of (``[..., 0, :, :]`` keys, ``[..., 1, :, :]`` values). One slot's keys and
+    values of every head are contiguous, so a step's new keys and values go in with one copy, straight from
+    the ``[B, L, 3, n_heads, d_head]`` projection (``TransformerStep``), and attention reads each slot once.
+    None when ``keys``/``values`` are separate tensors.
     """
 
     keys: list[Tensor]
     values: list[Tensor]
+    slot_major: list[Tensor] | None = None
 
     @classmethod
     def empty(
@@ -35,10 +42,13 @@ class KVCache:
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
     ) -> KVCache:
-        shape = (batch, n_heads, slots, d_head)
+        storage = [
+            torch.zeros(batch, slots, 2, n_heads, d_head, device=device, dtype=dtype) for _ in range(n_blocks)
+        ]
         return cls(
-            keys=[torch.zeros(shape, device=device, dtype=dtype) for _ in range(n_blocks)],
-            values=[torch.zeros(shape, device=device, dtype=dtype) for _ in range(n_blocks)],
+            keys=[block[:, :, 0].transpose(1, 2) for block in storage],
+            values=[block[:, :, 1].transpose(1, 2) for block in storage],
+            slot_major=storage,
         )
 
     @property

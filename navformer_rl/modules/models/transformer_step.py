@@ -80,10 +80,13 @@ class TransformerStep:
         h = x.reshape(batch * length, d)
         for i, (block, keys, values) in enumerate(zip(self.blocks, cache.keys, cache.values)):
             qkv_t, proj_t, fc_t, out_t = transposed[4 * i : 4 * i + 4]
-            qkv = torch.addmm(block.qkv[1], block.ln_attn(h), qkv_t)
-            q, k, v = qkv.view(batch, length, 3, heads, d_head).permute(2, 0, 3, 1, 4)
-            write_slots(keys, k, write_index)
-            write_slots(values, v, write_index)
+            qkv = torch.addmm(block.qkv[1], block.ln_attn(h), qkv_t).view(batch, length, 3, heads, d_head)
+            if cache.slot_major is not None:  # keys and values of the new slots in one copy
+                write_slots(cache.slot_major[i], qkv[:, :, 1:], write_index, dim=1)
+            else:
+                write_slots(keys, qkv[:, :, 1].transpose(1, 2), write_index)
+                write_slots(values, qkv[:, :, 2].transpose(1, 2), write_index)
+            q = qkv[:, :, 0].transpose(1, 2)  # [B, H, L, d_head]
             y = F.scaled_dot_product_attention(q, keys[:, :, :used], values[:, :, :used], attn_mask=attn_mask)
             h = torch.addmm(
                 block.proj[1], y.transpose(1, 2).reshape(batch * length, heads * d_head), proj_t
@@ -95,13 +98,19 @@ class TransformerStep:
         return self.ln_final(h).view(batch, length, d)
 
 
-def write_slots(cache: Tensor, new: Tensor, write_index: Tensor | slice) -> None:
-    """Write ``new`` ``[B, H, L, d_head]`` into ``cache`` ``[B, H, S, d_head]`` at slots ``write_index``."""
+def write_slots(cache: Tensor, new: Tensor, write_index: Tensor | slice, dim: int = 2) -> None:
+    """Write ``new`` into ``cache`` at slots ``write_index`` along ``dim``, the slot dimension.
+
+    ``dim=2``: ``new`` ``[B, H, L, d_head]`` into keys or values ``[B, H, S, d_head]``; ``dim=1``: ``new``
+    ``[B, L, 2, H, d_head]`` into a ``KVCache.slot_major`` tensor ``[B, S, 2, H, d_head]``. write_index: a
+    ``slice`` of L slots shared by the batch, or long ``[B, L]``.
+    """
     if isinstance(write_index, slice):
-        cache[:, :, write_index] = new
+        cache[(slice(None),) * dim + (write_index,)] = new
     else:
-        index = write_index[:, None, :, None].expand(new.shape)
-        cache.scatter_(2, index, new.to(cache.dtype))
+        shape = (*write_index.shape[:2], *(1,) * (new.dim() - 2))
+        index = write_index.view(shape).movedim(1, dim).expand(new.shape)
+        cache.scatter_(dim, index, new.to(cache.dtype))
 
 
 def layer_norm_weights(norm: nn.LayerNorm) -> LayerNormWeights:
