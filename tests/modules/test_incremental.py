@@ -204,6 +204,21 @@ def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(w
         check()
 
 
+def test_transformer_step_buffers_work_in_and_out_of_inference_mode():
+    model = small_context_model()
+    config = model.config
+    step = TransformerStep(model.transformer)
+    x = torch.randn(1, 4, config.d_embed, generator=torch.Generator().manual_seed(7))
+    mask = torch.ones(1, 1, 4, 6, dtype=torch.bool).tril(diagonal=2)
+    outputs = []
+    for mode in (torch.inference_mode, torch.no_grad, torch.inference_mode):
+        cache = KVCache.empty(config.n_blocks, 1, config.n_heads, 8, config.d_head)
+        with mode():  # the first call allocates the buffers (in inference mode); later calls reuse them
+            outputs.append(step(x, mask, cache, slice(2, 6)))
+    for output in outputs[1:]:
+        torch.testing.assert_close(output, outputs[0], rtol=0, atol=0)
+
+
 def test_transformer_step_rejects_an_unknown_block_structure():
     model = small_context_model()
     model.transformer.blocks[0].mlp[1] = torch.nn.ReLU()

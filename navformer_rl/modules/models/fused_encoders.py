@@ -71,7 +71,7 @@ class FusedConvEncoders:
             for tensor in (layer.weight, layer.bias)
         )
         self._weights = DerivedCache(params, self._build_weights)
-        self._buffers: dict[tuple, Tensor] = {}
+        self._plans: dict[tuple, GemmPlan] = {}
 
     def _build_weights(self) -> FusedWeights:
         first, second = self.encoders
@@ -112,37 +112,69 @@ class FusedConvEncoders:
     def _gemm_stack(self, pixels: Tensor, weights: FusedWeights) -> Tensor:
         """uint8 ``[M, H, W, 3]`` -> ``[M, 2, d]`` through im2col and one batched matmul per layer.
 
-        Patches and activations go to scratch buffers kept between calls: allocating them afresh costs
-        more than the copies themselves (glibc serves blocks this size with mmap, page faults included).
+        The images, patches and activations live in buffers kept between calls (``GemmPlan``; allocating
+        them afresh costs more than the copies themselves: glibc serves blocks this size with mmap, page
+        faults included), and every view between them is made once, so a call is one copy per layer, its
+        matmul and ReLU, and the Linear layers' matmul.
         """
-        # [G=1, M, H, W, C]; converted first: conv1's im2col copies float -> float 1.5x faster than from uint8
-        x = self._scratch(("pixels",), (1, *pixels.shape), pixels.device).copy_(pixels)
-        for layer, ((weight, bias), kernel, stride) in enumerate(zip(weights.gemm_conv, KERNELS, STRIDES)):
-            groups = weight.shape[0]
-            if x.shape[0] != groups:  # conv1's 2 * 32 channels -> 2 groups of 32 (a view)
-                x = x[0].unflatten(-1, (groups, -1)).permute(3, 0, 1, 2, 4)
-            patches = im2col_view(x, kernel, stride)  # [G, M, S, S, k, k, C]
-            flat = self._scratch(("patches", layer), patches.shape, x.device).copy_(patches)
-            flat = flat.view(groups, -1, weight.shape[1])  # [G, M * S * S, k * k * C]
-            out = self._scratch(("out", layer), (groups, flat.shape[1], weight.shape[2]), x.device)
-            x = torch.baddbmm(bias, flat, weight, out=out).clamp_min_(0.0)  # [G, M * S * S, O]
-            x = x.view(*patches.shape[:4], -1)
+        plan = self._plan(pixels.shape[0], weights, pixels.device)
+        # converted first: conv1's im2col copies float -> float 1.5x faster than from uint8
+        plan.pixels.copy_(pixels)
+        layers = zip(plan.patches, plan.patch_copies, plan.patch_rows, plan.outputs, weights.gemm_conv)
+        for patches, patch_copy, patch_rows, output, (weight, bias) in layers:
+            patch_copy.copy_(patches)
+            torch.baddbmm(bias, patch_rows, weight, out=output).clamp_min_(0.0)
         linear_weight, linear_bias = weights.gemm_linear
-        x = x.flatten(2)  # [2, M, S * S * O] in (h, w, c) order
-        return torch.baddbmm(linear_bias, x, linear_weight).transpose(0, 1)  # [M, 2, d]
+        return torch.baddbmm(linear_bias, plan.features, linear_weight).transpose(0, 1)  # [M, 2, d]
 
-    def _scratch(self, role: tuple, shape: tuple[int, ...], device: torch.device) -> Tensor:
-        """A float32 buffer of ``shape`` for ``role``, reused by later calls with the same shape.
+    def _plan(self, images: int, weights: FusedWeights, device: torch.device) -> GemmPlan:
+        """The ``GemmPlan`` for ``images`` images on ``device`` (made on first use, then reused).
 
         Allocated outside inference mode: an inference tensor could not be written by a later call made
         under plain ``no_grad``.
         """
-        key = (role, tuple(shape), device)
-        buffer = self._buffers.get(key)
-        if buffer is None:
-            with torch.inference_mode(False):
-                buffer = self._buffers[key] = torch.empty(shape, dtype=torch.float32, device=device)
-        return buffer
+        key = (images, device)
+        plan = self._plans.get(key)
+        if plan is None:
+            self._plans[key] = plan = make_gemm_plan(images, self.encoders[0].image_size, weights, device)
+        return plan
+
+
+class GemmPlan(NamedTuple):
+    """Buffers of the im2col path for ``M`` images, with every view between them made once.
+
+    pixels ``[M, H, W, 3]`` float (the images, converted); per conv layer: patches ``[G, M, S, S, k, k, C]``
+    (a view of the layer's input), patch_copies (the same shape, a view of the patch buffer), patch_rows
+    ``[G, M * S * S, k * k * C]`` (the patch buffer as matrices), outputs ``[G, M * S * S, O]``; features
+    ``[2, M, S * S * O]`` (the last output in (h, w, c) order, the Linear layers' input).
+    """
+
+    pixels: Tensor
+    patches: tuple[Tensor, ...]
+    patch_copies: tuple[Tensor, ...]
+    patch_rows: tuple[Tensor, ...]
+    outputs: tuple[Tensor, ...]
+    features: Tensor
+
+
+def make_gemm_plan(images: int, size: int, weights: FusedWeights, device: torch.device) -> GemmPlan:
+    """Allocate a ``GemmPlan`` for ``images`` images of ``size`` x ``size`` pixels (outside inference mode)."""
+    with torch.inference_mode(False), torch.no_grad():
+        pixels = torch.empty(1, images, size, size, 3, device=device)  # [G=1, M, H, W, C]
+        x, patches, copies, rows, outputs = pixels, [], [], [], []
+        for (weight, _), kernel, stride in zip(weights.gemm_conv, KERNELS, STRIDES):
+            groups, features, channels = weight.shape
+            if x.shape[0] != groups:  # conv1's 2 * 32 channels -> 2 groups of 32 (a view)
+                x = x[0].unflatten(-1, (groups, -1)).permute(3, 0, 1, 2, 4)
+            layer_patches = im2col_view(x, kernel, stride)  # [G, M, S, S, k, k, C]
+            buffer = torch.empty(layer_patches.shape, device=device)
+            output = torch.empty(groups, buffer[0].numel() // features, channels, device=device)
+            patches.append(layer_patches)
+            copies.append(buffer)
+            rows.append(buffer.view(groups, -1, features))
+            outputs.append(output)
+            x = output.view(*layer_patches.shape[:4], -1)
+        return GemmPlan(pixels[0], *map(tuple, (patches, copies, rows, outputs)), x.flatten(2))
 
 
 def gemm_conv_weight(weight: Tensor, groups: int, scale: float = 1.0) -> Tensor:

@@ -62,6 +62,7 @@ class TransformerStep:
         self._transposed = DerivedCache(
             weights, lambda: tuple(weight.detach().t().contiguous() for weight in weights)
         )
+        self._buffers: dict[tuple, ProjectionBuffers] = {}
 
     def transposed_weights(self) -> tuple[Tensor, ...]:
         """Every block's ``(qkv, proj, fc, out)`` weights as contiguous ``[in, out]`` (rebuilt if changed)."""
@@ -74,28 +75,67 @@ class TransformerStep:
         write_index: a ``slice`` of L slots shared by every sequence, or long ``[B, L]`` slots.
         """
         batch, length, d = x.shape
-        heads, d_head = self.transformer.n_heads, self.transformer.d_head
         used = attn_mask.shape[-1]
+        whole_cache = used == cache.slots  # past the ring's wrap: attend every slot, no slicing
         transposed = self.transposed_weights()
+        buffers = self._projection_buffers(batch, length, x.dtype, x.device)
         h = x.reshape(batch * length, d)
         for i, (block, keys, values) in enumerate(zip(self.blocks, cache.keys, cache.values)):
             qkv_t, proj_t, fc_t, out_t = transposed[4 * i : 4 * i + 4]
-            qkv = torch.addmm(block.qkv[1], block.ln_attn(h), qkv_t).view(batch, length, 3, heads, d_head)
+            torch.addmm(block.qkv[1], block.ln_attn(h), qkv_t, out=buffers.qkv)
             if cache.slot_major is not None:  # keys and values of the new slots in one copy
-                write_slots(cache.slot_major[i], qkv[:, :, 1:], write_index, dim=1)
+                write_slots(cache.slot_major[i], buffers.keys_values, write_index, dim=1)
             else:
-                write_slots(keys, qkv[:, :, 1].transpose(1, 2), write_index)
-                write_slots(values, qkv[:, :, 2].transpose(1, 2), write_index)
-            q = qkv[:, :, 0].transpose(1, 2)  # [B, H, L, d_head]
-            y = F.scaled_dot_product_attention(q, keys[:, :, :used], values[:, :, :used], attn_mask=attn_mask)
-            h = torch.addmm(
-                block.proj[1], y.transpose(1, 2).reshape(batch * length, heads * d_head), proj_t
-            ).add_(h)
+                write_slots(keys, buffers.keys, write_index)
+                write_slots(values, buffers.values, write_index)
+            if not whole_cache:
+                keys, values = keys[:, :, :used], values[:, :, :used]
+            y = F.scaled_dot_product_attention(buffers.queries, keys, values, attn_mask=attn_mask)
+            h = torch.addmm(block.proj[1], y.transpose(1, 2).reshape(batch * length, -1), proj_t).add_(h)
             hidden = F.gelu(
                 torch.addmm(block.fc[1], block.ln_mlp(h), fc_t), approximate=block.gelu.approximate
             )
             h = torch.addmm(block.out[1], hidden, out_t).add_(h)
         return self.ln_final(h).view(batch, length, d)
+
+    def _projection_buffers(
+        self, batch: int, length: int, dtype: torch.dtype, device: torch.device
+    ) -> ProjectionBuffers:
+        """The qkv projection's output buffer for ``batch x length`` tokens and its views (made once).
+
+        Allocated outside inference mode: an inference tensor could not be written by a later call made
+        under plain ``no_grad``. Each block overwrites it: its views are read before the next block runs.
+        """
+        key = (batch, length, dtype, device)
+        buffers = self._buffers.get(key)
+        if buffers is None:
+            heads, d_head = self.transformer.n_heads, self.transformer.d_head
+            with torch.inference_mode(False):
+                qkv = torch.empty(batch * length, 3 * heads * d_head, dtype=dtype, device=device)
+                split = qkv.view(batch, length, 3, heads, d_head)
+                buffers = ProjectionBuffers(
+                    qkv,
+                    split[:, :, 0].transpose(1, 2),
+                    split[:, :, 1:],
+                    split[:, :, 1].transpose(1, 2),
+                    split[:, :, 2].transpose(1, 2),
+                )
+            self._buffers[key] = buffers
+        return buffers
+
+
+class ProjectionBuffers(NamedTuple):
+    """The qkv projection of L new tokens: ``qkv`` ``[B * L, 3 * H * d_head]`` and views of it.
+
+    queries ``[B, H, L, d_head]``; keys_values ``[B, L, 2, H, d_head]`` (for ``KVCache.slot_major``); keys,
+    values ``[B, H, L, d_head]``.
+    """
+
+    qkv: Tensor
+    queries: Tensor
+    keys_values: Tensor
+    keys: Tensor
+    values: Tensor
 
 
 def write_slots(cache: Tensor, new: Tensor, write_index: Tensor | slice, dim: int = 2) -> None:
