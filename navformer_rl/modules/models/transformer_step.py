@@ -49,7 +49,8 @@ class TransformerStep:
     ``F.linear`` on the ``[out, in]`` weight (that re-packs it at every call); the copies are rebuilt
     whenever a weight changes (in place, through ``.data``, ``model.to`` or ``load_state_dict``), so they
     are never stale. The blocks' other ``Parameter`` objects are used directly. A sub-module replaced by a
-    new one is not seen: make a new ``TransformerStep`` then.
+    new one is not seen: make a new ``TransformerStep`` then. No autograd (the qkv projection is written
+    into a kept buffer): call it under ``torch.no_grad()`` or inference mode.
     """
 
     def __init__(self, transformer: CausalTransformer) -> None:
