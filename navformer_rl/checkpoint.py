@@ -176,25 +176,39 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
 def read_checkpoint_config(path: str | os.PathLike) -> dict[str, Any]:
     """The ``config.json`` header of a checkpoint (format-checked)."""
     folder = resolve_checkpoint(path)
-    header = json.loads((folder / CONFIG_FILENAME).read_text())
+    try:
+        header = json.loads((folder / CONFIG_FILENAME).read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(
+            f"{folder / CONFIG_FILENAME} is not valid JSON ({error}): a corrupt checkpoint"
+        ) from None
+    if not isinstance(header, dict):
+        raise ValueError(f"{folder / CONFIG_FILENAME}: expected a JSON object, got {type(header).__name__}")
     if header.get("format") != RUN_FORMAT:
         raise ValueError(
             f"{folder / CONFIG_FILENAME} has format {header.get('format')!r}; expected {RUN_FORMAT!r} "
             "(not a navformer_rl training checkpoint, or one from an incompatible version)"
         )
+    if not isinstance(header.get("model_config"), dict):
+        raise ValueError(f"{folder / CONFIG_FILENAME} has no 'model_config' object: a corrupt checkpoint")
     return header
 
 
 def load_model_state(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
     """Read the run part: ``(model_config fields, state_dict)``, via safetensors (no pickle)."""
-    from safetensors import safe_open
+    from safetensors import SafetensorError, safe_open
 
     folder = resolve_checkpoint(path)
     header = read_checkpoint_config(folder)
     weights = folder / WEIGHTS_FILENAME
-    with safe_open(str(weights), framework="pt") as handle:
-        metadata = handle.metadata() or {}
-        state = {key: handle.get_tensor(key) for key in handle.keys()}
+    try:
+        with safe_open(str(weights), framework="pt") as handle:
+            metadata = handle.metadata() or {}
+            state = {key: handle.get_tensor(key) for key in handle.keys()}
+    except (OSError, SafetensorError) as error:
+        raise ValueError(
+            f"{weights} cannot be read as safetensors ({error}): a corrupt or truncated checkpoint"
+        ) from None
     if metadata.get("format") != RUN_FORMAT:
         raise ValueError(f"{weights} has format {metadata.get('format')!r}; expected {RUN_FORMAT!r}")
     if json.loads(metadata.get("model_config", "null")) != header["model_config"]:

@@ -84,6 +84,8 @@ RESUME_MAY_CHANGE = frozenset(
 )
 """Settings a resumed run may change; any other difference from the checkpoint's config is refused."""
 TRAJECTORY_KEYS = [("pixels",), ("action",), ("return_to_go",), ("step",)]
+DATASET_KEYS = {"e": "exploration_path", "ca": "collision_path", "ssl": "ssl_path"}
+"""The config key (under ``data.``) of each dataset kind."""
 """Keys gathered from D_e / D_ca per step (plus ``mask`` and ``target_pixels`` added by the batcher)."""
 
 
@@ -429,6 +431,7 @@ class Trainer:
         model: ``NavFormerModel``.  dt_loss: ``NavFormerLoss``.  byol_loss: ``BYOLLoss`` or None (no SSL).
         cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
         optimizers: ``{"navformer": AdamW, "dve": Adam}`` ("dve" absent without SSL).
+        scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
     """
 
@@ -485,6 +488,10 @@ class Trainer:
             self.updater = SoftUpdate(self.byol_loss, eps=cfg.ssl.tau_base)
             self.tau_schedule = BYOLTauSchedule(self.updater, cfg.optim.iterations, cfg.ssl.tau_base)
         self.optimizers = self._make_optimizers()
+        # float16 autocast needs loss scaling (its gradients underflow); disabled, the scaler is a no-op
+        self.scaler = torch.amp.GradScaler(
+            self.device.type, enabled=self.model_config.autocast_dtype == "float16"
+        )
         self.logger = None
 
     # -- construction helpers -------------------------------------------------------------------------
@@ -539,10 +546,12 @@ class Trainer:
         with timeit("optimizer"):
             if self.cfg.optim.clip_grad_norm is not None:
                 for optimizer in self.optimizers.values():
+                    self.scaler.unscale_(optimizer)
                     params = [p for g in optimizer.param_groups for p in g["params"]]
                     torch.nn.utils.clip_grad_norm_(params, self.cfg.optim.clip_grad_norm)
             for optimizer in self.optimizers.values():
-                optimizer.step()
+                self.scaler.step(optimizer)  # skipped (float16 only) when a gradient overflowed
+            self.scaler.update()
             tau = None
             if self.updater is not None:
                 tau = self.updater.eps
@@ -571,22 +580,25 @@ class Trainer:
         return metrics
 
     def _forward_backward(self, batch, pairs):
-        """L = L_DT + L_BYOL, one backward (or one per trajectory chunk, weighted to the same gradient)."""
+        """L = L_DT + L_BYOL, one backward (or one per trajectory chunk, weighted to the same gradient).
+
+        Every backward goes through ``self.scaler`` (loss scaling under float16 autocast, else unchanged).
+        """
         chunks = self.cfg.optim.trajectory_chunks
         byol_out = self.byol_loss(pairs) if pairs is not None else None
         loss_byol = byol_out["loss_byol"] if byol_out is not None else None
         if chunks == 1:
             loss_dt = self.dt_loss(batch)["loss_dt"]
-            (loss_dt if loss_byol is None else loss_dt + loss_byol).backward()
+            self.scaler.scale(loss_dt if loss_byol is None else loss_dt + loss_byol).backward()
             return loss_dt.detach(), loss_byol, byol_out
         if loss_byol is not None:
-            loss_byol.backward()
+            self.scaler.scale(loss_byol).backward()
         valid_total = batch["mask"].sum().clamp_min(1)
         loss_dt = torch.zeros((), device=self.device)
         for part in batch.split(batch.shape[0] // chunks):
             # masked mean of the chunk x its share of the valid steps = its part of the batch's masked mean
             weighted = self.dt_loss(part)["loss_dt"] * (part["mask"].sum() / valid_total)
-            weighted.backward()
+            self.scaler.scale(weighted).backward()
             loss_dt += weighted.detach()
         return loss_dt, loss_byol, byol_out
 
@@ -624,6 +636,8 @@ class Trainer:
             "cross_task": self.cross_task.state_dict(),
             "rng": ckpt.capture_rng_state(),
         }
+        if self.scaler.is_enabled():
+            state["grad_scaler"] = self.scaler.state_dict()
         if self.byol_loss is not None:
             state["byol"] = self.byol_loss.state_dict()
             state["byol_augmentation"] = self.byol_loss.augmentation.rng_state()
@@ -659,6 +673,8 @@ class Trainer:
         for name, optimizer in self.optimizers.items():
             optimizer.load_state_dict(state["optimizers"][name])
         self.cross_task.load_state_dict(state["cross_task"])
+        if self.scaler.is_enabled():
+            self.scaler.load_state_dict(state["grad_scaler"])
         if self.byol_loss is not None:
             self.byol_loss.load_state_dict(state["byol"])
             self.byol_loss.augmentation.set_rng_state(state["byol_augmentation"])
@@ -703,6 +719,40 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
     return datasets
 
 
+def check_datasets_fit_model(cfg: TrainConfig, datasets: Mapping[str, Any]) -> None:
+    """Raise ``ValueError`` when the model of ``cfg`` cannot read ``datasets`` (opened by :func:`open_datasets`).
+
+    Checked: image size and action width (every dataset's images are ``image_size`` square; trajectory
+    actions are ``action_dim`` wide) and the timestep table (the longest trajectory's last step must be
+    ``< model.max_timestep``). Without this check a mismatch would surface as a shape error in the first
+    iteration, or - for the timestep - only once a long trajectory is drawn, possibly hours into a run.
+    """
+    model = model_config(cfg)
+    image_shape = (model.image_size, model.image_size, 3)
+    for kind, dataset in datasets.items():
+        key = DATASET_KEYS[kind]
+        for name in ("pixels", "pixels_static", "pixels_dynamic"):
+            if name in dataset.rows.keys() and tuple(dataset.rows[name].shape[1:]) != image_shape:
+                raise ValueError(
+                    f"data.{key}: images are {tuple(dataset.rows[name].shape[1:])}, but model.image_size="
+                    f"{model.image_size} expects {image_shape}"
+                )
+        if dataset.episodes is None:
+            continue
+        if dataset.rows["action"].shape[-1] != model.action_dim:
+            raise ValueError(
+                f"data.{key}: actions have {dataset.rows['action'].shape[-1]} dimensions, but "
+                f"model.action_dim={model.action_dim}"
+            )
+        longest = int(dataset.episodes.length.max())
+        if longest > model.max_timestep:
+            raise ValueError(
+                f"data.{key}: its longest trajectory has {longest} steps, but model.max_timestep="
+                f"{model.max_timestep} embeds timesteps 0..{model.max_timestep - 1}; raise model.max_timestep "
+                f"to at least {longest}"
+            )
+
+
 def build_trainer(cfg: TrainConfig) -> Trainer:
     """Validate ``cfg``, open the datasets, build everything and (when resuming) restore the latest checkpoint.
 
@@ -725,6 +775,7 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
                 "logger.backend=tensorboard needs the `tensorboard` package; use csv or none"
             ) from None
     datasets = open_datasets(cfg)
+    check_datasets_fit_model(cfg, datasets)
     trainer = Trainer(cfg, datasets=datasets)
     if latest is not None:
         trainer.restore(latest)

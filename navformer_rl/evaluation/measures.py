@@ -110,7 +110,10 @@ def wilson_interval(successes: float, n: float, confidence: float = 0.95) -> tup
     denominator = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / denominator
     half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denominator
-    return max(0.0, float(centre - half)), min(1.0, float(centre + half))
+    # the ends are exact at p = 0 and p = 1: rounding would leave them ~1e-16 inside the estimate
+    low = 0.0 if successes == 0 else max(0.0, float(centre - half))
+    high = 1.0 if successes == n else min(1.0, float(centre + half))
+    return low, high
 
 
 def clustered_wilson_interval(

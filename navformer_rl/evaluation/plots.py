@@ -55,8 +55,9 @@ def plot_setup_bars(
                 value = np.nan if m is None else getattr(m, attr)
                 ci = (np.nan, np.nan) if m is None else getattr(m, ci_attr)
                 values.append(value)
-                low.append(value - ci[0])
-                high.append(ci[1] - value)
+                # an interval end ~1e-16 on the wrong side of the estimate (rounding) is a zero-length bar
+                low.append(max(value - ci[0], 0.0))
+                high.append(max(ci[1] - value, 0.0))
             positions = x + (k - (len(methods) - 1) / 2) * width
             ax.bar(
                 positions,

@@ -1,5 +1,7 @@
 """SR / SPL / CR and their intervals on hand-computed cases."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -173,3 +175,25 @@ def test_trial_tracker_takes_given_step_lengths():
     np.testing.assert_allclose(tracker.path_length, [np.pi / 2])
     with pytest.raises(ValueError, match="driven"):
         tracker.update(np.array([[1.0, 1.0]]), np.array([False]), np.array([False]), driven=np.array([-1.0]))
+
+
+def test_all_equal_outcomes_give_exact_interval_ends_and_a_plot(tmp_path):
+    # SR = 1 over the paper's 60 trials (2 robots): rounding used to leave the Wilson upper end at
+    # 1 - 2e-16, a negative error bar that matplotlib refuses after every episode had run
+    for n in (5, 10, 17, 20, 60, 120):
+        assert wilson_interval(n, n)[1] == 1.0
+        assert wilson_interval(0, n)[0] == 0.0
+    records = [_trial(f"e{i}", robot, True, 50, 0, 5.0, 5.0) for i in range(60) for robot in range(2)]
+    s = summarize(records)
+    assert s.sr == 1.0 and s.sr_ci[1] == 1.0
+    assert s.spl_ci == (1.0, 1.0) and s.cr_ci == (0.0, 0.0)
+    from navformer_rl.evaluation.plots import plot_setup_bars
+    from navformer_rl.evaluation.tables import summarize_by_setup
+
+    failures = [
+        dataclasses.replace(_trial(f"e{i}", robot, False, 500, 0, 5.0, 5.0), method="never")
+        for i in range(60)
+        for robot in range(2)
+    ]
+    path = plot_setup_bars(summarize_by_setup(records + failures), tmp_path / "bars.png")
+    assert path.stat().st_size > 0

@@ -44,6 +44,31 @@ def test_foreign_and_missing_checkpoints(tmp_path, tiny_episodes):
         evaluate("vrw", tiny_episodes, tmp_path / "x", checkpoint=foreign, progress=False)
 
 
+def test_corrupt_checkpoints_name_the_file(tmp_path, tiny_episodes, checkpoints):
+    import shutil
+
+    from navformer_rl.checkpoint import resolve_checkpoint
+
+    def broken(name, config=None, weights=None):
+        folder = tmp_path / name
+        shutil.copytree(resolve_checkpoint(checkpoints["navformer"]), folder)
+        if config is not None:
+            (folder / "config.json").write_text(config)
+        if weights is not None:
+            path = folder / "model.safetensors"
+            path.write_bytes(path.read_bytes()[:weights])
+        return folder
+
+    cases = [
+        (broken("truncated", weights=1000), r"model\.safetensors cannot be read as safetensors"),
+        (broken("not_json", config="{oops"), r"config\.json is not valid JSON"),
+        (broken("a_list", config="[1, 2]"), r"config\.json: expected a JSON object, got list"),
+    ]
+    for folder, message in cases:
+        with pytest.raises(ValueError, match=message):
+            evaluate("navformer", tiny_episodes, tmp_path / "x", checkpoint=folder, progress=False)
+
+
 def test_unknown_method_lists_the_valid_ones(tmp_path, tiny_episodes):
     with pytest.raises(ValueError, match="unknown method 'dsac'; expected one of navformer, dt, vrw, fca"):
         evaluate("dsac", tiny_episodes, tmp_path / "x", progress=False)

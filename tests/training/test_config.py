@@ -139,6 +139,14 @@ BAD_CONFIGS = [
     (["data.context_steps=300"], ValueError, "at most 256 steps"),
     (["model.detach_encoders=true"], ValueError, "use encoder_training=frozen"),
     (["optim.iterations=0"], ValueError, "optim.iterations=0"),
+    # the model must fit the data: D_e trajectories have up to 11 steps, images are 84 px, actions 2-d
+    (
+        ["model.max_timestep=6"],
+        ValueError,
+        "exploration_path: its longest trajectory has 11 steps, .*at least 11",
+    ),
+    (["model.image_size=64"], ValueError, "images are \\(84, 84, 3\\), but model.image_size=64"),
+    (["model.action_dim=3"], ValueError, "actions have 2 dimensions, but model.action_dim=3"),
 ]
 
 

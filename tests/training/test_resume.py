@@ -24,9 +24,18 @@ def weights(run_dir: Path, iteration: int) -> dict[str, torch.Tensor]:
     return load_file(str(run_dir / "checkpoints" / f"iter_{iteration:06d}" / "model.safetensors"))
 
 
-@pytest.mark.parametrize("encoder_training", ["joint", "frozen"])
-def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_training):
-    common = [f"encoder_training={encoder_training}", "optim.iterations=6", "checkpoint.keep_last=0"]
+@pytest.mark.parametrize(
+    "encoder_training, extra",
+    [
+        ("joint", []),
+        ("frozen", []),
+        # float16 autocast on CPU is slow (~80 s here): checked with the slow tests
+        pytest.param("joint", ["model.autocast_dtype=float16"], marks=pytest.mark.slow),
+    ],
+    ids=["joint", "frozen", "joint-float16"],
+)
+def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_training, extra):
+    common = [f"encoder_training={encoder_training}", "optim.iterations=6", "checkpoint.keep_last=0", *extra]
     straight = train(tiny_config(*common, f"output_dir={tmp_path / 'straight'}", "checkpoint.interval=6"))
 
     # First process: checkpoint at iteration 3, one more iteration, then a "crash" (the trainer is dropped).
@@ -59,11 +68,23 @@ def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_tra
     ra, rb = load_resume_state(straight.checkpoint), load_resume_state(resumed.checkpoint)
     for key, value in ra["byol"].items():  # EMA target params, BatchNorm statistics
         assert torch.equal(value, rb["byol"][key]), key
+    # float16 autocast trains with loss scaling, whose state is part of the resume part
+    assert ("grad_scaler" in ra) == bool(extra)
+    if extra:
+        assert ra["grad_scaler"] == rb["grad_scaler"] and ra["grad_scaler"]["scale"] > 0
     assert straight.metrics == {
         **resumed.metrics,
         "frames_per_s": straight.metrics["frames_per_s"],
         "iteration_s": straight.metrics["iteration_s"],
     }
+
+
+@pytest.mark.parametrize("dtype, scaled", [(None, False), ("bfloat16", False), ("float16", True)])
+def test_loss_scaling_only_under_float16(tiny_config, dtype, scaled):
+    overrides = [] if dtype is None else [f"model.autocast_dtype={dtype}"]
+    trainer = build_trainer(tiny_config(*overrides))
+    assert trainer.scaler.is_enabled() is scaled
+    assert ("grad_scaler" in trainer.resume_state()) is scaled
 
 
 def test_resume_refuses_a_changed_configuration(tiny_config, tmp_path):
