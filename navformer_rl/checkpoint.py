@@ -64,11 +64,26 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    _fsync_dir(path.parent)
 
 
 def _fsync_file(path: Path) -> None:
     with open(path, "rb") as handle:
         os.fsync(handle.fileno())
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a rename in ``path`` durable (a power loss could otherwise undo it); no-op where unsupported."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def save_checkpoint(
@@ -126,19 +141,28 @@ def save_checkpoint(
             shutil.rmtree(stale, ignore_errors=True)
         else:
             os.replace(tmp, final)
+        _fsync_dir(root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     atomic_write_text(root / LATEST_FILENAME, final.name + "\n")
     if keep_last > 0:
-        _prune(root, keep_last)
+        _prune(root, keep_last, final)
     return final
 
 
-def _prune(root: Path, keep_last: int) -> None:
+def _prune(root: Path, keep_last: int, latest: Path) -> None:
+    """Keep ``latest`` and the ``keep_last - 1`` checkpoints before it; delete the rest.
+
+    Folders numbered beyond ``latest`` are left over from a crash between a folder's rename and the
+    ``latest`` update (the resumed run has redone those iterations); they are deleted too, so a later
+    ``keep_last`` count can never remove the folder ``latest`` names.
+    """
     complete = sorted(p for p in root.glob("iter_*") if p.is_dir())
-    for old in complete[:-keep_last]:
-        shutil.rmtree(old, ignore_errors=True)
+    kept = [p for p in complete if p.name <= latest.name][-keep_last:]
+    for old in complete:
+        if old not in kept:
+            shutil.rmtree(old, ignore_errors=True)
 
 
 def latest_checkpoint(run_dir: str | os.PathLike) -> Path | None:

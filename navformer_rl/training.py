@@ -361,6 +361,12 @@ def validate_config(cfg: TrainConfig) -> None:
         if used and not path:
             raise ValueError(f"{key} is not set, but ablation={cfg.ablation!r} trains on {name}")
     model = model_config(cfg)  # NavFormerConfig validates its own fields
+    if model.encoder == "resnet18" and (cfg.optim.trajectory_chunks > 1 or model.encoder_micro_batch):
+        raise ValueError(
+            "ablation=resnet18 with optim.trajectory_chunks > 1 or model.encoder_micro_batch: ResNet18's "
+            "BatchNorm takes its statistics per chunk, so these levers would change the gradient (they are "
+            "the same maths only for the paper CNN); leave them at 1 / null"
+        )
     if cfg.data.context_steps is not None and cfg.data.context_steps > model.window_steps:
         raise ValueError(
             f"data.context_steps={cfg.data.context_steps} needs {cfg.data.context_steps * model.tokens_per_step} "

@@ -186,8 +186,23 @@ class Episode:
             raise ValueError(
                 f"episode {episode.episode_id}: starts must be [x, y, yaw], target positions [x, y]"
             )
-        if not all(np.isfinite(episode.shortest_paths)) or min(episode.shortest_paths) <= 0:
-            raise ValueError(f"episode {episode.episode_id}: shortest paths must be finite and > 0")
+        for name in ("shortest_paths", "shortest_paths_to_disc"):
+            values = getattr(episode, name)
+            if not all(np.isfinite(values)) or min(values) <= 0:
+                raise ValueError(f"episode {episode.episode_id}: {name} must be finite and > 0, got {values}")
+        if any(
+            disc > path + 1e-6 for disc, path in zip(episode.shortest_paths_to_disc, episode.shortest_paths)
+        ):
+            raise ValueError(
+                f"episode {episode.episode_id}: a path to the success disc is longer than the path to its "
+                f"target ({episode.shortest_paths_to_disc} vs {episode.shortest_paths})"
+            )
+        for key, value in (("n_robots", n), ("size", episode.size)):
+            if key in episode.world_config and episode.world_config[key] != value:
+                raise ValueError(
+                    f"episode {episode.episode_id}: {key}={value} disagrees with its world config "
+                    f"({key}={episode.world_config[key]})"
+                )
         return episode
 
     def world_spec(self):

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import multiprocessing
 import os
 import time
@@ -35,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from navformer_rl import __version__
 from navformer_rl.evaluation._io import atomic_write_text
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
@@ -173,8 +175,8 @@ def evaluate(
         confidence: level of the intervals.
         progress: show a tqdm progress bar.
         resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
-            the same method, label, checkpoint weights, seed and trial length (an interrupted run picks
-            up where it stopped); False recomputes everything.
+            the same method, label, checkpoint weights, seed, trial length and package version (an
+            interrupted run picks up where it stopped); False recomputes everything.
     """
     if isinstance(episode_set, str | os.PathLike):
         episode_set = load_episode_set(episode_set)
@@ -184,6 +186,10 @@ def evaluate(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if maps_per_setup < 0 or videos_per_setup < 0:
         raise ValueError("maps_per_setup and videos_per_setup must be >= 0")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence={confidence!r}: expected a level in (0, 1), e.g. 0.95")
+    if not (isinstance(video_fps, int | float) and math.isfinite(video_fps) and video_fps > 0):
+        raise ValueError(f"video_fps={video_fps!r}: expected a number of frames per second > 0")
     if callable(method):
         factory, method = method, getattr(method, "__name__", "custom")
     else:
@@ -202,6 +208,8 @@ def evaluate(
         "max_steps": episode_set.max_steps,
         "checkpoint_sha256": description.get("checkpoint_sha256"),
         "record_fields": sorted(RobotTrial.__dataclass_fields__),
+        # results of another release (simulator or policy fixes) are recomputed, never mixed in
+        "package_version": __version__,
     }
     tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup, identity)
     started = time.perf_counter()
@@ -222,8 +230,6 @@ def evaluate(
         "maps": [m for o in outputs for m in o["maps"]],
         "videos": [v for o in outputs for v in o["videos"]],
     }
-    from navformer_rl import __version__
-
     run = {
         "method": method,
         "label": label,

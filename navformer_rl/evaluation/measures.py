@@ -17,9 +17,11 @@ Definitions (``i`` runs over the ``N_tau`` robot-trials):
   Failed robot-trials contribute 0; a successful robot that stopped inside the 1.5 m disc with
   ``p_i < l_i`` contributes exactly 1 (the ``max`` caps the ratio).
 - **CR** = ``(1 / N_tau) * sum_i N_c,i / N_e,i`` with ``N_c,i`` the number of steps on which robot ``i``
-  was in contact (wall or robot) and ``N_e,i`` the number of steps robot ``i`` was active: from the reset
-  up to and including the step it succeeded, or to the end of the trial if it never did. A ratio is taken
-  per robot-trial first, then averaged (not pooled).
+  was in contact (wall, target or robot: its motion was cut short, or after the step its disc is within
+  :data:`~navformer_rl.envs.sim.CONTACT_EPS` = 1 mm of one, so a robot that is driven into counts too) and
+  ``N_e,i`` the number of steps robot ``i`` was active: from the reset up to and including the step it
+  succeeded, or to the end of the trial if it never did. A ratio is taken per robot-trial first, then
+  averaged (not pooled).
 
 Secondary measure: **SPL-disc**, eq. 12 with ``l_i`` replaced by the shortest path to the 1.5 m success
 disc around the target (``RobotTrial.shortest_path_to_disc``); it does not give the 1.5 m of slack that
@@ -326,15 +328,18 @@ class TrialTracker:
         succeeded = np.asarray(succeeded, dtype=bool).reshape(-1)
         if xy.shape != self._last_xy.shape or not collided.shape == succeeded.shape == self.success.shape:
             raise ValueError(f"expected xy {self._last_xy.shape} and flags [{len(self.success)}]")
+        if not np.all(np.isfinite(xy)):
+            raise ValueError(f"xy must be finite, got {xy}")
+        if driven is None:
+            driven = np.linalg.norm(xy - self._last_xy, axis=1)
+        driven = np.asarray(driven, dtype=np.float64).reshape(-1)
+        if driven.shape != self.success.shape or not np.all(np.isfinite(driven) & (driven >= 0)):
+            raise ValueError(f"driven must be [{len(self.success)}] finite lengths >= 0, got {driven}")
+        # every input is checked before any count changes: a refused call leaves the tracker as it was
         self._t += 1
         active = self.active
         self.steps += active
         self.collisions += active & collided
-        if driven is None:
-            driven = np.linalg.norm(xy - self._last_xy, axis=1)
-        driven = np.asarray(driven, dtype=np.float64).reshape(-1)
-        if driven.shape != self.success.shape or np.any(driven < 0):
-            raise ValueError(f"driven must be [{len(self.success)}] lengths >= 0, got {driven}")
         self.path_length += np.where(active, driven, 0.0)
         newly = active & succeeded
         self.success_step[newly] = self._t

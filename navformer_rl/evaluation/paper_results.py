@@ -66,3 +66,16 @@ TABLE4: dict[str, tuple[float, float, float]] = {
 
 METHOD_TO_PAPER_COLUMN: dict[str, str] = {"vrw": "VRW", "dt": "DT", "fca": "FCA", "navformer": "NavFormer"}
 """Our method names -> the paper's column names."""
+
+ABLATION_TO_TABLE4: dict[str, str] = {
+    "no_ssl": "NavFormer w/o SSL",
+    "no_thsc": "NavFormer w/o THSC",
+    "no_de": "NavFormer w/o tau^e",
+    "no_dca": "NavFormer w/o tau^ca",
+    "no_fs": "NavFormer w/o f_s",
+    "no_fg": "NavFormer w/o f_g",
+    "resnet18": "NavFormer w ResNet18",
+}
+"""The training recipe's ablation names -> their Table IV rows."""
+TABLE4_SETUP: tuple[float, int] = (12.5, 4)
+"""Table IV's setup: 60 trials in 12.5 m mazes with 4 robots (paper §VII.D)."""

@@ -19,7 +19,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from navformer_rl.evaluation._io import atomic_write_text
-from navformer_rl.evaluation.paper_results import METHOD_TO_PAPER_COLUMN, PAPER_SOURCE, TABLE1, TABLE3, TABLE4
+from navformer_rl.evaluation.paper_results import (
+    ABLATION_TO_TABLE4,
+    METHOD_TO_PAPER_COLUMN,
+    PAPER_SOURCE,
+    TABLE1,
+    TABLE3,
+    TABLE4,
+    TABLE4_SETUP,
+)
 from navformer_rl.evaluation.plots import plot_setup_bars
 from navformer_rl.evaluation.tables import (
     ALL_SETUPS,
@@ -40,14 +48,26 @@ PAPER_CAVEAT = (
 
 
 def _paper_column(label: str) -> str | None:
-    """The paper column matching one of our method labels (``navformer``, ``navformer-...`` -> NavFormer)."""
-    base = label.split("-")[0].split("_")[0].lower()
-    return METHOD_TO_PAPER_COLUMN.get(base)
+    """The paper column or Table IV row matching one of our method labels.
+
+    ``vrw``, ``dt``, ``fca``, ``navformer`` (and ``navformer-<anything>``) -> the Table I / III column; a
+    NavFormer label naming a training ablation (``navformer-no_thsc``, ``navformer_resnet18``) -> its
+    Table IV row (``ABLATION_TO_TABLE4``), compared only on Table IV's setup.
+    """
+    lowered = label.lower()
+    column = METHOD_TO_PAPER_COLUMN.get(lowered.split("-")[0].split("_")[0])
+    if column == "NavFormer":
+        for ablation, row in ABLATION_TO_TABLE4.items():
+            if ablation in lowered[len("navformer") :]:
+                return row
+    return column
 
 
 def _paper_numbers(summary: SetupSummary, column: str) -> tuple[float, float, float] | None:
     if summary.setup == ALL_SETUPS:
         return None
+    if column in ABLATION_TO_TABLE4.values():
+        return TABLE4[column] if (summary.size, summary.n_robots) == TABLE4_SETUP else None
     if summary.setup.endswith("-unseen"):
         return TABLE3["unseen"].get(column)
     if summary.setup.endswith("-seen"):

@@ -13,9 +13,21 @@ from tqdm import tqdm
 
 from navformer_rl.training import TrainConfig, Trainer, build_trainer, config_from_dict
 
+HYDRA_RUN_DIR = "${hydra:runtime.output_dir}"
+"""``config.yaml``'s default ``output_dir``: the run folder hydra makes for each launch."""
+
 
 def make_train_config(cfg: DictConfig) -> TrainConfig:
-    """Hydra ``DictConfig`` (``config.yaml`` + overrides, ``output_dir`` resolved) -> typed ``TrainConfig``."""
+    """Hydra ``DictConfig`` (``config.yaml`` + overrides, ``output_dir`` resolved) -> typed ``TrainConfig``.
+
+    ``resume=true`` needs ``output_dir=<the run to continue>``: hydra's default is a new, empty folder per
+    launch, where resuming would silently start from scratch.
+    """
+    if cfg.resume and OmegaConf.to_container(cfg, resolve=False).get("output_dir") == HYDRA_RUN_DIR:
+        raise ValueError(
+            "resume=true needs output_dir=<the run directory to continue>; without it each launch writes "
+            "into a new hydra folder, which holds no checkpoint"
+        )
     container: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     container.pop("hydra", None)
     return config_from_dict(container)

@@ -68,3 +68,34 @@ def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes, vrw_run)
         write_report([a.out_dir, a.out_dir], tmp_path / "dup.md")
     with pytest.raises(FileNotFoundError, match="not an evaluation folder"):
         write_report([tmp_path], tmp_path / "none.md")
+
+
+def test_ablation_labels_are_compared_with_their_table4_row():
+    import dataclasses
+
+    from navformer_rl.evaluation.measures import RobotTrial
+    from navformer_rl.evaluation.report import paper_comparison_markdown
+    from navformer_rl.evaluation.tables import summarize_by_setup
+
+    base = RobotTrial(
+        method="", episode_id="", setup="", size=0.0, n_robots=0, world_seed=0, trial=0, robot=0,
+        robot_style="jackal", measured=True, success=True, success_step=10, steps=10, collisions=0,
+        path_length=5.0, shortest_path=4.0, shortest_path_to_disc=3.0, final_distance=0.5,
+    )  # fmt: skip
+    records = [
+        dataclasses.replace(
+            base, method=method, episode_id=f"{setup}-{i}", setup=setup, size=size, n_robots=n
+        )
+        for method in ("navformer-no_thsc", "navformer-seed1")
+        for setup, size, n in (("12.5m-4r", 12.5, 4), ("7.5m-2r", 7.5, 2))
+        for i in range(2)
+    ]
+    table = paper_comparison_markdown(summarize_by_setup(records), ["navformer-no_thsc", "navformer-seed1"])
+    header, _, *rows = table.strip().splitlines()
+    by_setup = {row.split(" | ")[0].strip("| "): row for row in rows}
+    assert "navformer-no_thsc SR (ours / paper NavFormer w/o THSC)" in header
+    assert "navformer-seed1 SR (ours / paper NavFormer)" in header
+    # Table IV (12.5 m, 4 robots): w/o THSC is 32.08 % / 0.261 / 0.500
+    assert by_setup["12.5m-4r"].startswith("| 12.5m-4r | 100.00% / 32.08% | 0.800 / 0.261 | 0.000 / 0.500 |")
+    # Table IV has no 7.5 m row: no paper value for the ablation there, Table I's for the full model
+    assert by_setup["7.5m-2r"] == "| 7.5m-2r | - | - | - | 100.00% / 80.83% | 0.800 / 0.562 | 0.000 / 0.228 |"

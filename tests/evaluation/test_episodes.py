@@ -7,6 +7,7 @@ import pytest
 
 from navformer_rl.evaluation.episodes import (
     FORMAT_VERSION,
+    Episode,
     Setup,
     load_episode_set,
     make_episode_set,
@@ -89,6 +90,37 @@ def test_refuses_corrupt_foreign_and_wrong_version(tmp_path, small_set):
 
     with pytest.raises(FileNotFoundError):
         load_episode_set(tmp_path / "missing.json")
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (
+            lambda row: row["shortest_paths_to_disc"].__setitem__(0, 0.0),
+            "shortest_paths_to_disc must be finite and > 0",
+        ),
+        (
+            lambda row: row["shortest_paths"].__setitem__(1, float("nan")),
+            "shortest_paths must be finite and > 0",
+        ),
+        (
+            lambda row: row["shortest_paths_to_disc"].__setitem__(0, row["shortest_paths"][0] + 1.0),
+            "longer than",
+        ),
+        (
+            lambda row: row["world"]["config"].__setitem__("n_robots", 5),
+            "n_robots=2 disagrees with its world config",
+        ),
+        (lambda row: row.__setitem__("size", 12.5), "size=12.5 disagrees with its world config"),
+    ],
+)
+def test_episode_rows_are_checked_beyond_the_hash(small_set, edit, message):
+    # a file edited with its hash recomputed must still be refused before any episode runs
+    row = json.loads(json.dumps(small_set.episodes[0].to_json()))
+    assert Episode.from_json(row) == small_set.episodes[0]
+    edit(row)
+    with pytest.raises(ValueError, match=message):
+        Episode.from_json(row)
 
 
 def test_walls_check_detects_another_maze(small_set):

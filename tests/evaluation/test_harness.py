@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from navformer_rl.baselines.random_walk import RandomWalkPolicy
+from navformer_rl.evaluation import harness
 from navformer_rl.evaluation.episodes import load_episode_set
 from navformer_rl.evaluation.harness import evaluate, make_eval_env
 from navformer_rl.evaluation.measures import clustered_wilson_interval, collision_rate, spl
@@ -124,7 +125,7 @@ def test_worker_count_does_not_change_results(tmp_path, tiny_episodes, checkpoin
     ).read_text()
 
 
-def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes):
+def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes, monkeypatch):
     out = tmp_path / "resume"
     evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
     first = (out / "episodes.jsonl").read_text()
@@ -138,6 +139,14 @@ def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes):
     rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert rows[0]["path_length"] == 123.0
     assert [json.dumps(r, sort_keys=True) for r in rows[1:]] == first.splitlines()[1:]
-    # Another seed is other work: nothing is reused; resume=False recomputes too.
+    # Another seed, or another package version, is other work: the marked row is not reused
+    evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False, seed=3)
+    assert json.loads((out / "episodes.jsonl").read_text().splitlines()[0])["path_length"] != 123.0
+    partial.write_text(json.dumps(document))  # marked again, under seed 0
+    monkeypatch.setattr(harness, "__version__", "0.0.0-older")
+    evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
+    assert (out / "episodes.jsonl").read_text() == first
+    # resume=False recomputes everything
+    partial.write_text(json.dumps(document))
     evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False, resume=False)
     assert (out / "episodes.jsonl").read_text() == first

@@ -168,6 +168,18 @@ def test_trial_tracker_counts_only_active_steps():
     np.testing.assert_array_equal(tracker.success_step, [2, -1])
 
 
+def test_trial_tracker_refuses_bad_input_without_counting_it():
+    tracker = TrialTracker(np.array([[0.0, 0.0]]))
+    for xy, driven in (([[1.0, 0.0]], [-1.0]), ([[1.0, 0.0]], [np.nan]), ([[np.nan, 0.0]], None)):
+        with pytest.raises(ValueError, match="finite"):
+            tracker.update(np.array(xy), np.array([True]), np.array([False]), driven=driven)
+    np.testing.assert_array_equal(tracker.steps, [0])
+    np.testing.assert_array_equal(tracker.collisions, [0])
+    tracker.update(np.array([[1.0, 0.0]]), np.array([True]), np.array([False]))
+    np.testing.assert_array_equal(tracker.steps, [1])
+    np.testing.assert_allclose(tracker.path_length, [1.0])
+
+
 def test_trial_tracker_takes_given_step_lengths():
     # Arc lengths per step (e.g. |v| dt) instead of chords: a quarter circle of radius 1 driven in one step.
     tracker = TrialTracker(np.array([[0.0, 0.0]]))

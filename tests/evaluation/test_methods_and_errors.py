@@ -82,6 +82,12 @@ def test_bad_episode_file_and_worker_count(tmp_path, tiny_episodes):
         evaluate("vrw", path, tmp_path / "x", progress=False)
     with pytest.raises(ValueError, match="workers"):
         evaluate("vrw", tiny_episodes, tmp_path / "x", workers=0, progress=False)
+    # refused before any episode runs (nothing written), not after the last one
+    with pytest.raises(ValueError, match="confidence=1.0"):
+        evaluate("vrw", tiny_episodes, tmp_path / "y", confidence=1.0, progress=False)
+    with pytest.raises(ValueError, match="video_fps=0"):
+        evaluate("vrw", tiny_episodes, tmp_path / "y", video_fps=0, progress=False)
+    assert not (tmp_path / "y").exists()
 
 
 def test_fca_reaches_targets(tmp_path, tiny_episodes):

@@ -129,6 +129,24 @@ def test_keep_last_prunes_old_checkpoints(tiny_config):
     assert ckpt.latest_checkpoint(result.run_dir).name == "iter_000004"
 
 
+def test_prune_never_removes_the_latest_checkpoint(tmp_path):
+    # A crash between a folder's rename and the `latest` update leaves iter_000005 while `latest` says
+    # iter_000003; the resumed run then saves iter_000004 with keep_last=2.
+    def save(iteration):
+        return ckpt.save_checkpoint(
+            tmp_path, iteration, model_state={"w": torch.zeros(2)}, model_config={}, train_config={},
+            resume_state=None, keep_last=2,
+        )  # fmt: skip
+
+    for iteration in (1, 2, 3, 5):
+        save(iteration)
+    (tmp_path / ckpt.CHECKPOINTS_DIRNAME / ckpt.LATEST_FILENAME).write_text("iter_000003\n")
+    save(4)
+    names = sorted(p.name for p in (tmp_path / ckpt.CHECKPOINTS_DIRNAME).glob("iter_*"))
+    assert names == ["iter_000003", "iter_000004"]
+    assert ckpt.latest_checkpoint(tmp_path).name == "iter_000004"
+
+
 def test_rng_state_round_trip():
     torch.manual_seed(1)
     np.random.seed(2)

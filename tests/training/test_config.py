@@ -147,6 +147,13 @@ BAD_CONFIGS = [
     ),
     (["model.image_size=64"], ValueError, "images are \\(84, 84, 3\\), but model.image_size=64"),
     (["model.action_dim=3"], ValueError, "actions have 2 dimensions, but model.action_dim=3"),
+    # BatchNorm statistics per chunk: not the same maths for ResNet18
+    (
+        ["ablation=resnet18", "optim.trajectory_chunks=2"],
+        ValueError,
+        "BatchNorm takes its statistics per chunk",
+    ),
+    (["ablation=resnet18", "model.encoder_micro_batch=4"], ValueError, "BatchNorm takes its statistics"),
 ]
 
 

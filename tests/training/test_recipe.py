@@ -98,3 +98,17 @@ def test_navformer_cli_reports_bad_config_in_one_line(capsys):
     assert status == 2
     err = capsys.readouterr().err
     assert err.startswith("navformer train: error: unknown ablation 'no_attention'")
+
+
+def test_recipe_refuses_resume_without_a_run_directory():
+    import importlib.util
+
+    from omegaconf import OmegaConf
+
+    spec = importlib.util.spec_from_file_location("recipe_utils", ROOT / "recipes/navformer/utils.py")
+    utils = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(utils)
+    cfg = OmegaConf.load(ROOT / "recipes/navformer/config.yaml")
+    cfg.resume = True  # output_dir left at hydra's per-launch folder: nothing to resume there
+    with pytest.raises(ValueError, match="resume=true needs output_dir="):
+        utils.make_train_config(cfg)
