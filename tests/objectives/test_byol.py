@@ -174,11 +174,21 @@ def test_resnet18_byol_step_with_batchnorm_buffers():
     updater = SoftUpdate(loss, eps=0.996)
     optimizer = torch.optim.AdamW(loss.parameters(), lr=1e-3)
     batch = TensorDict({"pixels_dynamic": pairs(4)["pixels_dynamic"]}, batch_size=[4])
+    stats = model.general_encoder.stem[1].running_mean
+    assert torch.count_nonzero(stats) == 0
     first = loss(batch)["loss_byol"]
     first.backward()
     optimizer.step()
     updater.step()
     assert torch.isfinite(first) and torch.isfinite(loss(batch)["loss_byol"])
+    # training-mode BatchNorm updated the model's own statistics (the loss's functional copy aliases them),
+    # and the EMA target keeps statistics of its own, which the resume state carries
+    assert torch.count_nonzero(stats) == stats.numel()
+    state = loss.state_dict()
+    online = state["online_network_params.general.encoder.stem.1.running_mean"]
+    target = state["target_online_network_params.general.encoder.stem.1.running_mean"]
+    assert online.data_ptr() == stats.data_ptr()
+    assert target.data_ptr() != stats.data_ptr() and torch.count_nonzero(target) == target.numel()
 
 
 def test_augmentation_does_not_depend_on_the_chunk_size():
