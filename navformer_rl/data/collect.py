@@ -26,7 +26,7 @@ from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -34,8 +34,11 @@ from tensordict import TensorDict
 
 from navformer_rl.constants import MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.data.schema import TASK_ID, DatasetKind, ssl_rows, trajectory_rows
-from navformer_rl.data.writer import DatasetWriter, write_shard
+from navformer_rl.data.writer import DatasetWriter, folder_lock, write_shard
 from navformer_rl.envs.sim import COLLISION_ROBOT
+
+if TYPE_CHECKING:
+    from navformer_rl.envs.world import WorldSpec
 
 MAZE_SIZES = (5.0, 7.5, 10.0, 12.5, 15.0, 17.5)
 """World sides for D_e and D_ssl: the paper's 5-17.5 m range on the 2.5 m maze-cell grid."""
@@ -301,29 +304,69 @@ def _collision_avoidance_unit(settings: CollisionAvoidanceSettings, unit: int):
     return rows, targets, counters
 
 
-def _ssl_unit(settings: SSLSettings, unit: int):
-    from navformer_rl.envs.robots import get_robot_spec
-    from navformer_rl.envs.sim import Simulator
-    from navformer_rl.envs.world import WorldConfig, generate_world, sample_start_poses
+def ssl_layouts(
+    settings: SSLSettings, unit: int, world: WorldSpec, n_drawn: int, rng: np.random.Generator
+) -> list[np.ndarray]:
+    """The robot layouts of D_ssl unit ``unit``: ``ceil(pairs_per_world / n)`` float32 ``[n, 3]`` poses.
 
-    spec = get_robot_spec(settings.robot)
+    Attempt 0 places the ``n_drawn`` robots of the unit with the unit's ``rng`` (as drawn from the paper's
+    4-25 range). Random placement jams when a small maze is nearly full (a 5 m maze holds about 20-23
+    robots), and ``sample_start_poses`` then raises. Attempt ``a >= 1`` therefore places ``n_drawn - a``
+    robots with ``default_rng(unit_seed(seed, ssl, unit, a))``, until every layout fits. So the robot count
+    stays as close to the drawn one as placement allows, the result depends on the unit alone (resumed
+    collections stay byte-identical), and units whose first attempt fits are unchanged.
+    """
+    from navformer_rl.envs.world import sample_start_poses
+
+    last: ValueError | None = None
+    for attempt in range(n_drawn):
+        n = n_drawn - attempt
+        if attempt:
+            rng = np.random.default_rng(unit_seed(settings.seed, DatasetKind.SSL, unit, attempt))
+        n_layouts = -(-settings.pairs_per_world // n)
+        try:
+            return [sample_start_poses(world, n, rng, min_target_distance=0.0) for _ in range(n_layouts)]
+        except ValueError as err:
+            last = err
+    raise ValueError(
+        f"D_ssl unit {unit}: cannot place even one robot in its {world.size} m maze "
+        f"(drawn {n_drawn} robots; last error: {last})"
+    )
+
+
+def ssl_world(settings: SSLSettings, unit: int) -> tuple[WorldSpec, int, np.random.Generator]:
+    """``(world, n_drawn, rng)`` of D_ssl unit ``unit``: a maze of a size drawn from
+    ``settings.world_sizes``, the robot count drawn from ``settings.robots`` (before :func:`ssl_layouts`
+    fits it to the maze) and the unit's numpy Generator, which then places the robots."""
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.world import WorldConfig, generate_world
+
     seed = unit_seed(settings.seed, DatasetKind.SSL, unit)
     rng = np.random.default_rng(seed)
     size = float(settings.world_sizes[int(rng.integers(len(settings.world_sizes)))])
     lo, hi = settings.robots
-    n_robots = int(rng.integers(lo, hi + 1))
-    world = generate_world(WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=spec.radius), seed)
-    layouts = 0
+    n_drawn = int(rng.integers(lo, hi + 1))
+    radius = get_robot_spec(settings.robot).radius
+    world = generate_world(WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=radius), seed)
+    return world, n_drawn, rng
+
+
+def _ssl_unit(settings: SSLSettings, unit: int) -> tuple[TensorDict, dict[str, int]]:
+    """D_ssl unit ``unit``: ``pairs_per_world`` rows (``pixels_static`` / ``pixels_dynamic`` uint8
+    ``[84, 84, 3]``, ``world``, ``pose`` ``[3]``) and its counters."""
+    from navformer_rl.envs.robots import get_robot_spec
+    from navformer_rl.envs.sim import Simulator
+
+    spec = get_robot_spec(settings.robot)
+    world, n_drawn, rng = ssl_world(settings, unit)
+    layouts = ssl_layouts(settings, unit, world, n_drawn, rng)
+    n_robots = len(layouts[0])
     statics, dynamics, poses = [], [], []
-    sim = None
+    sim = Simulator(world, [spec] * n_robots, poses=layouts[0])
     try:
-        while len(poses) < settings.pairs_per_world:
-            layout = sample_start_poses(world, n_robots, rng, min_target_distance=0.0)
-            if sim is None:
-                sim = Simulator(world, [spec] * n_robots, poses=layout)
-            else:
+        for k, layout in enumerate(layouts):
+            if k:
                 sim.set_poses(layout)
-            layouts += 1
             take = min(n_robots, settings.pairs_per_world - len(poses))
             for i in range(n_robots):
                 sim.set_robot_visible(i, True)
@@ -335,15 +378,16 @@ def _ssl_unit(settings: SSLSettings, unit: int):
             statics.extend(sim.render_pose(layout[i], spec) for i in range(take))
             poses.extend(layout[:take])
     finally:
-        if sim is not None:
-            sim.close()
+        sim.close()
     statics, dynamics = np.stack(statics), np.stack(dynamics)
     rows = ssl_rows(pixels_static=statics, pixels_dynamic=dynamics, world=unit, pose=np.stack(poses))
     visible = int((statics != dynamics).reshape(len(statics), -1).any(1).sum())
     return rows, {
         "worlds": 1,
-        "layouts": layouts,
+        "layouts": len(layouts),
         "robots_total": n_robots,
+        "robots_drawn": n_drawn,
+        "worlds_with_fewer_robots": int(n_robots < n_drawn),
         "pairs_with_visible_robot": visible,
     }
 
@@ -382,11 +426,27 @@ def collect(
     """Collect (or resume, or just finish) the dataset ``kind`` into ``out``; returns ``out``.
 
     ``workers`` processes (``spawn``) run work units; ``workers=1`` runs them in this process. Rerunning
-    the same call after an interruption continues where it stopped and ends with the same bytes.
+    the same call after an interruption continues where it stopped and ends with the same bytes. The
+    folder is locked meanwhile (:func:`~navformer_rl.data.writer.folder_lock`): a second collection into
+    it raises :class:`~navformer_rl.data.writer.FolderLockedError` instead of deleting the first one's
+    shards in progress.
     """
     kind = DatasetKind.parse(kind)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    with folder_lock(out):
+        return _collect_locked(kind, out, settings, workers, progress, unit_fn)
+
+
+def _collect_locked(
+    kind: DatasetKind,
+    out: str | Path,
+    settings: Any,
+    workers: int,
+    progress: bool,
+    unit_fn: Callable[[str, str, Any, int], dict[str, int]],
+) -> Path:
+    """The body of :func:`collect`, run while holding the folder lock."""
     settings_dict = {"kind": kind.value, **dataclasses.asdict(settings), "code_sha256": code_fingerprint()}
     target = _target_count(kind, settings)
     writer = DatasetWriter(out, kind, settings_dict, target_count=target)
@@ -440,11 +500,19 @@ def collect(
                 fut.cancel()
             pool.shutdown(wait=True, cancel_futures=True)
         bar.close()
-    return writer.finalize(extra_metadata={"seeds": {"base": settings.seed, "derivation": _SEED_DOC}})
+    extra: dict[str, Any] = {"seeds": {"base": settings.seed, "derivation": _SEED_DOC}}
+    if kind is DatasetKind.SSL:
+        extra["robot_placement"] = _SSL_PLACEMENT_DOC
+    return writer.finalize(extra_metadata=extra)
 
 
 _SEED_DOC = (
     "item k of unit u uses SeedSequence(entropy=seed, spawn_key=(kind_code, u, k)).generate_state(1)[0]"
+)
+_SSL_PLACEMENT_DOC = (
+    "a world whose drawn robot count does not fit (random placement jams) is retried with one robot fewer "
+    "per attempt a >= 1, seeded by item index a of its unit; counts.robots_drawn - counts.robots_total "
+    "robots were removed in counts.worlds_with_fewer_robots worlds"
 )
 
 

@@ -3,6 +3,7 @@
 Layout of a dataset folder::
 
     metadata.json          schema version, kind, settings, seeds, counts, package version (atomic rewrite)
+    .collect.lock          only while collecting: flock + pid of the collecting process (see folder_lock)
     shards/unit-000012/    one per deterministic work unit, renamed into place when complete:
         rows/              memmapped TensorDict of the unit's rows (local episode / target ids from 0)
         targets/           memmapped TensorDict {"target_pixels": uint8 [n, 84, 84, 3]} (trajectory kinds)
@@ -17,9 +18,14 @@ interruptions: rerunning the same command after a crash yields the same bytes.
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
 import json
 import os
 import shutil
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +46,101 @@ from navformer_rl.data.schema import (
 METADATA_FILE = "metadata.json"
 SHARDS_DIR = "shards"
 CONSOLIDATED_DIR = "consolidated"
+LOCK_FILE = ".collect.lock"
 _TMP_PREFIX = ".tmp-"
+
+
+class FolderLockedError(RuntimeError):
+    """Another live process is collecting into the same dataset folder."""
+
+
+def fsync_dir(path: Path) -> None:
+    """fsync the directory ``path`` so that renames and new entries in it survive a power loss."""
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_tree(root: Path) -> None:
+    """fsync every file under ``root`` (memmaps included: their dirty pages are flushed), then every
+    directory, deepest first; one ``fsync`` per file, called once when a shard or consolidation is closed."""
+    dirs = []
+    for folder, _, files in os.walk(root):
+        dirs.append(folder)
+        for name in files:
+            fd = os.open(os.path.join(folder, name), os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+    for folder in reversed(dirs):
+        fsync_dir(Path(folder))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def folder_lock(root: str | Path) -> Iterator[Path]:
+    """Hold ``root/.collect.lock`` (created, with this process's pid) while collecting into ``root``.
+
+    The lock is an exclusive ``flock`` on that file, so the kernel releases it when its holder dies: a lock
+    file left by a killed collection (its pid no longer holds the lock) is taken over with a warning. Raises
+    :class:`FolderLockedError` naming the holder's pid when another live process holds ``root``. The file is
+    removed on exit. Yields the lock file's path.
+    """
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as err:
+            os.close(fd)
+            if err.errno not in (errno.EAGAIN, errno.EACCES):
+                raise
+            holder = _read_pid(path)
+            raise FolderLockedError(
+                f"{root} is being collected by another process (pid {holder}, lock {path}); "
+                "wait for it to finish or stop it, or collect into another folder"
+            ) from None
+        if os.path.exists(path) and os.stat(path).st_ino == os.fstat(fd).st_ino:
+            break  # locked the file that is still in place (not one its previous holder just removed)
+        os.close(fd)
+    try:
+        stale = _read_pid(path)
+        if stale is not None and stale != os.getpid():
+            alive = " (that pid is now another process)" if _pid_alive(stale) else ""
+            warnings.warn(
+                f"{root}: taking over the lock left by process {stale}, which no longer holds it{alive}",
+                stacklevel=3,
+            )
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        os.fsync(fd)
+        yield path
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+        os.close(fd)
+
+
+def _read_pid(path: Path) -> int | None:
+    """The pid written in a lock file, or ``None`` when it is missing, empty or unreadable."""
+    try:
+        return int(path.read_text().strip())
+    except (OSError, ValueError):
+        return None
 
 
 def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
@@ -53,6 +153,7 @@ def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+    fsync_dir(path.parent)
 
 
 def read_json(path: Path) -> dict[str, Any]:
@@ -83,32 +184,18 @@ def write_shard(
     final = shard_dir(root, unit)
     if final.exists():
         return
+    n_rows, n_items = _check_shard(kind, f"shard {unit} of {root}", rows, targets)
     tmp = final.with_name(f"{_TMP_PREFIX}{final.name}-{os.getpid()}")
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
-    n_rows = 0 if rows is None else int(rows.shape[0])
-    if kind.is_trajectory:
-        n_items = 0 if targets is None else int(targets.shape[0])
-        if n_rows:
-            check_rows(rows, fields_for(kind), f"shard {unit} of {root}")
-            episodes = rows["episode"]
-            if int(episodes.max()) + 1 != n_items or int(episodes.min()) != 0:
-                raise ValueError(
-                    f"shard {unit}: episodes must be numbered 0..{n_items - 1} to match {n_items} targets"
-                )
-        elif n_items:
-            raise ValueError(f"shard {unit}: {n_items} targets but no rows")
-    else:
-        n_items = n_rows
-        if n_rows:
-            check_rows(rows, fields_for(kind), f"shard {unit} of {root}")
     if n_rows:
         rows.memmap_(tmp / "rows")
         if kind.is_trajectory:
             TensorDict({"target_pixels": targets.contiguous()}, batch_size=[n_items]).memmap_(tmp / "targets")
     stats = {"items": n_items, "rows": n_rows, "counters": {k: int(v) for k, v in counters.items()}}
     write_json_atomic(tmp / "stats.json", stats)
+    fsync_tree(tmp)
     try:
         os.rename(tmp, final)
     except OSError:
@@ -116,6 +203,48 @@ def write_shard(
         shutil.rmtree(tmp, ignore_errors=True)
         if not final.exists():
             raise
+    fsync_dir(final.parent)
+
+
+def _check_shard(
+    kind: DatasetKind, where: str, rows: TensorDict | None, targets: torch.Tensor | None
+) -> tuple[int, int]:
+    """``(n_rows, n_items)`` of a shard after checking its rows (schema, and for trajectory kinds episodes
+    ``0..n_items-1`` matching the targets, sorted by ``(episode, step)``); ``ValueError`` naming ``where``."""
+    n_rows = 0 if rows is None else int(rows.shape[0])
+    if n_rows:
+        check_rows(rows, fields_for(kind), where)
+    if not kind.is_trajectory:
+        return n_rows, n_rows
+    n_items = 0 if targets is None else int(targets.shape[0])
+    if not n_rows:
+        if n_items:
+            raise ValueError(f"{where}: {n_items} targets but no rows")
+        return 0, 0
+    episodes = rows["episode"]
+    if int(episodes.max()) + 1 != n_items or int(episodes.min()) != 0:
+        raise ValueError(
+            f"{where}: episodes must be numbered 0..{n_items - 1} to match {n_items} targets, "
+            f"got {int(episodes.min())}..{int(episodes.max())}"
+        )
+    check_sorted(episodes, rows["step"], where)
+    return n_rows, n_items
+
+
+def check_sorted(episode: torch.Tensor, step: torch.Tensor, where: str) -> None:
+    """Raise ``ValueError`` naming ``where`` unless the rows (int64 ``[rows]`` columns) are sorted by
+    ``(episode, step)``: episode ids contiguous and non-decreasing, steps strictly increasing within each
+    episode (consolidation cuts a shard after its first k episodes, which needs this order)."""
+    episode, step = episode.reshape(-1).to(torch.int64), step.reshape(-1).to(torch.int64)
+    d_episode, d_step = torch.diff(episode), torch.diff(step)
+    bad = (d_episode < 0) | (d_episode > 1) | ((d_episode == 0) & (d_step <= 0))
+    if bool(bad.any()):
+        row = int(torch.nonzero(bad)[0]) + 1
+        raise ValueError(
+            f"{where}: rows must be sorted by (episode, step) with contiguous episode ids, but row {row} has "
+            f"(episode, step) = ({int(episode[row])}, {int(step[row])}) after "
+            f"({int(episode[row - 1])}, {int(step[row - 1])})"
+        )
 
 
 class DatasetWriter:
@@ -254,7 +383,9 @@ class DatasetWriter:
                 targets_out[item_at : item_at + take].copy_(shard_targets["target_pixels"][:take])
             row_at += rows
             item_at += take
+        fsync_tree(tmp)
         os.rename(tmp, final)
+        fsync_dir(self.root)
         counts = {"rows": n_rows, "items": self.target_count, "units": len(plan), **counters}
         self.metadata = {
             **self.metadata,

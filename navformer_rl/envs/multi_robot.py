@@ -15,7 +15,9 @@ Keys (A robots):
   (succeeded, or the episode was truncated). They are observations, not done-spec entries, so TorchRL
   rollouts and collectors do not stop (or partially reset) when a single robot finishes.
 - ``("agents", "collision")`` bool ``[A, 1]``, ``("agents", "collision_kind")`` int64 ``[A, 1]`` (0 none,
-  1 wall or target, 2 robot), for the last step.
+  1 wall or target, 2 robot), for the last step: the robot was in contact (its motion was cut short, or it
+  ends the step touching a wall, a target or another robot, e.g. because it was driven into; see
+  :meth:`Simulator.step`). A robot that has succeeded is no longer flagged (nothing more counts for it).
 - ``("agents", "step_count")`` int64 ``[A, 1]``: steps since reset (0 right after a reset).
 - ``("privileged", k)``: ``pose`` float32 ``[A, 3]``, ``velocity`` ``[A, 2]``, ``target_position``
   ``[A, 2]``, ``success`` bool ``[A, 1]``, ``path_length`` float32 ``[A, 1]`` (metres driven),
@@ -208,9 +210,11 @@ class MultiRobotNavEnv(EnvBase):
         actions = validate_actions(action.detach().cpu().numpy(), self.n_agents)
         active = ~self._success
         contacts = self.simulator.step(actions, active)
+        collided = contacts.collided & active  # a parked (succeeded) robot that is driven into is not charged
+        kind = np.where(active, contacts.kind, 0)
         after = self.simulator.poses[:, :2].astype(np.float64)
         self._path_length += np.abs(self.simulator.velocities[:, 0]) * self.simulator.dt  # arc length driven
-        self._collisions += contacts.collided
+        self._collisions += collided
         arrived = active & (np.hypot(*(after - self._target_xy).T) <= SUCCESS_RADIUS)
         self._success |= arrived
         self._step_count += 1
@@ -220,7 +224,7 @@ class MultiRobotNavEnv(EnvBase):
             fresh = self.simulator.render_all(active)
             self._pixels = np.where(active[:, None, None, None], fresh, self._pixels)
         truncated = self._step_count >= self.max_steps and not self._success.all()
-        return self._make_tensordict(contacts.collided, contacts.kind, reward=arrived, truncated=truncated)
+        return self._make_tensordict(collided, kind, reward=arrived, truncated=truncated)
 
     def _make_tensordict(
         self, collided: np.ndarray, kind: np.ndarray, reward: np.ndarray | None, truncated: bool

@@ -22,6 +22,10 @@ from navformer_rl.envs.world import WorldSpec
 COLLISION_NONE, COLLISION_WALL, COLLISION_ROBOT = 0, 1, 2
 """Collision kinds: static obstacles (walls and solid targets) count as walls."""
 
+CONTACT_EPS = 1e-3
+"""Metres: after a step, a robot whose disc is within this distance of a wall, a target or another visible
+robot is in contact (the blocked motion stops within 0.1 mm of the obstacle, well inside this)."""
+
 CAMERA_NEAR = 0.05
 _PATH_SAMPLE = 0.05  # metres between collision checks along a step's arc
 _REFINE = 32
@@ -30,7 +34,11 @@ _HIDDEN_Z = -50.0
 
 
 class StepContacts(NamedTuple):
-    """Contacts of one step: ``collided`` bool ``[R]``, ``kind`` int8 ``[R]`` (0 none, 1 wall, 2 robot)."""
+    """Contacts of one step: ``collided`` bool ``[R]``, ``kind`` int8 ``[R]`` (0 none, 1 wall, 2 robot).
+
+    ``collided[i]``: robot ``i``'s motion was cut short, or its disc ends the step in contact (within
+    :data:`CONTACT_EPS`) with a wall, a target or another robot, whether or not it moved itself.
+    """
 
     collided: np.ndarray
     kind: np.ndarray
@@ -321,8 +329,12 @@ class Simulator:
         Robots move one after the other in index order (a robot sees the others' updated positions).
         Each follows its unicycle arc up to the largest collision-free fraction of the step (see
         ``_free_fraction``); the heading always turns by the full ``w * dt`` (the footprint is a disc, so
-        turning never collides). A step is a collision when the commanded motion was cut short; its kind
-        is 2 if a robot stopped it, else 1. Inactive robots (``active`` bool ``[R]`` False) do not move.
+        turning never collides). Inactive robots (``active`` bool ``[R]`` False) do not move.
+
+        A step is a collision for robot ``i`` (DESIGN §3: steps in contact) when its commanded motion was cut
+        short, or when, after every robot moved, its disc is within :data:`CONTACT_EPS` of a wall, a target
+        or another visible robot: a robot that is driven into (standing, turning or inactive) is flagged
+        too. The kind is 2 if a robot is involved (stopped it or touches it), else 1 (wall or target).
 
         Returns :class:`StepContacts`. ValueError for a wrong shape or NaN/inf actions (out-of-range
         values are clipped).
@@ -334,7 +346,6 @@ class Simulator:
         if active.shape != (self.n_robots,):
             raise ValueError(f"active must be bool [{self.n_robots}], got shape {active.shape}")
         commands = a * self._limits
-        collided = np.zeros(self.n_robots, dtype=bool)
         kinds = np.zeros(self.n_robots, dtype=np.int8)
         for i in range(self.n_robots):
             if not active[i]:
@@ -348,10 +359,21 @@ class Simulator:
             )
             self._poses[i] = (x, y, wrap_angle(th + w * self.dt))
             self._velocities[i] = (v * fraction, w)
-            collided[i] = kind != COLLISION_NONE
             kinds[i] = kind
             self._dirty[i] = True
-        return StepContacts(collided=collided, kind=kinds)
+        for i in range(self.n_robots):
+            if kinds[i] != COLLISION_ROBOT:
+                kinds[i] = max(int(kinds[i]), self._touching(i))
+        return StepContacts(collided=kinds != COLLISION_NONE, kind=kinds)
+
+    def _touching(self, i: int) -> int:
+        """Contact kind of robot ``i``'s disc, grown by :data:`CONTACT_EPS`, where it stands now: 2 another
+        visible robot, 1 a wall or target, 0 none. Reuses the step's broad phase (``_nearby``) and contact
+        test (``_contact_kind``): a handful of boxes and discs, no pybullet query."""
+        boxes, discs = self._nearby(i, CONTACT_EPS)
+        reach = float(self._radii[i]) + CONTACT_EPS
+        grown = [(cx, cy, r + CONTACT_EPS, kind) for cx, cy, r, kind in discs]
+        return _contact_kind(float(self._poses[i, 0]), float(self._poses[i, 1]), reach * reach, boxes, grown)
 
     # ------------------------------------------------------------------ pybullet sync, cameras, rays
     def _sync(self) -> None:

@@ -53,9 +53,12 @@ class TargetNavEnv(gym.Env):
     Spaces: observation ``Dict(pixels=Box(0, 255, (84, 84, 3), uint8), target_pixels=Box(same))``;
     action ``Box(-1, 1, (2,), float32)`` = (linear, angular), clipped; NaN or a wrong shape raise ValueError.
 
-    ``reset(seed=..., options={"episode": EpisodeSpec | WorldSpec})`` replays a fixed episode.
+    ``reset(seed=..., options={"episode": EpisodeSpec | WorldSpec})`` replays a fixed episode; its world is
+    never reused implicitly (the next plain reset draws a new world, whatever ``episodes_per_world``).
     ``info`` keys: ``pose`` float32 [3], ``velocity`` [2], ``target_position`` [2], ``distance_to_target``,
-    ``success``, ``collision``, ``collision_kind`` (0/1/2), ``collisions`` (count), ``path_length``
+    ``success``, ``collision`` (robot 0 was in contact on the last step: blocked, or touching a wall, a
+    target or another robot, e.g. because it was driven into), ``collision_kind`` (0/1/2), ``collisions``
+    (count), ``path_length``
     (metres driven), ``shortest_path_length`` (geodesic from the start to the 1.5 m success region),
     ``robot_poses`` float32 [R, 3], ``world_seed``, ``step``.
     """
@@ -102,33 +105,43 @@ class TargetNavEnv(gym.Env):
 
     # ------------------------------------------------------------------ episode set-up
     def _next_world(self, options: dict[str, Any] | None) -> WorldSpec:
+        """The world of the next episode: ``options["episode"]`` when given, else the current world with fresh
+        starts while it has served fewer than ``episodes_per_world`` episodes, else a newly drawn one."""
         episode = (options or {}).get("episode")
         if episode is not None:
-            if isinstance(episode, EpisodeSpec):
-                return episode.build()
-            if isinstance(episode, WorldSpec):
-                return episode
+            world = self._fixed_world(episode)
+            self._episodes_in_world = self.episodes_per_world  # a fixed episode is never reused implicitly
+            return world
+        if self.world is not None and self._episodes_in_world < self.episodes_per_world:
+            self._episodes_in_world += 1
+            starts = sample_start_poses(self.world, self.world.n_robots, self.np_random)
+            return dataclasses.replace(self.world, starts=starts)
+        self._episodes_in_world = 1
+        return generate_world(self.config, int(self.np_random.integers(_SEED_HIGH)))
+
+    def _fixed_world(self, episode: EpisodeSpec | WorldSpec) -> WorldSpec:
+        """The world of a fixed episode (``reset(options={"episode": ...})``), checked against this env."""
+        if isinstance(episode, EpisodeSpec):
+            world = episode.build()
+        elif isinstance(episode, WorldSpec):
+            world = episode
+        else:
             raise ValueError(
                 f"options['episode'] must be an EpisodeSpec or WorldSpec, got {type(episode).__name__}"
             )
-        if self.world is not None and self._episodes_in_world < self.episodes_per_world:
-            starts = sample_start_poses(self.world, self.world.n_robots, self.np_random)
-            return dataclasses.replace(self.world, starts=starts)
-        self._episodes_in_world = 0
-        return generate_world(self.config, int(self.np_random.integers(_SEED_HIGH)))
+        if world.n_robots != len(self.robot_specs):
+            raise ValueError(
+                f"the episode has {world.n_robots} robots, this env drives {len(self.robot_specs)}"
+            )
+        return world
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         if seed is not None:
             self.world, self._episodes_in_world = None, 0
         world = self._next_world(options)
-        if world.n_robots != len(self.robot_specs):
-            raise ValueError(
-                f"the episode has {world.n_robots} robots, this env drives {len(self.robot_specs)}"
-            )
         self.simulator = simulator_for_world(world, self.robot_specs, self.textured, self.simulator)
         self.world = world
-        self._episodes_in_world += 1
         self.obstacle_policy.reset(world, self.simulator, self.np_random)
         target = world.targets[0]
         self._target_pixels = render_target_image(target.shape, target.color)

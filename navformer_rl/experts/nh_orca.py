@@ -12,6 +12,7 @@ tracked by the unicycle within ``E``), then tracks it with ``(v, w)``:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -167,19 +168,57 @@ class NHORCAConfig:
     12 blocked steps they try the other side, alternating every 12 steps."""
 
 
+def limit_command(
+    v: float, w: float, previous: np.ndarray, yaw: float, walls: list[Line], config: NHORCAConfig
+) -> tuple[float, float]:
+    """Apply the acceleration window around ``previous`` executed ``(v0, w0)`` float ``[2]``, then the wall
+    safety clamp (:func:`clamp_forward_speed`) last: safety wins over the acceleration limit, so a forward
+    ``v`` never exceeds what the wall half-planes ``walls`` allow along the heading ``yaw``."""
+    v0, w0 = float(previous[0]), float(previous[1])
+    dv, dw = config.a_max * config.dt, config.alpha_max * config.dt
+    v = min(max(v, v0 - dv), v0 + dv)
+    w = min(max(w, w0 - dw), w0 + dw)
+    if v > 0.0:  # the clamp bounds forward motion; a (rare) backward command is left as it is
+        v = clamp_forward_speed(v, yaw, walls)
+    return v, w
+
+
 class NHORCA:
     """NH-ORCA for a team: ``step(poses, velocities, preferred, active, walls) -> (v, w) [N, 2]``.
 
+    Args:
+        config: one :class:`NHORCAConfig` shared by every robot, or a sequence with one per robot (robot
+            ``i`` plans with its own radius, limits, tracking error and horizons: mixed teams such as one
+            Jackal among TurtleBots); default the Jackal defaults for everyone.
+
     Keeps each robot's last holonomic velocity ``u`` (the neighbours' velocities in the next step).
-    Inactive robots (stopped, e.g. finished) are non-reciprocal static agents, inflated by the safety margin
-    only (they have no tracking error): others take full responsibility for avoiding them. Symmetric jams (all ``u`` ~ 0 while robots want to move, see
-    ``docs/experts.md``) are broken by the right-hand rule of :class:`NHORCAConfig` ``deadlock_turn``.
+    Inactive robots (stopped, e.g. finished) are non-reciprocal static agents, inflated by their safety margin
+    only (they have no tracking error): others take full responsibility for avoiding them. Symmetric jams
+    (all ``u`` ~ 0 while robots want to move, see ``docs/experts.md``) are broken by the right-hand rule of
+    :class:`NHORCAConfig` ``deadlock_turn``.
     """
 
-    def __init__(self, config: NHORCAConfig | None = None) -> None:
-        self.config = config or NHORCAConfig()
+    def __init__(self, config: NHORCAConfig | Sequence[NHORCAConfig] | None = None) -> None:
+        if config is None or isinstance(config, NHORCAConfig):
+            self.per_robot: list[NHORCAConfig] | None = None
+            self.config = config or NHORCAConfig()
+        else:
+            configs = list(config)
+            if not configs or not all(isinstance(c, NHORCAConfig) for c in configs):
+                raise ValueError(
+                    "config must be an NHORCAConfig or a non-empty sequence of them (one per robot)"
+                )
+            self.per_robot, self.config = configs, configs[0]
         self.u: np.ndarray | None = None
         self.blocked_steps: np.ndarray | None = None
+
+    def configs(self, n: int) -> list[NHORCAConfig]:
+        """The config of each of ``n`` robots (the shared one repeated, or the per-robot list)."""
+        if self.per_robot is None:
+            return [self.config] * n
+        if len(self.per_robot) != n:
+            raise ValueError(f"NHORCA has {len(self.per_robot)} per-robot configs but was given {n} robots")
+        return self.per_robot
 
     def reset(self, poses: np.ndarray, velocities: np.ndarray) -> None:
         """Start from the measured velocities: ``u = v (cos yaw, sin yaw)``."""
@@ -201,40 +240,38 @@ class NHORCA:
 
         ``poses`` ``[N, 3]``, ``velocities`` ``[N, 2]`` executed ``(v, w)``, ``preferred`` holonomic
         ``[N, 2]``, ``active`` bool ``[N]``, ``walls`` ``[W, 4]`` boxes ``(cx, cy, half_x, half_y)``,
-        ``circles`` ``[C, 3]`` static discs ``(cx, cy, r)``.
+        ``circles`` ``[C, 3]`` static discs ``(cx, cy, r)``. Robot ``i`` uses its own config (see
+        :meth:`configs`); ORCA pairs combine the two robots' inflated radii.
         """
-        c = self.config
         poses = np.asarray(poses, dtype=np.float64)
         velocities = np.asarray(velocities, dtype=np.float64)
         active = np.asarray(active, dtype=bool)
         n = len(poses)
+        cfgs = self.configs(n)
         if self.u is None or len(self.u) != n:
             self.reset(poses, velocities)
         u_prev = np.where(active[:, None], self.u, 0.0)
-        radius = c.radius + c.tracking_error + c.safety
+        physical = np.array([c.radius for c in cfgs])
+        inflated = physical + np.array([c.tracking_error + c.safety for c in cfgs])
         # Stopped robots have no tracking error: only the safety margin inflates them.
-        radii = np.where(active, radius, c.radius + c.safety)
+        radii = np.where(active, inflated, physical + np.array([c.safety for c in cfgs]))
         commands = np.zeros((n, 2))
         u_new = np.zeros((n, 2))
-        obst_range = c.tau_obst * c.v_max + radius
         for i in np.flatnonzero(active):
+            c = cfgs[i]
             yaw = float(poses[i, 2])
             soft = orca_lines(
                 i, poses[:, :2], u_prev, radii, active, c.tau, c.dt, c.neighbor_dist, c.max_neighbors
             )
-            walls_i = box_lines(poses[i, :2], radius, walls, c.tau_obst, c.dt, obst_range, c.radius, circles)
+            obst_range = c.tau_obst * c.v_max + inflated[i]
+            walls_i = box_lines(
+                poses[i, :2], inflated[i], walls, c.tau_obst, c.dt, obst_range, c.radius, circles
+            )
             ahv = polygon_lines(
                 ahv_polygon(yaw, c.time_to_holo, c.tracking_error, c.v_max, c.w_max, c.n_chords)
             )
-            pref = np.asarray(preferred[i], dtype=np.float64)
-            if self.blocked_steps[i] > 0:
-                # Right-hand rule first; a robot still blocked after 12 steps alternates sides.
-                k = int(self.blocked_steps[i]) - 1
-                side = -1.0 if (k // 12) % 2 == 0 else 1.0
-                turn = side * min(math.pi / 2, c.deadlock_turn * (k % 12 + 1))
-                cs, sn = math.cos(turn), math.sin(turn)
-                pref = np.array([cs * pref[0] - sn * pref[1], sn * pref[0] + cs * pref[1]])
-            u, _ = self._solve(walls_i, ahv, soft, pref)
+            pref = self._deadlock_preference(i, np.asarray(preferred[i], dtype=np.float64), c)
+            u, _ = self._solve(walls_i, ahv, soft, pref, c.v_max)
             u_new[i] = u
             want = math.hypot(pref[0], pref[1]) > 0.3
             stuck = want and math.hypot(u[0], u[1]) < c.deadlock_speed
@@ -246,19 +283,27 @@ class NHORCA:
                 )
             else:
                 v, w = tracking_command(u, yaw, c.time_to_holo, c.v_max, c.w_max)
-            v = clamp_forward_speed(v, yaw, walls_i)
-            v0, w0 = velocities[i]
-            commands[i, 0] = np.clip(v, v0 - c.a_max * c.dt, v0 + c.a_max * c.dt)
-            commands[i, 1] = np.clip(w, w0 - c.alpha_max * c.dt, w0 + c.alpha_max * c.dt)
+            commands[i] = limit_command(v, w, velocities[i], yaw, walls_i, c)
         self.u = u_new
         return commands
 
+    def _deadlock_preference(self, i: int, pref: np.ndarray, c: NHORCAConfig) -> np.ndarray:
+        """Robot ``i``'s preferred velocity float64 ``[2]``, rotated by the right-hand rule while it is blocked:
+        clockwise first; a robot still blocked after 12 steps alternates sides every 12 steps."""
+        if self.blocked_steps[i] <= 0:
+            return pref
+        k = int(self.blocked_steps[i]) - 1
+        side = -1.0 if (k // 12) % 2 == 0 else 1.0
+        turn = side * min(math.pi / 2, c.deadlock_turn * (k % 12 + 1))
+        cs, sn = math.cos(turn), math.sin(turn)
+        return np.array([cs * pref[0] - sn * pref[1], sn * pref[0] + cs * pref[1]])
+
     def _solve(
-        self, walls: list[Line], ahv: list[Line], soft: list[Line], pref: np.ndarray
+        self, walls: list[Line], ahv: list[Line], soft: list[Line], pref: np.ndarray, v_max: float
     ) -> tuple[np.ndarray, bool]:
         """Walls and P_AHV hard; if walls and P_AHV conflict (robot pushed into a wall), drop P_AHV."""
         hard = walls + ahv
-        fail, _ = linear_program2(hard, self.config.v_max, (0.0, 0.0), False)
+        fail, _ = linear_program2(hard, v_max, (0.0, 0.0), False)
         if fail < len(hard):
             hard = walls
-        return solve_velocity(hard, soft, pref, self.config.v_max)
+        return solve_velocity(hard, soft, pref, v_max)

@@ -9,7 +9,9 @@ simulator (zero rows for inactive robots). Per-robot flags after each ``act``: `
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -114,28 +116,23 @@ class ExplorationExpert(_ExpertBase):
     def __init__(self, config: ExpertConfig | None = None, dwa: DWAConfig | None = None) -> None:
         super().__init__(config)
         self.dwa_config = dwa
+        """One DWA config for every robot; default: each robot's from its spec (:func:`dwa_config`)."""
         self.navigators: list[FrontierNavigator] = []
+        self.dwas: list[DWAPlanner] = []
 
     def reset(self, world, sim, rng: np.random.Generator) -> None:
+        """Start an episode: one navigator (map radius, camera) and one DWA planner per robot, from its spec."""
         super().reset(world, sim, rng)
-        spec = self.specs[0]
-        nav_cfg = self.config.navigator
-        if nav_cfg.robot_radius != spec.radius:
-            nav_cfg = NavigatorConfig(**{**nav_cfg.__dict__, "robot_radius": spec.radius})
-        camera = (math.radians(spec.camera_fov_deg), self.config.camera.max_range)
         self.navigators = [
-            FrontierNavigator(world.size, nav_cfg, self.targets[i], camera=camera)
-            for i in range(sim.n_robots)
+            FrontierNavigator(
+                world.size,
+                navigator_config(self.config.navigator, spec),
+                self.targets[i],
+                camera=(math.radians(spec.camera_fov_deg), self.config.camera.max_range),
+            )
+            for i, spec in enumerate(self.specs)
         ]
-        dwa = self.dwa_config or DWAConfig(
-            v_max=spec.v_max,
-            w_max=spec.w_max,
-            a_max=spec.a_max,
-            alpha_max=spec.alpha_max,
-            dt=sim.dt,
-            robot_radius=spec.radius,
-        )
-        self.dwa = DWAPlanner(dwa)
+        self.dwas = [DWAPlanner(self.dwa_config or dwa_config(spec, sim.dt)) for spec in self.specs]
 
     @property
     def stuck_events(self) -> np.ndarray:
@@ -175,7 +172,7 @@ class ExplorationExpert(_ExpertBase):
             if nav.exhausted:  # explored everything reachable without seeing the target
                 self.failed[i] = True
             return np.zeros(2)
-        cfg = self.dwa.config
+        cfg = self.dwas[i].config
         clearance = ClearanceMap(
             nav.map.occupied(),
             nav.map.resolution,
@@ -184,7 +181,7 @@ class ExplorationExpert(_ExpertBase):
             cfg.v_max * cfg.predict_time + cfg.clearance_cap + cfg.robot_radius,
             cfg.clearance_cap,
         )
-        res = self.dwa.plan(pose, vel, carrot, clearance)
+        res = self.dwas[i].plan(pose, vel, carrot, clearance)
         return np.array([res.v, res.w])
 
 
@@ -199,6 +196,43 @@ def nh_orca_config(spec: RobotSpec, dt: float, **overrides) -> NHORCAConfig:
         dt=dt,
         **overrides,
     )
+
+
+def nh_orca_configs(
+    specs: list[RobotSpec], dt: float, given: NHORCAConfig | Sequence[NHORCAConfig] | None, **overrides
+) -> list[NHORCAConfig]:
+    """One NH-ORCA config per robot: ``given`` (one shared config, or one per robot) when not None, else each
+    robot's own from its spec (:func:`nh_orca_config` with ``overrides``). ValueError on a length mismatch."""
+    if given is None:
+        return [nh_orca_config(spec, dt, **overrides) for spec in specs]
+    if isinstance(given, NHORCAConfig):
+        return [given] * len(specs)
+    configs = list(given)
+    if len(configs) != len(specs):
+        raise ValueError(f"{len(configs)} NH-ORCA configs given for {len(specs)} robots")
+    return configs
+
+
+def dwa_config(spec: RobotSpec, dt: float) -> DWAConfig:
+    """DWA parameters from a robot's radius and limits."""
+    return DWAConfig(
+        v_max=spec.v_max,
+        w_max=spec.w_max,
+        a_max=spec.a_max,
+        alpha_max=spec.alpha_max,
+        dt=dt,
+        robot_radius=spec.radius,
+    )
+
+
+def navigator_config(
+    base: NavigatorConfig, spec: RobotSpec, inflation_margin: float | None = None
+) -> NavigatorConfig:
+    """``base`` with the robot's radius (and, when given, ``inflation_margin``) for its A* map inflation."""
+    changes = {"robot_radius": spec.radius}
+    if inflation_margin is not None:
+        changes["inflation_margin"] = inflation_margin
+    return dataclasses.replace(base, **changes)
 
 
 def preferred_velocity(
@@ -238,37 +272,40 @@ class NHORCAExpert(_ExpertBase):
     def __init__(
         self,
         config: ExpertConfig | None = None,
-        nh_orca: NHORCAConfig | None = None,
+        nh_orca: NHORCAConfig | Sequence[NHORCAConfig] | None = None,
         noise: float = 0.02,
         progress_window: int = 15,
         progress_min: float = 0.3,
     ) -> None:
         super().__init__(config)
         self.nh_config = nh_orca
+        """NH-ORCA config (shared, or one per robot); default: each robot's from its spec."""
         self.noise = noise
         self.progress_window = progress_window
         self.progress_min = progress_min
 
     def reset(self, world, sim, rng: np.random.Generator) -> None:
+        """Start an episode: one NH-ORCA config per robot and each robot's field on the true map."""
         super().reset(world, sim, rng)
-        self.planner = NHORCA(self.nh_config or nh_orca_config(self.specs[0], sim.dt))
+        self.orca_configs = nh_orca_configs(self.specs, sim.dt, self.nh_config)
+        self.planner = NHORCA(self.orca_configs)
         self.planner.reset(sim.poses, sim.velocities)
-        cfg = self.planner.config
         # Plan with ORCA's own inflated radius so that planned gaps are gaps ORCA lets the robot through.
-        self.inflation = cfg.tracking_error + cfg.safety
-        self.clearance = cfg.radius + self.inflation
+        self.clearance = np.array([c.radius + c.tracking_error + c.safety for c in self.orca_configs])
         self.radii = sim.radii
         occ = world.occupancy
-        free = ~occ.inflate(self.clearance)
+        free = {c: ~occ.inflate(c) for c in set(self.clearance.tolist())}
         n = sim.n_robots
-        self.maps = [(occ, free, self._field(occ, i)) for i in range(n)]
+        self.maps = [(occ, free[float(self.clearance[i])], self._field(occ, i)) for i in range(n)]
         self.lookahead_cells = int(round(1.0 / occ.resolution))
         self.best = np.full(n, np.inf)
         self.last_progress = np.zeros(n, dtype=np.int64)
         self.replans = np.zeros(n, dtype=np.int64)
 
     def _field(self, occupancy, i: int) -> np.ndarray:
-        return occupancy.distance_field(self.targets[i], self.clearance, self.config.stop_radius - 0.2)
+        return occupancy.distance_field(
+            self.targets[i], float(self.clearance[i]), self.config.stop_radius - 0.2
+        )
 
     def _replan_around(self, i: int, poses: np.ndarray, stopped: np.ndarray) -> None:
         """Re-plan robot ``i``'s field on the true map plus the discs of the ``stopped`` robots."""
@@ -277,7 +314,7 @@ class NHORCAExpert(_ExpertBase):
         base = self.world.occupancy
         circles = np.array(
             [
-                (poses[j, 0], poses[j, 1], self.radii[j] + self.planner.config.safety)
+                (poses[j, 0], poses[j, 1], self.radii[j] + self.orca_configs[j].safety)
                 for j in np.flatnonzero(stopped)
                 if j != i
             ]
@@ -291,7 +328,7 @@ class NHORCAExpert(_ExpertBase):
         field = self._field(occ, i)
         here = tuple(int(v) for v in occ.world_to_cell(poses[i, :2]))
         if np.isfinite(field[here]) or not np.isfinite(self.maps[i][2][here]):
-            self.maps[i] = (occ, ~occ.inflate(self.clearance), field)
+            self.maps[i] = (occ, ~occ.inflate(float(self.clearance[i])), field)
         self.replans[i] += 1
 
     def preferred(self, poses: np.ndarray, run: np.ndarray) -> np.ndarray:
@@ -343,7 +380,7 @@ class FCAController(_ExpertBase):
     def __init__(
         self,
         config: ExpertConfig | None = None,
-        nh_orca: NHORCAConfig | None = None,
+        nh_orca: NHORCAConfig | Sequence[NHORCAConfig] | None = None,
         frontier_bias: float = 1.0,
         noise: float = 0.02,
         tracking_error: float = 0.07,
@@ -359,22 +396,24 @@ class FCAController(_ExpertBase):
         self.safety = safety
 
     def reset(self, world, sim, rng: np.random.Generator) -> None:
+        """Start an episode: per robot, an NH-ORCA config and a navigator from its spec."""
         super().reset(world, sim, rng)
-        self.planner = NHORCA(
-            self.nh_config
-            or nh_orca_config(self.specs[0], sim.dt, tracking_error=self.tracking_error, safety=self.safety)
+        self.orca_configs = nh_orca_configs(
+            self.specs, sim.dt, self.nh_config, tracking_error=self.tracking_error, safety=self.safety
         )
+        self.planner = NHORCA(self.orca_configs)
         self.planner.reset(sim.poses, sim.velocities)
         # Plan with at least NH-ORCA's inflation (E + safety): a gap A* uses must be one ORCA lets through.
-        orca = self.planner.config
-        nav_cfg = self.config.navigator
-        margin = max(nav_cfg.inflation_margin, orca.tracking_error + orca.safety)
-        nav_cfg = NavigatorConfig(
-            **{**nav_cfg.__dict__, "robot_radius": self.specs[0].radius, "inflation_margin": margin}
-        )
+        base = self.config.navigator
         self.navigators = [
-            FrontierNavigator(world.size, nav_cfg, self.targets[i], True, self.frontier_bias)
-            for i in range(sim.n_robots)
+            FrontierNavigator(
+                world.size,
+                navigator_config(base, spec, max(base.inflation_margin, orca.tracking_error + orca.safety)),
+                self.targets[i],
+                True,
+                self.frontier_bias,
+            )
+            for i, (spec, orca) in enumerate(zip(self.specs, self.orca_configs))
         ]
 
     @property
@@ -395,10 +434,10 @@ class FCAController(_ExpertBase):
             scans = self._scans(sim, idx, poses)
             radii = sim.radii
             # Stopped robots (arrived, failed, or held inactive) are static obstacles for planning, drawn
-            # with NH-ORCA's radius for static agents (radius + safety).
-            cfg = self.planner.config
+            # with NH-ORCA's radius for static agents (their radius + safety).
             parked = np.flatnonzero(~run)
-            discs = np.concatenate([poses[parked, :2], radii[parked, None] + cfg.safety], axis=1)
+            safety = np.array([self.orca_configs[j].safety for j in parked]).reshape(-1, 1)
+            discs = np.concatenate([poses[parked, :2], radii[parked, None] + safety], axis=1)
             for k, i in enumerate(idx):
                 self.navigators[i].set_static_discs(discs)
                 pref[i] = self._preferred_one(int(i), poses, radii, scans[k])

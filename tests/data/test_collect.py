@@ -186,3 +186,33 @@ def test_deferred_rendering_equals_live_cameras():
         assert len(traj.frames) == len(traj.actions)
         for t, frame in enumerate(traj.frames):
             assert np.array_equal(frame, live[t][i])
+
+
+def test_paper_ssl_unit_that_overfills_its_maze_gets_fewer_robots():
+    """Paper unit 26 draws 25 robots for a 5 m maze, which random placement cannot hold: the unit is
+    retried with fewer robots (deterministically) instead of aborting the whole collection."""
+    s = settings_for("ssl", "paper")
+    world, n_drawn, rng = collect_module.ssl_world(s, 26)
+    assert (world.size, n_drawn) == (5.0, 25)
+    layouts = collect_module.ssl_layouts(s, 26, world, n_drawn, rng)
+    n = len(layouts[0])
+    assert 4 <= n < 25 and len(layouts) == -(-s.pairs_per_world // n)
+    assert all(layout.shape == (n, 3) for layout in layouts)
+    world, n_drawn, rng = collect_module.ssl_world(s, 26)
+    again = collect_module.ssl_layouts(s, 26, world, n_drawn, rng)
+    assert all(np.array_equal(a, b) for a, b in zip(layouts, again, strict=True))
+
+
+def test_overfull_ssl_worlds_complete_deterministically(tmp_path, folder_bytes):
+    s = settings_for(
+        "ssl", "small", seed=0, n_worlds=2, pairs_per_world=3, robots=(25, 25), world_sizes=(5.0,)
+    )
+    ref = collect("ssl", tmp_path / "ref", s, workers=1, progress=False)
+    ds = open_dataset(ref, kind="ssl")
+    assert len(ds) == 6
+    counts = ds.metadata["counts"]
+    assert counts["robots_drawn"] == 50 and counts["worlds_with_fewer_robots"] == 2
+    assert 8 <= counts["robots_total"] < 50
+    assert "one robot fewer" in ds.metadata["robot_placement"]
+    again = collect("ssl", tmp_path / "again", s, workers=1, progress=False)
+    assert folder_bytes(again) == folder_bytes(ref)

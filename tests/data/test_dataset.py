@@ -1,7 +1,10 @@
 """Writer + loader: round trip, refusals with clear messages, crash/resume == uninterrupted (byte for byte)."""
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -182,3 +185,61 @@ def test_truncated_shard_is_refused_at_consolidation(tmp_path, monkeypatch):
     monkeypatch.setattr(writer_module.DatasetWriter, "finalize", real_finalize)
     with pytest.raises(ValueError, match=r"unit-000001/rows/pixels.memmap has 1000 bytes, expected"):
         syn.make_synthetic_dataset(root, "e", 6, 3, 5, seed=0, items_per_shard=3)
+
+
+def _unit_rows(n_trajectories: int = 3):
+    return syn._trajectory_unit(syn.DatasetKind.EXPLORATION, syn._unit_rng(0, 0), n_trajectories, 3, 6)
+
+
+def test_write_shard_refuses_rows_not_sorted_by_episode_and_step(tmp_path):
+    rows, targets = _unit_rows()
+    swapped = torch.cat([rows[rows["episode"] == 1], rows[rows["episode"] == 0], rows[rows["episode"] == 2]])
+    with pytest.raises(
+        ValueError, match=r"shard 0 of .*: rows must be sorted by \(episode, step\).*\(0, 0\) after \(1, "
+    ):
+        writer_module.write_shard(tmp_path, "e", 0, swapped, targets, {})
+    reversed_steps = rows.clone()
+    first = rows["episode"] == 0
+    reversed_steps["step"][first] = rows["step"][first].flip(0)
+    with pytest.raises(ValueError, match=r"row 1 has \(episode, step\) = \(0, \d\) after \(0, \d\)"):
+        writer_module.write_shard(tmp_path, "e", 1, reversed_steps, targets, {})
+    assert not (tmp_path / "shards").exists()  # refused before anything was written
+    writer_module.write_shard(tmp_path, "e", 2, rows, targets, {})
+    assert writer_module.shard_dir(tmp_path, 2).is_dir()
+
+
+def test_second_collection_into_a_locked_folder_is_refused(tmp_path):
+    from navformer_rl.data.collect import collect, settings_for
+
+    settings = settings_for("e", "small", n_trajectories=1)
+    # another live process (our parent) holds the folder, with a shard in progress
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLD_LOCK, str(tmp_path / "d")], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        partial = tmp_path / "d" / "shards" / ".tmp-unit-000000-1"
+        partial.mkdir(parents=True)
+        with pytest.raises(
+            writer_module.FolderLockedError, match=rf"pid {holder.pid}, lock .*\.collect\.lock"
+        ):
+            collect("e", tmp_path / "d", settings, workers=1, progress=False)
+        assert partial.is_dir()  # the live collection's shard in progress was left alone
+    finally:
+        holder.kill()
+        holder.wait()
+    # its holder died without removing the lock file: the next collection takes it over with a warning
+    assert (tmp_path / "d" / writer_module.LOCK_FILE).read_text().strip() == str(holder.pid)
+    with pytest.warns(UserWarning, match=rf"taking over the lock left by process {holder.pid}"):
+        with writer_module.folder_lock(tmp_path / "d") as lock:
+            assert lock.read_text().strip() == str(os.getpid())
+    assert not (tmp_path / "d" / writer_module.LOCK_FILE).exists()
+
+
+_HOLD_LOCK = """
+import sys, time
+from navformer_rl.data.writer import folder_lock
+with folder_lock(sys.argv[1]):
+    print("locked", flush=True)
+    time.sleep(60)
+"""

@@ -80,6 +80,31 @@ def test_success_reward_once_robot_stays_put_and_episode_ends(make_open_world):
     assert nxt["privileged", "path_length"][0].item() == pytest.approx(0.2, abs=1e-4)
 
 
+def test_robot_driven_into_is_flagged_until_it_succeeds(make_open_world):
+    """Robot 0 drives into robot 1, which stands still: both carry the collision flag on the contact steps.
+    Once robot 1 has succeeded (parked), robot 0 driving into it again is charged to robot 0 only."""
+    world = make_open_world(
+        [(1.0, 2.5, 0.0), (2.0, 2.5, 0.5 * np.pi)], [(4.4, 4.4, "box", "red"), (2.0, 4.1, "sphere", "blue")]
+    )
+    env = MultiRobotNavEnv(size=5.0, n_robots=2)
+    env.set_next_episode(EpisodeSpec(world=world))
+    td = env.reset()
+    push, leave = torch.tensor([[1.0, 0.0], [0.0, 0.0]]), torch.tensor([[0.0, 0.0], [1.0, 0.0]])
+    flags, kinds = [], []
+    # gap 0.4 m: 0.2 m, contact, still pushing; then robot 1 leaves for its target (1.6 m -> 1.4 m, success)
+    # and robot 0 drives into the parked robot 1 again (its straight line passes 0.2 m from robot 1's centre)
+    for action in (push, push, push, leave, push):
+        td["agents", "action"] = action
+        out = env.step(td)
+        flags.append(out["next", "agents", "collision"].squeeze(-1).tolist())
+        kinds.append(out["next", "agents", "collision_kind"].squeeze(-1).tolist())
+        td = step_mdp(out)
+    assert flags == [[False, False], [True, True], [True, True], [False, False], [True, False]]
+    assert kinds == [[0, 0], [2, 2], [2, 2], [0, 0], [2, 0]]
+    assert td["privileged", "success"].squeeze(-1).tolist() == [False, True]
+    assert td["privileged", "collisions"].squeeze(-1).tolist() == [3, 2]
+
+
 def test_truncation_at_max_steps(make_open_world):
     world = make_open_world([(1.0, 1.0, 0.0)], [(4.0, 4.0, "sphere", "blue")])
     env = MultiRobotNavEnv(size=5.0, n_robots=1, max_steps=4)

@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from navformer_rl.envs.robots import JACKAL, TURTLEBOT3
-from navformer_rl.envs.sim import COLLISION_NONE, COLLISION_ROBOT, COLLISION_WALL, Simulator
+from navformer_rl.envs.sim import (
+    COLLISION_NONE,
+    COLLISION_ROBOT,
+    COLLISION_WALL,
+    CONTACT_EPS,
+    Simulator,
+)
 
 FAR_TARGET = [(4.4, 4.4, "sphere", "red")]
 
@@ -68,13 +74,55 @@ def test_robot_driven_into_a_wall_stops_and_counts(make_open_world):
     assert sim.velocities[0, 0] == pytest.approx(0.75, abs=0.01)
     again = sim.step(np.array([[1.0, 0.0]]))  # still pushing: blocked again, no motion
     assert again.collided[0] and sim.poses[0, 0] == pytest.approx(4.65, abs=1e-3)
-    turned = sim.step(np.array([[0.0, 1.0]]))  # turning in place is not a collision
-    assert not turned.collided[0]
+    turned = sim.step(np.array([[0.0, 1.0]]))  # turning in place while touching: still in contact
+    assert turned.collided[0] and turned.kind[0] == COLLISION_WALL
     sim.set_poses([[sim.poses[0, 0], 2.5, math.pi / 2]])
-    along = sim.step(np.array([[1.0, 0.0]]))  # sliding along the wall while touching it
-    assert not along.collided[0] and sim.poses[0, 1] == pytest.approx(2.7, abs=1e-6)
+    along = sim.step(np.array([[1.0, 0.0]]))  # driving along the wall while touching it: in contact
+    assert along.collided[0] and sim.poses[0, 1] == pytest.approx(2.7, abs=1e-6)
+    sim.set_poses([[sim.poses[0, 0], 2.5, 0.0]])
     away = sim.step(np.array([[-1.0, 0.0]]))  # driving away from the contact
-    assert not away.collided[0]
+    assert not away.collided[0] and away.kind[0] == COLLISION_NONE
+
+
+def test_contact_tolerance_is_contact_eps(make_open_world):
+    """A disc within CONTACT_EPS of the wall is in contact; 2 CONTACT_EPS away it is not (standing still)."""
+    face = 4.95 - JACKAL.radius
+    sim = sim_at(make_open_world, [(face - 0.5 * CONTACT_EPS, 2.5, 0.0)])
+    assert sim.step(np.zeros((1, 2))).kind[0] == COLLISION_WALL
+    sim.set_poses([[face - 2 * CONTACT_EPS, 2.5, 0.0]])
+    assert not sim.step(np.zeros((1, 2))).collided[0]
+
+
+@pytest.mark.parametrize("order", ["mover_first", "mover_last"])
+def test_robot_driven_into_is_flagged_too(make_open_world, order):
+    """A drives into a standing B: both are in contact on that step (kind robot), in either index order,
+    and a turning B pushed against stays in contact while A keeps pushing."""
+    a_pose, b_pose = (1.5, 2.5, 0.0), (2.2, 2.5, math.pi / 2)  # 0.7 m apart: gap 0.1 m
+    poses = [a_pose, b_pose] if order == "mover_first" else [b_pose, a_pose]
+    a, b = (0, 1) if order == "mover_first" else (1, 0)
+    sim = sim_at(make_open_world, poses)
+    drive = np.zeros((2, 2))
+    drive[a] = (1.0, 0.0)
+    contacts = sim.step(drive)
+    assert contacts.collided.all() and (contacts.kind == COLLISION_ROBOT).all()
+    assert np.hypot(*(sim.poses[a, :2] - sim.poses[b, :2])) == pytest.approx(2 * JACKAL.radius, abs=1e-3)
+    drive[b] = (0.0, 1.0)  # B turns in place, A keeps pushing
+    assert sim.step(drive).collided.all()
+    drive[a] = (-1.0, 0.0)  # A backs off: nobody is in contact any more
+    assert not sim.step(drive).collided.any()
+
+
+def test_inactive_robot_driven_into_is_flagged(make_open_world):
+    sim = sim_at(make_open_world, [(1.5, 2.5, 0.0), (2.2, 2.5, 0.0)])
+    contacts = sim.step(np.array([[1.0, 0.0], [1.0, 0.0]]), active=np.array([True, False]))
+    assert contacts.collided.all() and np.allclose(sim.poses[1], [2.2, 2.5, 0.0])
+
+
+def test_hidden_robots_are_never_in_contact(make_open_world):
+    sim = sim_at(make_open_world, [(1.5, 2.5, 0.0), (2.2, 2.5, 0.0)])
+    sim.set_robot_visible(1, False)
+    contacts = sim.step(np.array([[1.0, 0.0], [0.0, 0.0]]))  # A drives through the hidden B
+    assert not contacts.collided.any() and sim.poses[0, 0] == pytest.approx(1.7, abs=1e-6)
 
 
 def test_head_on_robots_never_overlap(make_open_world):

@@ -128,3 +128,26 @@ def test_episodes_per_world_reuses_the_maze_with_fresh_starts():
     assert np.allclose(env.simulator.poses, second.starts)
     env.reset()
     assert env.world.seed != first.seed
+
+
+def test_a_fixed_episode_is_not_reused_by_later_plain_resets(make_open_world):
+    env = TargetNavEnv(size=5.0, n_robots=1, episodes_per_world=3)
+    env.reset(seed=0)
+    drawn = env.world
+    fixed = make_open_world([(1.0, 2.5, 0.0)], [(4.0, 2.5, "sphere", "green")])
+    env.reset(options={"episode": fixed})
+    assert env.world is fixed
+    env.reset()  # a new world is drawn: neither the fixed layout nor the earlier maze
+    assert not np.array_equal(env.world.walls, fixed.walls) and env.world.seed != drawn.seed
+    second = env.world
+    env.reset()  # ... which then serves its episodes_per_world episodes as usual
+    assert np.array_equal(env.world.walls, second.walls) and env.world.seed == second.seed
+    with pytest.raises(ValueError, match="2 robots"):
+        env.reset(
+            options={
+                "episode": make_open_world(
+                    [(1.0, 1.0, 0.0), (1.0, 4.0, 0.0)],
+                    [(4.0, 1.0, "sphere", "red"), (4.0, 4.0, "box", "blue")],
+                )
+            }
+        )
