@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from tensordict import TensorDict
 from torchrl.data import TensorDictReplayBuffer, TensorStorage
-from torchrl.data.replay_buffers import SamplerWithoutReplacement
+from torchrl.data.replay_buffers import ImmutableDatasetWriter, SamplerWithoutReplacement
 from torchrl.envs.transforms import Transform
 
 from navformer_rl.data.samplers import (
@@ -77,7 +77,16 @@ class NavDataset:
         return TensorStorage(self.rows)
 
     def replay_buffer(self, sampler=None, batch_size: int | None = None, **kwargs) -> TensorDictReplayBuffer:
-        """``TensorDictReplayBuffer`` over the rows with any TorchRL sampler (e.g. ``SliceSampler``)."""
+        """``TensorDictReplayBuffer`` over the rows with any TorchRL sampler (e.g. ``SliceSampler``).
+
+        The buffer is read-only (``ImmutableDatasetWriter``, as TorchRL's offline-dataset buffers): the
+        rows are the dataset's memmap, and a ``extend`` would write into the files on disk. To mix in new
+        data, copy the rows into a buffer of your own. Trajectory datasets get ``target_pixels`` per row
+        (``AttachTargetPixels``) unless ``transform=`` is given.
+        """
+        kwargs.setdefault("writer", ImmutableDatasetWriter())
+        if self.targets is not None:
+            kwargs.setdefault("transform", AttachTargetPixels(self.targets))
         return TensorDictReplayBuffer(
             storage=self.storage(), sampler=sampler, batch_size=batch_size, **kwargs
         )
@@ -85,13 +94,12 @@ class NavDataset:
     def trajectory_buffer(
         self, num_trajectories: int, context_steps: int = DEFAULT_CONTEXT_STEPS, seed: int = 0
     ) -> TensorDictReplayBuffer:
-        """TorchRL buffer with :class:`TrajectorySampler`: ``sample()`` is flat ``[N * T]`` with
-        ``("collector", "mask")`` and per-row ``target_pixels``; ``.reshape(N, -1)`` gives windows."""
+        """TorchRL buffer with :class:`TrajectorySampler`: ``sample()`` is flat ``[N * T]`` with ``"mask"``
+        (also as ``("collector", "mask")``) and per-row ``target_pixels``; ``.reshape(N, -1)`` gives windows
+        that ``NavFormerLoss`` takes as they are."""
         self._require_trajectories(num_trajectories)
         sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
-        return self.replay_buffer(
-            sampler=sampler, batch_size=num_trajectories, transform=AttachTargetPixels(self.targets)
-        )
+        return self.replay_buffer(sampler=sampler, batch_size=num_trajectories)
 
     def trajectory_batcher(
         self,

@@ -19,6 +19,7 @@ the epoch permutation and cursor, so a resumed run draws exactly the batches an 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -60,6 +61,12 @@ class EpochPermutation:
         ids = self._perm[self._cursor : self._cursor + k]
         self._cursor += k
         return ids
+
+    def restart(self, generator_state: torch.Tensor) -> None:
+        """Start a new epoch (a fresh permutation) drawn from a generator in ``generator_state``."""
+        self.generator.set_state(generator_state)
+        self._perm = torch.randperm(self.n, generator=self.generator)
+        self._cursor = 0
 
     def state_dict(self) -> dict[str, Any]:
         return {
@@ -123,7 +130,13 @@ class TrajectorySampler(Sampler):
 
     A trajectory longer than ``context_steps`` is cut to a window of that length at a uniformly random
     offset; windows never cross trajectories. In a TorchRL replay buffer the buffer's ``batch_size`` is the
-    number of trajectories N and the output is flat ``[N * T]`` with ``("collector", "mask")``.
+    number of trajectories N and the output is flat ``[N * T]`` with the validity mask under ``"mask"``
+    (what ``NavFormerLoss`` and the actor read) and ``("collector", "mask")`` (TorchRL's slice-sampler key).
+
+    It is made for offline datasets: trajectories stored contiguously with ids ``0..n-1``. In a buffer
+    that grows (``extend``), a table built from the storage is rebuilt at the next ``sample`` (the epoch
+    restarts over the larger set; the random stream continues); a ring buffer that overwrites old rows
+    breaks the id order and is refused with a ``ValueError`` - use TorchRL's ``SliceSampler`` there.
 
     Args:
         num_trajectories: N per batch (25 for D_e, 150 for D_ca in the paper); the replay buffer's
@@ -151,6 +164,8 @@ class TrajectorySampler(Sampler):
         self.episodes = episodes
         self._ids: EpochPermutation | None = None
         self._pending_state: dict[str, Any] | None = None
+        self._from_storage = episodes is None  # the table is read from the storage, so follows its growth
+        self._stale = False
         if episodes is not None:
             self.bind(episodes)
 
@@ -189,11 +204,23 @@ class TrajectorySampler(Sampler):
 
     # --- torchrl Sampler API -------------------------------------------------------------------------
     def sample(self, storage, batch_size: int) -> tuple[torch.Tensor, dict]:
-        if self._ids is None:
+        if self._ids is None or self._stale:
             rows = storage.get(slice(None))
-            self.bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"], "replay buffer storage"))
+            table = EpisodeTable.from_rows(rows["episode"], rows["target_id"], "replay buffer storage")
+            previous = self._ids
+            self.bind(table)
+            if previous is not None:  # the random stream continues over the grown set
+                self._ids.restart(previous.generator.get_state())
+            self._stale = False
         out = self.draw(batch_size)
-        return out.index.reshape(-1), {("collector", "mask"): out.mask.reshape(-1)}
+        mask = out.mask.reshape(-1)
+        return out.index.reshape(-1), {"mask": mask, ("collector", "mask"): mask}
+
+    def extend(self, index) -> None:
+        self._stale = self._stale or self._from_storage
+
+    def add(self, index) -> None:
+        self._stale = self._stale or self._from_storage
 
     def _empty(self) -> None:
         self.episodes = None
@@ -213,6 +240,7 @@ class TrajectorySampler(Sampler):
             self._ids.load_state_dict(state_dict)
 
     def dumps(self, path) -> None:
+        Path(path).mkdir(parents=True, exist_ok=True)
         torch.save(self.state_dict(), f"{path}/trajectory_sampler.pt")
 
     def loads(self, path) -> None:

@@ -22,6 +22,9 @@ class NavFormerPolicy(TensorDictModuleBase):
     - ``("agents", "target_pixels")`` uint8 ``[*R, 84, 84, 3]`` - target image g;
     - ``("agents", "step_count")`` int64 ``[*R, 1]`` (optional) - 0 right after a reset: that robot's
       context is cleared and its R-hat restarts at ``initial_return_to_go``;
+    - ``"is_init"`` bool (optional; TorchRL's ``InitTracker`` transform) - True right after a reset, the
+      same as ``step_count == 0``; shaped ``[*E, 1]`` for E envs, it applies to every robot of an env
+      (so a single-robot ``GymEnv`` without ``step_count`` gets its resets from ``InitTracker``);
     - ``("agents", "reward")`` float ``[*R, 1]`` (optional) - reward received at the previous step:
       ``R-hat_t = R-hat_{t-1} - r_{t-1}`` (DT conditioning, R-hat_1 = 1). A missing key counts as 0.
 
@@ -36,7 +39,8 @@ class NavFormerPolicy(TensorDictModuleBase):
     In ``env.rollout``: TorchRL's ``step_mdp`` drops rewards from the next input, so R-hat stays at its
     initial value there unless the env (or a transform) exposes the reward as an observation. With the
     paper's reward (1 only on the success step, after which the robot is done) this changes nothing
-    before success. The model is put in eval mode.
+    before success. A model in training mode is switched to eval mode for the call and back after it,
+    so the policy can evaluate the model being trained (dropout stays on for the training loss).
     """
 
     def __init__(
@@ -49,9 +53,11 @@ class NavFormerPolicy(TensorDictModuleBase):
         step_count_key: NestedKey | None = ("agents", "step_count"),
         reward_key: NestedKey | None = ("agents", "reward"),
         action_key: NestedKey = ("agents", "action"),
+        is_init_key: NestedKey | None = "is_init",
     ) -> None:
         super().__init__()
-        self.model = model.eval()
+        self.model = model
+        self.is_init_key = is_init_key
         self.initial_return_to_go = float(initial_return_to_go)
         self.pixels_key, self.target_pixels_key = pixels_key, target_pixels_key
         self.step_count_key, self.reward_key, self.action_key = step_count_key, reward_key, action_key
@@ -72,6 +78,15 @@ class NavFormerPolicy(TensorDictModuleBase):
         self._decoder = None
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if not self.model.training:
+            return self._act(tensordict)
+        self.model.eval()
+        try:
+            return self._act(tensordict)
+        finally:
+            self.model.train()
+
+    def _act(self, tensordict: TensorDictBase) -> TensorDictBase:
         pixels = tensordict.get(self.pixels_key)
         lead = pixels.shape[:-3]
         robots = int(torch.Size(lead).numel())
@@ -98,10 +113,21 @@ class NavFormerPolicy(TensorDictModuleBase):
         return tensordict
 
     def _new_episode_flags(self, tensordict: TensorDictBase, robots: int, device: torch.device) -> Tensor:
+        """bool ``[robots]``: robots whose episode starts at this call (``step_count == 0`` or ``is_init``)."""
+        flags = torch.zeros(robots, dtype=torch.bool, device=device)
         step_count = None if self.step_count_key is None else tensordict.get(self.step_count_key, None)
-        if step_count is None:
-            return torch.zeros(robots, dtype=torch.bool, device=device)
-        return (step_count.reshape(robots) == 0).to(device)
+        if step_count is not None:
+            flags |= (step_count.reshape(robots) == 0).to(device)
+        is_init = None if self.is_init_key is None else tensordict.get(self.is_init_key, None)
+        if is_init is not None:
+            is_init = is_init.reshape(-1).to(device, torch.bool)
+            if robots % is_init.numel():
+                raise ValueError(
+                    f"{self.is_init_key!r}: {is_init.numel()} flags for {robots} robots; expected one per "
+                    "env (or per robot)"
+                )
+            flags |= is_init.repeat_interleave(robots // is_init.numel())
+        return flags
 
     def _reward(self, tensordict: TensorDictBase, robots: int, device: torch.device) -> Tensor:
         reward = None if self.reward_key is None else tensordict.get(self.reward_key, None)

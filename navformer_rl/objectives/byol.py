@@ -179,7 +179,8 @@ class BYOLLoss(LossModule):
 
     @property
     def out_keys(self) -> list[str]:
-        return ["loss_byol"] + [f"loss_byol_{name}" for name in self.encoder_names]
+        losses = [f"loss_byol_{name}" for name in self.encoder_names]
+        return ["loss_byol", *losses, *(f"projection_std_{name}" for name in self.encoder_names)]
 
     def make_views(self, tensordict: TensorDictBase) -> dict[str, tuple[Tensor, Tensor]]:
         """The two augmented views (``[B, 3, H, W]``, in the autocast dtype if any) of each encoder.

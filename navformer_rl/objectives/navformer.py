@@ -21,7 +21,8 @@ class NavFormerLoss(LossModule):
 
     Keys (``set_keys``): ``action_target`` (default ``"action"``, float ``[N, T, A]``), ``action_pred``
     (default ``"action_pred"``, written by the actor), ``mask`` (default ``"mask"``, bool ``[N, T]``;
-    a tensordict without it counts every step as valid). Output: ``TensorDict(loss_dt=scalar)``.
+    a tensordict without it counts every step as valid, unless it holds TorchRL's ``("collector", "mask")``,
+    which is refused with a ``KeyError`` rather than ignored). Output: ``TensorDict(loss_dt=scalar)``.
 
     Args:
         actor_network: a ``TensorDictModule`` writing ``action_pred`` (``make_navformer_actor(model)``).
@@ -67,9 +68,23 @@ class NavFormerLoss(LossModule):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Run the actor on (a shallow copy of) ``tensordict`` and return ``loss_dt``."""
         tensordict = tensordict.copy()
-        target = tensordict.get(self.tensor_keys.action_target).detach()
+        keys = self.tensor_keys
+        present = set(tensordict.keys(include_nested=True))
+        if keys.action_target not in present:
+            raise KeyError(f"NavFormerLoss: the batch has no {keys.action_target!r} (action_target key)")
+        if keys.mask not in present and ("collector", "mask") in present:
+            raise KeyError(
+                f"NavFormerLoss: the batch has ('collector', 'mask') but no {keys.mask!r}; padded steps would "
+                "count as valid. Use loss.set_keys(mask=('collector', 'mask')) or copy the mask to that key"
+            )
+        target = tensordict.get(keys.action_target).detach()
         with self.actor_network_params.to_module(self.actor_network):
-            prediction = self.actor_network(tensordict).get(self.tensor_keys.action_pred)
+            prediction = self.actor_network(tensordict).get(keys.action_pred, None)
+        if prediction is None:
+            raise KeyError(
+                f"NavFormerLoss: the actor did not write {keys.action_pred!r} (action_pred key); its out_keys "
+                f"are {self.actor_network.out_keys}"
+            )
         if prediction.shape != target.shape:
             raise ValueError(
                 f"{self.tensor_keys.action_pred}: shape {tuple(prediction.shape)} does not match "

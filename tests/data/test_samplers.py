@@ -200,3 +200,62 @@ def test_reused_buffers_grow_to_the_batch_and_never_past_the_context(e_dataset):
         batch = batcher.sample()
         rows = batcher._buffers[("pixels",)].shape[0]
         assert batch["mask"].numel() <= rows <= 4 * 40
+
+
+def test_torchrl_buffer_feeds_the_loss_with_its_mask(e_dataset):
+    # the buffer writes the validity mask under "mask" (what NavFormerLoss and the actor read), not only
+    # under TorchRL's ("collector", "mask"): padded steps must not count
+    from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
+    from navformer_rl.objectives import NavFormerLoss
+
+    batch = open_dataset(e_dataset).trajectory_buffer(3, context_steps=12, seed=1).sample().reshape(3, -1)
+    assert torch.equal(batch["mask"], batch["collector", "mask"]) and not bool(batch["mask"].all())
+    torch.manual_seed(0)
+    loss = NavFormerLoss(
+        make_navformer_actor(
+            NavFormerModel(NavFormerConfig(d_embed=16, n_blocks=1, n_heads=1, d_head=16, dropout=0.0))
+        )
+    )
+    expected = loss(batch)["loss_dt"]
+    junk = batch.clone()
+    junk["action"][~batch["mask"]] = 9.0  # padded steps' actions may be anything
+    torch.testing.assert_close(loss(junk)["loss_dt"], expected, rtol=0, atol=0)
+    del junk["mask"]
+    with pytest.raises(KeyError, match="set_keys\\(mask=\\('collector', 'mask'\\)\\)"):
+        loss(junk)
+
+
+def test_dataset_buffers_are_read_only_and_attach_targets(e_dataset):
+    from torchrl.data.replay_buffers import SliceSampler
+
+    ds = open_dataset(e_dataset)
+    before = ds.rows["pixels"][:4].clone()
+    rb = ds.trajectory_buffer(2)
+    with pytest.raises(RuntimeError):
+        rb.extend(ds.rows[:4].clone().apply(lambda x: torch.zeros_like(x)))
+    assert torch.equal(open_dataset(e_dataset).rows["pixels"][:4], before)  # nothing written to disk
+    sliced = ds.replay_buffer(sampler=SliceSampler(slice_len=4, traj_key="episode"), batch_size=8).sample()
+    assert sliced["target_pixels"].shape == (8, 84, 84, 3)
+    assert torch.equal(sliced["target_pixels"], ds.targets[sliced["target_id"]])
+
+
+def test_sampler_follows_a_growing_buffer_and_dumps_its_state(e_dataset, tmp_path):
+    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+
+    from navformer_rl.data.samplers import TrajectorySampler
+
+    rows = open_dataset(e_dataset).rows
+    episode = rows["episode"]
+    first = int((episode < 2).sum())
+    rb = TensorDictReplayBuffer(
+        storage=LazyTensorStorage(len(rows)),
+        sampler=TrajectorySampler(2, context_steps=5, seed=0),
+        batch_size=2,
+    )
+    rb.extend(rows[:first].clone())
+    assert set(rb.sample()["episode"].tolist()) <= {0, 1}
+    rb.extend(rows[first:].clone())  # more trajectories: the next epochs draw from all of them
+    seen = {e for _ in range(20) for e in rb.sample()["episode"].tolist()}
+    assert seen == set(range(int(episode.max()) + 1))
+    rb.dumps(tmp_path / "rb")  # the sampler's folder is created
+    assert (tmp_path / "rb" / "sampler" / "trajectory_sampler.pt").is_file()

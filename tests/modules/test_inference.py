@@ -137,3 +137,37 @@ def test_policy_runs_in_env_rollout_across_episodes():
     assert rollout["agents", "action"].shape == (10, 2, 2)
     # every reset (step_count 0) restarted each robot's context: steps 0-3, 0-3, 0-1
     assert policy._decoder.steps_done.tolist() == [2, 2]
+
+
+def test_policy_leaves_a_training_model_in_training_mode():
+    # evaluating the model being trained (e.g. every k iterations) must not switch its dropout off
+    model = make_model().train()
+    policy = NavFormerPolicy(model)
+    td = agents_td(frames(2, 1), frames(2, 2), torch.zeros(2, 1, dtype=torch.long))
+    action = policy(td)["agents", "action"]
+    assert model.training
+    reference = NavFormerPolicy(make_model())(
+        agents_td(frames(2, 1), frames(2, 2), torch.zeros(2, 1, dtype=torch.long))
+    )
+    torch.testing.assert_close(action, reference["agents", "action"], rtol=0, atol=0)  # decided in eval mode
+
+
+def test_is_init_restarts_the_context_like_step_count_zero():
+    # a single-robot env without step_count gets its resets from TorchRL's InitTracker ("is_init")
+    model = make_model()
+    keys = dict(pixels_key="pixels", target_pixels_key="target_pixels", step_count_key=None, reward_key=None,
+                action_key="action")  # fmt: skip
+    policy = NavFormerPolicy(model, **keys)
+
+    def td(step, is_init):
+        return TensorDict(
+            {"pixels": frames(1, 10 + step)[0], "target_pixels": frames(1, 2)[0], "is_init": torch.tensor([is_init])},
+            batch_size=[],
+        )  # fmt: skip
+
+    for step in range(3):
+        policy(td(step, step == 0))
+    restarted = policy(td(0, True))["action"]
+    fresh = NavFormerPolicy(make_model(), **keys)(td(0, True))["action"]
+    torch.testing.assert_close(restarted, fresh, rtol=0, atol=1e-6)
+    assert policy._decoder.steps_done.tolist() == [1]

@@ -64,6 +64,7 @@ def test_loss_value_equals_the_symmetric_normalised_mse_of_its_branches():
     model, loss = make_byol()
     batch = pairs()
     out = loss(batch)
+    assert set(out.keys()) == set(loss.out_keys)  # out_keys lists every entry forward writes
     # recompute by hand with an augmentation replaying the same seeds
     replay = BYOLAugmentation(seed=0)
     v_d1 = replay(batch["pixels_dynamic"])
