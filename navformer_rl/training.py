@@ -298,8 +298,12 @@ def _positive_int(name: str, value: Any) -> None:
         raise ValueError(f"{name}={value!r}: expected a positive integer")
 
 
-def validate_config(cfg: TrainConfig) -> None:
-    """Static checks of ``cfg`` (no file is opened); :func:`build_trainer` also checks the datasets."""
+def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
+    """Static checks of ``cfg`` (no file is opened); :func:`build_trainer` also checks the datasets.
+
+    ``require_data=False`` skips the check that the data paths the ablation needs are set (for printing
+    or composing a configuration before the datasets exist).
+    """
     if cfg.ablation not in ABLATIONS:
         raise ValueError(f"unknown ablation {cfg.ablation!r}; expected one of {list(ABLATIONS)}")
     if cfg.encoder_training not in ENCODER_TRAINING:
@@ -358,7 +362,7 @@ def validate_config(cfg: TrainConfig) -> None:
         "data.ssl_path": (cfg.uses_ssl, cfg.data.ssl_path, "D_ssl"),
     }
     for key, (used, path, name) in needed.items():
-        if used and not path:
+        if require_data and used and not path:
             raise ValueError(f"{key} is not set, but ablation={cfg.ablation!r} trains on {name}")
     model = model_config(cfg)  # NavFormerConfig validates its own fields
     if model.encoder == "resnet18" and (cfg.optim.trajectory_chunks > 1 or model.encoder_micro_batch):

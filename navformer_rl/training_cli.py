@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     if args.print_config:
         from omegaconf import OmegaConf
 
-        validate_config(cfg)
+        validate_config(cfg, require_data=False)  # the datasets may not exist yet
         print(OmegaConf.to_yaml(cfg.to_dict()), end="")
         return 0
     result = train(cfg)

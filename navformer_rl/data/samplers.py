@@ -28,8 +28,8 @@ from torchrl.data.replay_buffers import Sampler
 
 from navformer_rl.data.schema import TRAJECTORY_FIELDS, FieldSpec
 
-DEFAULT_CONTEXT_STEPS = 255
-"""1 target token + 4 tokens per step: 1 + 4 * 255 = 1021 <= 1024 tokens (paper §IV.C)."""
+DEFAULT_CONTEXT_STEPS = 256
+"""The target token + 4 tokens per step, the last step's action dropped: 1 + 4 * 256 - 1 = 1024 tokens (§IV.C)."""
 
 
 class EpochPermutation:
@@ -141,7 +141,8 @@ class TrajectorySampler(Sampler):
     Args:
         num_trajectories: N per batch (25 for D_e, 150 for D_ca in the paper); the replay buffer's
             ``batch_size`` overrides it when given.
-        context_steps: maximum window length T (default 255 steps = 1021 tokens of the 1024 context).
+        context_steps: maximum window length T (default 256 steps: the target token plus 4 tokens per step,
+            the last step's action dropped, = 1024 tokens, the model's whole context).
         seed: seed of the sampler's ``torch.Generator``.
         episodes: the trajectory table; built from the storage's ``episode``/``target_id`` columns on first
             use when omitted.

@@ -331,7 +331,7 @@ class Simulator:
         ``_free_fraction``); the heading always turns by the full ``w * dt`` (the footprint is a disc, so
         turning never collides). Inactive robots (``active`` bool ``[R]`` False) do not move.
 
-        A step is a collision for robot ``i`` (DESIGN §3: steps in contact) when its commanded motion was cut
+        A step is a collision for robot ``i`` (steps in contact) when its commanded motion was cut
         short, or when, after every robot moved, its disc is within :data:`CONTACT_EPS` of a wall, a target
         or another visible robot: a robot that is driven into (standing, turning or inactive) is flagged
         too. The kind is 2 if a robot is involved (stopped it or touches it), else 1 (wall or target).
