@@ -113,8 +113,11 @@ def write_demo_report(
         "training of NavFormer and the DT baseline, evaluation with VRW and the privileged FCA upper bound. "
         f"It is far below paper scale ({cfg.iterations} training iterations instead of 10,000, "
         f"{cfg.exploration_trajectories} + {cfg.collision_trajectories} trajectories instead of "
-        "3,496 + 7,467), so NavFormer's numbers show the pipeline working, not the paper's result. "
-        "`docs/reproduce.md` has the paper-scale commands.\n",
+        f"3,496 + 7,467, batches of {cfg.exploration_batch} / {cfg.collision_batch} trajectories and "
+        f"{cfg.ssl_batch} pairs instead of 25 / 150 / 512, and {cfg.trials_per_setup} evaluation trials on "
+        f"the `{cfg.setups}` protocol instead of 60 on each of Table I's 9 setups), so NavFormer's numbers "
+        "show the pipeline working, not the paper's result. `docs/reproduce.md` has the paper-scale "
+        "commands.\n",
         "| stage | seconds |",
         "|---|---|",
         *[f"| {stage} | {seconds:.0f} |" for stage, seconds in timings.items()],
@@ -125,7 +128,12 @@ def write_demo_report(
     lines += ["## Evaluation\n", evaluation]
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
     write_json(report_dir / "demo_config.json", {"config": settings, "machine": environment_summary()})
-    lines += ["## Settings\n", "`demo_config.json` holds every setting of this run and the machine.\n"]
+    lines += [
+        "## Settings\n",
+        "`demo_config.json` holds the demo's settings and the machine; each training run's resolved "
+        "configuration is its `train/<method>/train_config.json`, each evaluation's method, checkpoint hash "
+        "and seeds its `eval/<method>/run.json`.\n",
+    ]
     report = report_dir / "report.md"
     tmp = report.with_suffix(".md.tmp")
     tmp.write_text("\n".join(lines) + "\n")

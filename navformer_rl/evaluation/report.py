@@ -31,6 +31,7 @@ from navformer_rl.evaluation.paper_results import (
 from navformer_rl.evaluation.plots import plot_setup_bars
 from navformer_rl.evaluation.tables import (
     ALL_SETUPS,
+    INTERVAL_METHOD,
     SetupSummary,
     format_ratio,
     format_sr,
@@ -203,6 +204,7 @@ def write_report(
         )
     parts.append("")
     parts.append(f"## Results (ours, {100 * confidence:g} % confidence intervals in brackets)\n")
+    parts.append(f"Intervals: {INTERVAL_METHOD.strip('()')}.\n")
     parts.append(table_markdown(summaries, labels))
     parts.append(f"![SR, SPL and CR per setup]({plot.name})\n")
     parts.append(
@@ -221,6 +223,11 @@ def write_report(
         parts.append("### The paper's Table IV (ablations, Gazebo, for reference)\n")
         parts.append(paper_table4_markdown())
     parts.append("## Episodes\n")
+    parts.append(
+        "Videos are mp4 with OpenCV's `mp4v` codec (MPEG-4 Part 2: VLC, mpv and ffplay play it, most browsers "
+        "do not; the pip OpenCV build has no H.264 encoder), one frame per 0.2 s step at the run's frame "
+        "rate (10 fps by default: twice real time).\n"
+    )
     for folder, run in runs:
         links = []
         for kind, items in (("map", run["files"].get("maps", [])), ("video", run["files"].get("videos", []))):

@@ -62,6 +62,14 @@ def setup_order_key(size: float | None, n_robots: int | None, setup: str) -> tup
     return (0, size or 0.0, n_robots or 0, setup)
 
 
+INTERVAL_METHOD = (
+    "(Wilson on the trial-clustered effective sample size for SR - robots of one trial are not independent, "
+    "and when every outcome is equal the number of trials is the sample size; trial-level bootstrap for SPL "
+    "and CR)"
+)
+"""How the tables' intervals are computed, for the notes beside them."""
+
+
 def summarize_by_setup(
     records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0
 ) -> list[SetupSummary]:
@@ -150,8 +158,7 @@ def write_summary_files(
     summaries = summarize_by_setup(records, confidence, seed)
     atomic_write_text(out_dir / "summary.csv", summaries_to_csv(summaries))
     note = (
-        f"SR / SPL / CR with {100 * confidence:g} % confidence intervals in brackets "
-        "(Wilson on the trial-clustered effective sample size for SR, trial-level bootstrap for SPL and CR).\n\n"
+        f"SR / SPL / CR with {100 * confidence:g} % confidence intervals in brackets {INTERVAL_METHOD}.\n\n"
     )
     atomic_write_text(out_dir / "summary.md", note + table_markdown(summaries))
     return summaries

@@ -74,7 +74,9 @@ class NavFormerPolicy(TensorDictModuleBase):
         return next(self.model.parameters()).device
 
     def reset(self) -> None:
-        """Forget every robot's episode (the next call starts new episodes)."""
+        """Forget every robot's episode (the next call starts new episodes with a new decoder, whose
+        derived weights are rebuilt from the model: call it after weight updates the decoder cannot see,
+        see ``IncrementalNavFormer``)."""
         self._decoder = None
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:

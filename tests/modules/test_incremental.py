@@ -224,3 +224,30 @@ def test_transformer_step_rejects_an_unknown_block_structure():
     model.transformer.blocks[0].mlp[1] = torch.nn.ReLU()
     with pytest.raises(ValueError, match="GELU"):
         TransformerStep(model.transformer)
+
+
+def test_refresh_picks_up_updates_the_caches_cannot_see(batch_factory):
+    model = small_context_model()
+    batch = batch_factory(2, 3)
+    decoder = IncrementalNavFormer(model, 2)
+    decode(decoder, batch, 0)
+    with torch.no_grad():  # a write through .data bypasses the version counter
+        model.transformer.blocks[0].mlp[0].weight.data.mul_(2.0)
+        model.head.bias.data.add_(0.5)
+    decoder.reset()
+    decoder.refresh()
+    fresh = IncrementalNavFormer(model, 2)
+    torch.testing.assert_close(decode(decoder, batch, 0), decode(fresh, batch, 0), rtol=0, atol=0)
+
+
+def test_inference_mode_model_and_state_and_float32_only(batch_factory):
+    batch = batch_factory(2, 3)
+    with torch.inference_mode():  # a model built and a decoder made under inference mode
+        model = small_context_model()
+        decoder = IncrementalNavFormer(model, 2)
+        decode(decoder, batch, 0)
+    decoder.reset(torch.tensor([True, False]))  # in-place state updates outside inference mode
+    with torch.no_grad():
+        decode(decoder, batch, 1)
+    with pytest.raises(ValueError, match="float32 models; this one holds torch.float64"):
+        IncrementalNavFormer(small_context_model().double(), 1)

@@ -11,8 +11,12 @@ Derived = TypeVar("Derived")
 
 
 def parameter_key(tensors: Iterable[Tensor]) -> tuple:
-    """Changes whenever one of ``tensors`` is updated in place (``_version``) or replaced (``data_ptr``)."""
-    return tuple((tensor.data_ptr(), tensor._version) for tensor in tensors)
+    """Changes whenever one of ``tensors`` is updated in place (``_version``) or replaced (``data_ptr``).
+
+    Not seen: writes that bypass the version counter (``p.data.copy_(...)``, fused optimizers such as
+    ``AdamW(fused=True)``) and inference tensors (they have no version counter: only replacement is seen).
+    """
+    return tuple((tensor.data_ptr(), -1 if tensor.is_inference() else tensor._version) for tensor in tensors)
 
 
 class DerivedCache(Generic[Derived]):

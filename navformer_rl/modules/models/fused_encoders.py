@@ -49,8 +49,9 @@ class FusedConvEncoders:
     - larger batches: ``conv2d`` (oneDNN, channels_last), which is faster there.
 
     The fused weights are rebuilt whenever a parameter of either encoder changes (in-place updates bump
-    ``Tensor._version``; ``.data`` swaps such as ``model.to`` change ``data_ptr``), so the helper never
-    serves stale weights (a layer replaced by a new module is not followed: make a new helper then).
+    ``Tensor._version``; ``.data`` swaps such as ``model.to`` change ``data_ptr``; ``derived.parameter_key``
+    lists what is not seen: ``p.data`` writes, fused optimizers). A layer replaced by a new module is not
+    followed: make a new helper then.
     No autograd: call it under ``torch.no_grad()``.
     """
 

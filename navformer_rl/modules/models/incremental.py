@@ -38,18 +38,30 @@ class IncrementalNavFormer:
     fused stack (``FusedConvEncoders``, im2col + matmuls for up to 4 robots), the token embeddings and the
     THSC head use precomputed tables (``StepLayers``), the transformer runs as a loop of plain tensor ops
     (``TransformerStep``) and the attention mask is additive (SDPA would convert a bool one in every block).
-    Each helper follows in-place parameter updates, so an evaluation between optimizer steps stays exact.
+    Each helper rebuilds its tables when a parameter is updated in place through autograd-visible ops
+    (``torch.optim``'s default optimizers, ``load_state_dict``, ``model.to``), so an evaluation between
+    optimizer steps stays exact. Not seen: ``p.data`` writes, fused optimizers (``AdamW(fused=True)``),
+    ``load_state_dict(..., assign=True)`` and replaced sub-modules - call ``refresh()`` after those.
+    The model must hold float32 parameters; the decoder state is allocated outside inference mode, so
+    ``step`` may run under ``torch.inference_mode()`` or ``torch.no_grad()`` alike.
     """
 
-    def __init__(
-        self,
-        model: NavFormerModel,
-        batch: int,
-        device: torch.device | str | None = None,
-        dtype: torch.dtype = torch.float32,
-    ) -> None:
+    def __init__(self, model: NavFormerModel, batch: int, device: torch.device | str | None = None) -> None:
         if batch <= 0:
             raise ValueError(f"batch={batch!r}: expected a positive number of robots")
+        dtype = next(model.parameters()).dtype
+        if dtype != torch.float32:
+            raise ValueError(
+                f"IncrementalNavFormer decodes float32 models; this one holds {dtype} parameters"
+            )
+        with torch.inference_mode(False), torch.no_grad():
+            self._allocate(model, batch, device, dtype)
+        self.refresh()
+
+    def _allocate(
+        self, model: NavFormerModel, batch: int, device: torch.device | str | None, dtype: torch.dtype
+    ) -> None:
+        """The decoder state: KV cache, slot positions, step counters and the masks (see ``__init__``)."""
         config = model.config
         self.model = model
         self.batch = batch
@@ -64,8 +76,6 @@ class IncrementalNavFormer:
         self._steps_done = torch.zeros(batch, dtype=torch.long, device=self.device)
         self.target_hidden = torch.zeros(batch, config.d_embed, dtype=dtype, device=self.device)
         self._offsets = torch.arange(self.tokens_per_step - 1, device=self.device)
-        self._layers = StepLayers(model)
-        self._transformer = TransformerStep(model.transformer)
         # Fast path (every robot at the same step, e.g. all reset together): ``_shared_step`` is the number
         # of steps done, on the host (None once robots diverge); ``slot_pos`` and ``_steps_done`` are then
         # left alone and only written when the robots diverge (``_leave_shared_path``). Until the ring wraps
@@ -84,6 +94,16 @@ class IncrementalNavFormer:
         # pattern at the current group's columns (``_wrapped_at``) and zeros elsewhere.
         self._wrapped_bias = torch.zeros_like(self._causal_bias)
         self._wrapped_at: int | None = None
+
+    def refresh(self) -> None:
+        """Rebuild the fast-path helpers from the model's current sub-modules and parameters.
+
+        Needed only after updates the helpers cannot see (see the class docstring); the decoding state
+        (cache, steps) is kept.
+        """
+        model = self.model
+        self._layers = StepLayers(model)
+        self._transformer = TransformerStep(model.transformer)
         encoders = [encoder for _, encoder in model.observation_encoders()]
         self._fused_encoders = (
             FusedConvEncoders(*encoders)

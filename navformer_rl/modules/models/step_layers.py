@@ -38,7 +38,8 @@ class StepLayers:
     ``tokens(...)`` equals ``model.prepare_tokens(cat([first token, model.return_token(...),
     model.observation_tokens(...)], 1))`` in eval mode and ``action(...)`` equals ``model.predict_action``
     (up to float rounding), with about 6 ops instead of 30. The tables are rebuilt whenever a parameter
-    they come from changes, so they are never stale. No autograd: call under ``torch.no_grad()``.
+    they come from changes (``derived.parameter_key`` lists what is not seen: ``p.data`` writes, fused
+    optimizers). No autograd: call under ``torch.no_grad()``.
     """
 
     def __init__(self, model: NavFormerModel) -> None:

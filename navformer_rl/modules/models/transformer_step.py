@@ -47,8 +47,9 @@ class TransformerStep:
     maths: this loop takes ~0.7x the time of the module path. The Linear weights are kept transposed
     (``[in, out]``, contiguous) for ``addmm``, which at 4 rows takes 10-12 us against 15-19 us for
     ``F.linear`` on the ``[out, in]`` weight (that re-packs it at every call); the copies are rebuilt
-    whenever a weight changes (in place, through ``.data``, ``model.to`` or ``load_state_dict``), so they
-    are never stale. The blocks' other ``Parameter`` objects are used directly. A sub-module replaced by a
+    whenever a weight changes (in place, ``model.to`` or ``load_state_dict``; ``derived.parameter_key``
+    lists what is not seen: ``p.data`` writes, fused optimizers). The blocks' other ``Parameter`` objects
+    are used directly. A sub-module replaced by a
     new one is not seen: make a new ``TransformerStep`` then. No autograd (the qkv projection is written
     into a kept buffer): call it under ``torch.no_grad()`` or inference mode.
     """
