@@ -10,31 +10,38 @@ from torch import Tensor
 Derived = TypeVar("Derived")
 
 
-def parameter_key(tensors: Iterable[Tensor]) -> tuple:
-    """Changes whenever one of ``tensors`` is updated in place (``_version``) or replaced (``data_ptr``).
+def parameter_key(versioned: Iterable[Tensor], unversioned: Iterable[Tensor] = ()) -> tuple:
+    """Changes whenever one of ``versioned`` is updated in place (``_version``) or replaced (``data_ptr``),
+    or one of ``unversioned`` (inference tensors, which have no version counter) is replaced.
 
     Not seen: writes that bypass the version counter (``p.data.copy_(...)``, fused optimizers such as
-    ``AdamW(fused=True)``) and inference tensors (they have no version counter: only replacement is seen).
+    ``AdamW(fused=True)``) and in-place writes to inference tensors.
     """
-    return tuple((tensor.data_ptr(), -1 if tensor.is_inference() else tensor._version) for tensor in tensors)
+    return (
+        tuple((tensor.data_ptr(), tensor._version) for tensor in versioned),
+        tuple(tensor.data_ptr() for tensor in unversioned),
+    )
 
 
 class DerivedCache(Generic[Derived]):
     """``build()``'s result, rebuilt on ``get()`` whenever one of ``sources`` changed since the last build.
 
     sources: the tensors (usually ``Parameter`` objects) the result is computed from, gathered once by the
-    caller (``nn.Module`` attribute access costs ~2 us, more than the check itself). ``build`` runs under
+    caller (``nn.Module`` attribute access costs ~2 us, more than the check itself); those made under
+    inference mode are followed by ``data_ptr`` only (see ``parameter_key``). ``build`` runs under
     whatever grad mode the caller is in; call ``get`` under ``torch.no_grad()`` for inference tables.
     """
 
     def __init__(self, sources: Iterable[Tensor], build: Callable[[], Derived]) -> None:
         self.sources = tuple(sources)
+        self._versioned = tuple(t for t in self.sources if not t.is_inference())
+        self._unversioned = tuple(t for t in self.sources if t.is_inference())
         self.build = build
         self._key: tuple | None = None
         self._value: Derived | None = None
 
     def get(self) -> Derived:
-        key = parameter_key(self.sources)
+        key = parameter_key(self._versioned, self._unversioned)
         if key != self._key:
             self._value, self._key = self.build(), key
         return self._value
