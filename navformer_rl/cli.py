@@ -53,12 +53,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = error.args[0] if isinstance(error, KeyError) and error.args else error
         print(f"navformer {args.command}: error: {message}", file=sys.stderr)
         return 2
+    except Exception as error:
+        if not _interrupted(error):
+            raise
+        return _report_interrupt(args.command)
     except KeyboardInterrupt:
-        print(
-            f"navformer {args.command}: interrupted (finished work is kept; rerun to resume)", file=sys.stderr
-        )
-        return 130
+        return _report_interrupt(args.command)
     return int(result or 0)
+
+
+def _interrupted(error: BaseException) -> bool:
+    """Whether ``error`` was raised while handling a Ctrl-C (a context manager's exit may replace the
+    ``KeyboardInterrupt`` with its own error, e.g. tensordict's ``to_module``)."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
+def _report_interrupt(command: str) -> int:
+    print(f"navformer {command}: interrupted (finished work is kept; rerun to resume)", file=sys.stderr)
+    return 130
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ import math
 import os
 import random
 import time
+import types
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -255,12 +257,40 @@ def config_from_dict(values: Mapping[str, Any]) -> TrainConfig:
                 raise ValueError(
                     f"unknown keys {[f'{name}.{k}' for k in bad]}; {name} accepts {sorted(known)}"
                 )
+            _check_types(section, value, f"{name}.")
             kwargs[name] = section(**value)
         elif name == "model":
-            kwargs[name] = dict(value or {})
+            from navformer_rl.modules import NavFormerConfig
+
+            if value is not None and not isinstance(value, Mapping):
+                raise ValueError(f"training config section 'model' must be a mapping, got {value!r}")
+            model = dict(value or {})
+            _check_types(NavFormerConfig, model, "model.")
+            kwargs[name] = model
         else:
             kwargs[name] = value
+    _check_types(TrainConfig, {k: v for k, v in kwargs.items() if k not in _SECTIONS and k != "model"})
     return TrainConfig(**kwargs)
+
+
+_SCALAR_TYPES: dict[Any, tuple[type, ...]] = {int: (int,), float: (int, float), bool: (bool,), str: (str,)}
+
+
+def _check_types(config_cls: type, values: Mapping[str, Any], prefix: str = "") -> None:
+    """ValueError naming the key when a value does not have its field's scalar type (``int``, ``float``,
+    ``bool``, ``str``, optionally ``None``); other field types are left to the config's own checks."""
+    hints = typing.get_type_hints(config_cls)
+    for key, value in values.items():
+        hint = hints.get(key)
+        options = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
+        if any(option not in _SCALAR_TYPES and option is not type(None) for option in options):
+            continue
+        if value is None and type(None) in options:
+            continue
+        allowed = tuple(t for option in options if option in _SCALAR_TYPES for t in _SCALAR_TYPES[option])
+        if isinstance(value, bool) and bool not in allowed or not isinstance(value, allowed):
+            expected = " or ".join("null" if o is type(None) else o.__name__ for o in options)
+            raise ValueError(f"{prefix}{key}={value!r}: expected {expected}")
 
 
 def load_train_config(
@@ -271,10 +301,18 @@ def load_train_config(
     Overrides are parsed with OmegaConf's dotlist (``optim.lr=1e-4``, ``data.ssl_path=/data/ssl``,
     ``model.autocast_dtype=bfloat16``); a key that is not in the file raises ``ValueError``.
     """
-    from omegaconf import OmegaConf
+    import yaml
+    from omegaconf import DictConfig, OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
-    base = OmegaConf.load(path or default_config_path())
+    try:
+        base = OmegaConf.load(path or default_config_path())
+    except (OSError, yaml.YAMLError) as err:
+        raise ValueError(f"--config {path}: cannot read it as YAML ({type(err).__name__}: {err})") from None
+    if not isinstance(base, DictConfig):
+        raise ValueError(
+            f"--config {path}: expected a YAML mapping of config keys, got {type(base).__name__}"
+        )
     OmegaConf.set_struct(base, True)
     if "model" in base:
         OmegaConf.set_struct(base.model, False)  # any NavFormerConfig field; NavFormerConfig checks names

@@ -44,7 +44,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="hydra-style overrides of train.yaml, e.g. optim.lr=1e-4 data.ssl_path=/data/ssl",
     )
     parser.add_argument(
-        "--config", metavar="FILE", help="YAML file to start from instead of the packaged train.yaml"
+        "--config",
+        metavar="FILE",
+        help="YAML file to read instead of the packaged train.yaml (keys it leaves out keep their defaults)",
     )
     parser.add_argument(
         "--print-config", action="store_true", help="print the resolved configuration as YAML and exit"

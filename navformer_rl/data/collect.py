@@ -474,6 +474,7 @@ def _collect_locked(
         else None
     )
     pending: dict[Future, int] = {}
+    interrupted = False
     try:
         while covered() < target:
             # keep 2 units per worker in flight, in unit order, skipping finished ones
@@ -494,10 +495,15 @@ def _collect_locked(
                 finished, _ = wait(list(pending), return_when=FIRST_COMPLETED)
                 for fut in finished:
                     _record(items, pending.pop(fut), fut.result(), bar, covered)
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
         if pool is not None:
             for fut in pending:
                 fut.cancel()
+            if interrupted:  # units in flight are lost anyway: their shards are temp folders until renamed
+                _terminate_workers(pool)
             pool.shutdown(wait=True, cancel_futures=True)
         bar.close()
     extra: dict[str, Any] = {"seeds": {"base": settings.seed, "derivation": _SEED_DOC}}
@@ -551,8 +557,13 @@ def _record(items: dict[int, int], unit: int, result: dict[str, int], bar, cover
 
 def _exit_with_parent(parent_pid: int) -> None:
     """Worker initializer: end this worker when the collecting process dies (e.g. SIGKILL), so no orphan
-    keeps running; a shard it was writing stays a temp folder that the next run deletes."""
+    keeps running; a shard it was writing stays a temp folder that the next run deletes. Ctrl-C (SIGINT,
+    sent to the whole process group) is left to the parent, which stops the workers itself: a worker
+    interrupted inside the pool's machinery could otherwise hang the parent's shutdown."""
+    import signal
     import threading
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def watch() -> None:
         while os.getppid() == parent_pid:
@@ -560,6 +571,12 @@ def _exit_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, daemon=True).start()
+
+
+def _terminate_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop every worker process of ``pool`` now (on Ctrl-C), instead of waiting for its unit to end."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
 
 
 def _spawn():

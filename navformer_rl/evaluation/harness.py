@@ -198,6 +198,7 @@ def evaluate(
     description = spec.validate()
     label = label or method
     out_dir = Path(out_dir)
+    _refuse_other_runs_results(out_dir, label)
     out_dir.mkdir(parents=True, exist_ok=True)
     save_episode_set(episode_set, out_dir / "episode_set.json")
 
@@ -251,6 +252,22 @@ def evaluate(
     }
     atomic_write_text(out_dir / "run.json", json.dumps(run, indent=2, sort_keys=True, default=str) + "\n")
     return EvaluationResult(out_dir=out_dir, records=records, summaries=summaries, files=files)
+
+
+def _refuse_other_runs_results(out_dir: Path, label: str) -> None:
+    """FileExistsError if ``out_dir`` holds the finished results of another label (they would be replaced)."""
+    run_file = out_dir / "run.json"
+    if not run_file.is_file():
+        return
+    try:
+        previous = json.loads(run_file.read_text()).get("label")
+    except (ValueError, AttributeError):
+        previous = None
+    if previous != label:
+        raise FileExistsError(
+            f"{out_dir} holds the results of {previous!r}; evaluating {label!r} there would replace them. "
+            "Use another output folder (one per method or label), or delete that one"
+        )
 
 
 def _make_tasks(

@@ -97,3 +97,28 @@ def test_fca_reaches_targets(tmp_path, tiny_episodes):
     assert all(r.success for r in result.records)
     assert all(r.steps == r.success_step for r in result.records)
     assert result.summaries[0].metrics.sr == 1.0
+
+
+def test_another_methods_results_are_not_overwritten(tmp_path, tiny_episodes):
+    out = tmp_path / "shared"
+    evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
+    rows = (out / "episodes.jsonl").read_text()
+    with pytest.raises(
+        FileExistsError, match="holds the results of 'vrw'; evaluating 'fca' there would replace"
+    ):
+        evaluate("fca", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
+    assert (out / "episodes.jsonl").read_text() == rows
+
+
+def test_an_error_raised_while_handling_ctrl_c_still_reports_an_interrupt():
+    # tensordict's to_module exit turns a KeyboardInterrupt into a RuntimeError; the CLI must see through it
+    from navformer_rl.cli import _interrupted
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise RuntimeError("Converting a tensordict to boolean value is not permitted") from None
+    except RuntimeError as error:
+        assert _interrupted(error)
+    assert not _interrupted(RuntimeError("a real error"))

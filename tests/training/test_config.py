@@ -139,6 +139,11 @@ BAD_CONFIGS = [
     (["data.context_steps=300"], ValueError, "at most 256 steps"),
     (["model.detach_encoders=true"], ValueError, "use encoder_training=frozen"),
     (["optim.iterations=0"], ValueError, "optim.iterations=0"),
+    # values of the wrong type are named, not left to fail deep inside numpy / torch
+    (["seed=abc"], ValueError, "seed='abc': expected int"),
+    (["resume=maybe"], ValueError, "resume='maybe': expected bool"),
+    (["model.dropout=abc"], ValueError, "model.dropout='abc': expected float"),
+    (["optim.clip_grad_norm=abc"], ValueError, "optim.clip_grad_norm='abc': expected float or null"),
     # the model must fit the data: D_e trajectories have up to 11 steps, images are 84 px, actions 2-d
     (
         ["model.max_timestep=6"],
@@ -159,10 +164,10 @@ BAD_CONFIGS = [
 
 @pytest.mark.parametrize("overrides, error, message", BAD_CONFIGS)
 def test_bad_configs_fail_before_training(tiny_config, overrides, error, message):
-    cfg = tiny_config(*overrides)
+    output_dir = tiny_config().output_dir
     with pytest.raises(error, match=message):
-        build_trainer(cfg)
-    assert not Path(cfg.output_dir).exists()  # nothing was written
+        build_trainer(tiny_config(*overrides))  # refused while loading the config or building the trainer
+    assert not Path(output_dir).exists()  # nothing was written
 
 
 def test_dataset_of_the_wrong_kind_is_refused(tiny_config, datasets):
