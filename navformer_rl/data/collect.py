@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
+import warnings
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -425,7 +426,8 @@ def collect(
 ) -> Path:
     """Collect (or resume, or just finish) the dataset ``kind`` into ``out``; returns ``out``.
 
-    ``workers`` processes (``spawn``) run work units; ``workers=1`` runs them in this process. Rerunning
+    ``workers`` processes (``spawn``, at most 2 per CPU) run work units; ``workers=1`` runs them in this
+    process. Rerunning
     the same call after an interruption continues where it stopped and ends with the same bytes. The
     folder is locked meanwhile (:func:`~navformer_rl.data.writer.folder_lock`): a second collection into
     it raises :class:`~navformer_rl.data.writer.FolderLockedError` instead of deleting the first one's
@@ -434,6 +436,10 @@ def collect(
     kind = DatasetKind.parse(kind)
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    most = 2 * (os.cpu_count() or 1)  # pybullet workers are CPU-bound: more than this only adds overhead
+    if workers > most:
+        warnings.warn(f"workers={workers} > 2 x {os.cpu_count()} CPUs: using {most}", stacklevel=2)
+        workers = most
     with folder_lock(out):
         return _collect_locked(kind, out, settings, workers, progress, unit_fn)
 

@@ -164,7 +164,8 @@ def evaluate(
             tensordict and writes ``("agents", "action")`` (a ``bind(env, seed)`` method, if present, is called
             after every reset); its label defaults to the factory's name.
         episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
-        out_dir: output folder (created; files in it are overwritten).
+        out_dir: output folder (created; this run's files in it are overwritten, but a folder holding
+            another label's finished results is refused with ``FileExistsError``).
         checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``.
         workers: processes (>= 1; 1 runs in this process).
         label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation).
