@@ -137,13 +137,30 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_make_episodes(args: argparse.Namespace) -> int:
-    from navformer_rl.evaluation.episodes import make_protocol_episodes, save_episode_set
+def _output_file(path: Path, option: str) -> Path:
+    """``path`` if it can be written as a file (ValueError when it is a folder)."""
+    if path.is_dir():
+        raise ValueError(f"{option} {path} is a folder; expected the path of a file to write")
+    return path
 
+
+def _run_make_episodes(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes, save_episode_set
+
+    out = _output_file(args.make_out, "--out")
     episode_set = make_protocol_episodes(
         args.make_protocol, args.trials_per_setup, args.trials_per_world, args.episode_seed, args.max_steps
     )
-    path = save_episode_set(episode_set, args.make_out)
+    if out.exists():  # the same episodes again is fine; anything else would be lost
+        try:
+            same = load_episode_set(out).content_hash() == episode_set.content_hash()
+        except (ValueError, OSError):
+            same = False
+        if not same:
+            raise FileExistsError(
+                f"--out {out} exists and holds something else; choose another path or delete it"
+            )
+    path = save_episode_set(episode_set, out)
     print(f"wrote {len(episode_set)} episodes ({', '.join(episode_set.setups)}) to {path}")
     return 0
 
@@ -151,6 +168,6 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
 def _run_report(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.report import write_report
 
-    path = write_report(args.folders, args.report_out, title=args.title)
+    path = write_report(args.folders, _output_file(args.report_out, "--out"), title=args.title)
     print(f"wrote {path}")
     return 0

@@ -49,6 +49,17 @@ def test_cli_errors(tmp_path):
     bad.write_text(json.dumps({"format": "navformer_rl.dataset", "version": 1}))
     with pytest.raises(ValueError, match="not an episode-set file"):
         _run(["evaluate", "--method", "vrw", "--episodes", str(bad), "--out", str(tmp_path / "o")])
+    # output files: a folder is refused; an existing file is replaced only by the same episodes
+    make = ["evaluate", "make-episodes", "--protocol", "smoke", "--trials-per-setup", "2", "--max-steps", "5"]
+    with pytest.raises(ValueError, match="is a folder; expected the path of a file"):
+        _run([*make, "--out", str(tmp_path)])
+    with pytest.raises(FileExistsError, match="holds something else"):
+        _run([*make, "--out", str(bad)])
+    assert json.loads(bad.read_text())["format"] == "navformer_rl.dataset"  # untouched
+    episodes = tmp_path / "smoke.json"
+    assert _run([*make, "--out", str(episodes)]) == 0 and _run([*make, "--out", str(episodes)]) == 0
+    with pytest.raises(ValueError, match="is a folder"):
+        _run(["evaluate", "report", str(tmp_path / "o"), "--out", str(tmp_path)])
 
 
 def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes, vrw_run):
