@@ -22,6 +22,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from navformer_rl import cli_args
+
 BASELINES = ("vrw", "fca")
 TRAINED_METHODS = ("navformer", "dt")
 
@@ -267,7 +269,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=("default", "quick"),
         help="default: ~15 min on 2 cores; quick: a few minutes, a smoke check",
     )
-    demo.add_argument("--seed", type=int, help="base seed (default 0)")
+    demo.add_argument("--seed", type=cli_args.seed, help="base seed (default 0)")
     demo.add_argument("--workers", type=int, help="processes for collection and evaluation (default 2)")
     demo.add_argument("--iterations", type=int, help="training iterations per model")
     demo.add_argument("--methods", help=f"comma-separated subset of {','.join(TRAINED_METHODS + BASELINES)}")
@@ -284,7 +286,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     world.add_argument("--size", type=float, default=12.5, help="maze side in metres, 5-17.5 (default 12.5)")
     world.add_argument("--robots", type=int, default=4, help="number of robots (default 4)")
     world.add_argument("--steps", type=int, default=200, help="steps of 0.2 s (default 200)")
-    world.add_argument("--seed", type=int, default=0, help="world seed (default 0)")
+    world.add_argument("--seed", type=cli_args.seed, default=0, help="world seed (default 0)")
     world.add_argument("--no-progress", action="store_true", help="no progress bar")
     world.set_defaults(run=_run_world_demo_command)
 

@@ -10,6 +10,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from navformer_rl import cli_args
+
 KINDS = ("e", "ca", "ssl", "all")
 
 _EPILOG = """\
@@ -37,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument(
         "--scale", choices=("small", "paper"), default="small", help="dataset sizes (default: small)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="base seed (default: 0)")
+    parser.add_argument("--seed", type=cli_args.seed, default=0, help="base seed (default: 0)")
     parser.add_argument(
         "--workers",
         type=int,

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from navformer_rl import cli_args
 from navformer_rl.constants import MAX_EPISODE_STEPS
 
 
@@ -48,7 +49,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--maps", type=int, default=2, help="episodes per setup drawn as top-down maps (default 2)"
     )
     parser.add_argument("--label", help="method name in tables (default: --method), e.g. navformer-no_thsc")
-    parser.add_argument("--seed", type=int, default=0, help="seed of stochastic policies (default 0)")
+    parser.add_argument(
+        "--seed", type=cli_args.seed, default=0, help="seed of stochastic policies (default 0)"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--fresh", action="store_true", help="recompute every episode (default: reuse finished ones in --out)"
@@ -92,7 +95,9 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--trials-per-world", type=int, default=PAPER_TRIALS_PER_WORLD, help="with --protocol (paper: 10)"
     )
-    parser.add_argument("--episode-seed", type=int, default=0, help="with --protocol: generation seed")
+    parser.add_argument(
+        "--episode-seed", type=cli_args.seed, default=0, help="with --protocol: generation seed"
+    )
     parser.add_argument(
         "--max-steps",
         type=int,

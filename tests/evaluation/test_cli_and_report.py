@@ -38,6 +38,17 @@ def test_make_episodes_then_evaluate_then_report(tmp_path, capsys):
     assert "../vrw/maps/7.5m-2r_w00t00.png" in text
 
 
+def test_negative_seeds_are_refused_by_every_command(capsys):
+    from navformer_rl import cli
+
+    for argv in (["demo", "--seed", "-1"], ["collect", "e", "--out", "x", "--seed", "-1"],
+                 ["evaluate", "make-episodes", "--protocol", "smoke", "--out", "x", "--episode-seed", "-1"]):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_info:
+            cli.main(argv)
+        assert exit_info.value.code == 2
+        assert "expected a non-negative integer seed, got -1" in capsys.readouterr().err
+
+
 def test_cli_errors(tmp_path):
     with pytest.raises(ValueError, match="expected one of navformer, dt, vrw, fca"):
         _run(["evaluate", "--method", "random", "--protocol", "smoke", "--out", str(tmp_path)])
