@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from navformer_rl.durable import fsync_dir, fsync_file
+
 RUN_FORMAT = "navformer_rl.run/1"
 """Format tag written into every run part; a file without it is refused."""
 
@@ -64,26 +66,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    _fsync_dir(path.parent)
-
-
-def _fsync_file(path: Path) -> None:
-    with open(path, "rb") as handle:
-        os.fsync(handle.fileno())
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make a rename in ``path`` durable (a power loss could otherwise undo it); no-op where unsupported."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+    fsync_dir(path.parent)
 
 
 def save_checkpoint(
@@ -131,7 +114,7 @@ def save_checkpoint(
         if resume_state is not None:
             torch.save(dict(resume_state), tmp / RESUME_FILENAME)
         for child in tmp.iterdir():
-            _fsync_file(child)
+            fsync_file(child)
         if final.exists():
             # Same iteration saved twice (e.g. the final save after a periodic one): move the old
             # folder aside first so that the rename below cannot fail on a non-empty target.
@@ -141,7 +124,7 @@ def save_checkpoint(
             shutil.rmtree(stale, ignore_errors=True)
         else:
             os.replace(tmp, final)
-        _fsync_dir(root)
+        fsync_dir(root)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -42,6 +42,7 @@ from navformer_rl.data.schema import (
     fields_for,
     key_name,
 )
+from navformer_rl.durable import fsync_dir, fsync_tree
 
 METADATA_FILE = "metadata.json"
 SHARDS_DIR = "shards"
@@ -52,31 +53,6 @@ _TMP_PREFIX = ".tmp-"
 
 class FolderLockedError(RuntimeError):
     """Another live process is collecting into the same dataset folder."""
-
-
-def fsync_dir(path: Path) -> None:
-    """fsync the directory ``path`` so that renames and new entries in it survive a power loss."""
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def fsync_tree(root: Path) -> None:
-    """fsync every file under ``root`` (memmaps included: their dirty pages are flushed), then every
-    directory, deepest first; one ``fsync`` per file, called once when a shard or consolidation is closed."""
-    dirs = []
-    for folder, _, files in os.walk(root):
-        dirs.append(folder)
-        for name in files:
-            fd = os.open(os.path.join(folder, name), os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-    for folder in reversed(dirs):
-        fsync_dir(Path(folder))
 
 
 def _pid_alive(pid: int) -> bool:
