@@ -87,22 +87,40 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _add_generation_options(parser: argparse.ArgumentParser) -> None:
+    """Options that shape generated episodes (default None = the paper's value, see ``_generation``)."""
     from navformer_rl.evaluation.episodes import PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD
 
     parser.add_argument(
-        "--trials-per-setup", type=int, default=PAPER_TRIALS_PER_SETUP, help="with --protocol (paper: 60)"
+        "--trials-per-setup",
+        type=int,
+        help=f"with --protocol: trials per setup (default and paper: {PAPER_TRIALS_PER_SETUP})",
     )
     parser.add_argument(
-        "--trials-per-world", type=int, default=PAPER_TRIALS_PER_WORLD, help="with --protocol (paper: 10)"
+        "--trials-per-world",
+        type=int,
+        help=f"with --protocol: trials per world (default and paper: {PAPER_TRIALS_PER_WORLD})",
     )
     parser.add_argument(
-        "--episode-seed", type=cli_args.seed, default=0, help="with --protocol: generation seed"
+        "--episode-seed", type=cli_args.seed, help="with --protocol: generation seed (default 0)"
     )
     parser.add_argument(
         "--max-steps",
         type=int,
-        default=MAX_EPISODE_STEPS,
-        help="with --protocol: steps per trial (paper: 500)",
+        help=f"with --protocol: steps per trial (default and paper: {MAX_EPISODE_STEPS})",
+    )
+
+
+_GENERATION_OPTIONS = ("trials_per_setup", "trials_per_world", "episode_seed", "max_steps")
+
+
+def _generation(args: argparse.Namespace) -> tuple[int, ...]:
+    """(trials per setup, trials per world, episode seed, max steps) with the defaults filled in."""
+    from navformer_rl.evaluation.episodes import PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD
+
+    defaults = (PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD, 0, MAX_EPISODE_STEPS)
+    return tuple(
+        default if getattr(args, name) is None else getattr(args, name)
+        for name, default in zip(_GENERATION_OPTIONS, defaults)
     )
 
 
@@ -119,11 +137,16 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     # Refuse a bad method / checkpoint before spending time on episode generation.
     PolicySpec(args.method, args.checkpoint, args.seed).validate()
     if args.episodes is not None:
+        given = [name for name in _GENERATION_OPTIONS if getattr(args, name) is not None]
+        if given:  # the file fixes them: silently ignoring them would run other episodes than asked for
+            flags = ", ".join("--" + name.replace("_", "-") for name in given)
+            raise ValueError(
+                f"{flags}: only with --protocol; the episode file {args.episodes} fixes its trials, seeds and "
+                "steps per trial (make another with `navformer evaluate make-episodes`)"
+            )
         episode_set = load_episode_set(args.episodes)
     else:
-        episode_set = make_protocol_episodes(
-            args.protocol, args.trials_per_setup, args.trials_per_world, args.episode_seed, args.max_steps
-        )
+        episode_set = make_protocol_episodes(args.protocol, *_generation(args))
     result = evaluate(
         args.method,
         episode_set,
@@ -153,9 +176,7 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes, save_episode_set
 
     out = _output_file(args.make_out, "--out")
-    episode_set = make_protocol_episodes(
-        args.make_protocol, args.trials_per_setup, args.trials_per_world, args.episode_seed, args.max_steps
-    )
+    episode_set = make_protocol_episodes(args.make_protocol, *_generation(args))
     if out.exists():  # the same episodes again is fine; anything else would be lost
         try:
             same = load_episode_set(out).content_hash() == episode_set.content_hash()

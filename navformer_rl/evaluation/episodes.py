@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from navformer_rl.constants import EVAL_ROBOT_COUNTS, EVAL_SIZES, MAX_EPISODE_STEPS, SUCCESS_RADIUS
-from navformer_rl.evaluation._io import atomic_write_text
+from navformer_rl.durable import atomic_write_text
 
 FORMAT = "navformer_rl.episode_set"
 FORMAT_VERSION = 1

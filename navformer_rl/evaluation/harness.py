@@ -37,11 +37,12 @@ from typing import Any
 import numpy as np
 
 from navformer_rl import __version__
-from navformer_rl.evaluation._io import atomic_write_text
+from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
-from navformer_rl.evaluation.video import MAP_PNG_PX, VideoWriter, compose_frame, draw_map, save_map_png
+from navformer_rl.evaluation.video import MAP_PNG_PX, compose_frame, draw_map, save_map_png
+from navformer_rl.mp4 import Mp4Writer
 
 METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
 """Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
@@ -454,7 +455,8 @@ class EpisodeRunner:
             paths = [[p[:2].copy()] for p in poses] if keep_path else None
             name = _file_stem(episode.episode_id)
             video = (
-                VideoWriter(Path(task.out_dir) / "videos" / f"{name}.mp4", self.video_fps)
+                # one encoder thread: episodes already run in parallel processes
+                Mp4Writer(Path(task.out_dir) / "videos" / f"{name}.mp4", self.video_fps, threads=1)
                 if task.save_video
                 else None
             )

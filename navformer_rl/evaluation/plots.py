@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from navformer_rl.evaluation._io import atomic_path
+from navformer_rl.durable import atomic_path
 from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, setup_order_key
 
 _METRICS = (("sr", "SR", "sr_ci"), ("spl", "SPL", "spl_ci"), ("cr", "CR", "cr_ci"))

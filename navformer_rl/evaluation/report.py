@@ -5,7 +5,7 @@
 aggregates from the per-robot-trial rows, and writes:
 
 - the combined table in the paper's Table I layout (values with 95 % intervals);
-- a combined bar plot (``metrics.png`` next to the report);
+- a combined bar plot (``<report stem>_metrics.png`` next to the report);
 - for setups that appear in the paper's Table I / III / IV, the paper's numbers beside ours, labelled as
   measured in another simulator (Gazebo) on other worlds with the authors' models;
 - links to each method's top-down maps and videos, and the episode-set hash each method ran on.
@@ -18,7 +18,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from navformer_rl.evaluation._io import atomic_write_text
+from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.paper_results import (
     ABLATION_TO_TABLE4,
     METHOD_TO_PAPER_COLUMN,
@@ -146,6 +146,26 @@ def paper_table4_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
+REPORT_MARKER = "<!-- written by navformer_rl.evaluation.report.write_report -->"
+"""First line of every report: an existing file is replaced only if it is a report (this line, or the
+measures sentence that reports written before the marker existed carry near their top)."""
+_MEASURES_SENTENCE = "Measures as defined in the paper (§VII.A): SR = mean success over robot-trials"
+
+
+def _check_replaceable(out_path: Path) -> None:
+    """Refuse an ``out_path`` that is a folder, or an existing file that is not one of our reports."""
+    if out_path.is_dir():
+        raise ValueError(f"{out_path} is a folder; expected the path of the report's .md file")
+    if out_path.exists():
+        with open(out_path, encoding="utf-8", errors="replace") as handle:
+            head = handle.read(4096)
+        if not (head.startswith(REPORT_MARKER + "\n") or _MEASURES_SENTENCE in head):
+            raise FileExistsError(
+                f"{out_path} exists and is not a report written by navformer_rl; choose another path or "
+                "delete it"
+            )
+
+
 def write_report(
     result_dirs: Sequence[str | os.PathLike],
     out_path: str | os.PathLike,
@@ -157,18 +177,25 @@ def write_report(
 
     Args:
         result_dirs: folders written by ``evaluate`` (one per method/label); order = column order.
-        out_path: the ``.md`` file; ``metrics.png`` is written beside it.
+        out_path: the ``.md`` file; ``<stem>_metrics.png`` is written beside it. An existing file is
+            replaced only if it is a report written here (FileExistsError otherwise).
     """
     if not result_dirs:
         raise ValueError("write_report needs at least one evaluation folder")
     out_path = Path(out_path)
+    _check_replaceable(out_path)
     report_dir = out_path.parent
     records, runs, labels = [], [], []
     for folder in map(Path, result_dirs):
         run_file = folder / "run.json"
         if not run_file.is_file():
             raise FileNotFoundError(f"{folder} is not an evaluation folder (no run.json)")
-        run = json.loads(run_file.read_text())
+        try:
+            run = json.loads(run_file.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise ValueError(
+                f"{run_file} is not valid JSON ({error}); rerun `navformer evaluate` there"
+            ) from None
         mine = read_records(folder / "episodes.jsonl")
         if run["label"] in labels:
             raise ValueError(f"two evaluation folders use the same method label {run['label']!r}")
@@ -176,12 +203,13 @@ def write_report(
         records += mine
         runs.append((folder, run))
     summaries = summarize_by_setup(records, confidence, seed)
-    plot = plot_setup_bars(summaries, report_dir / "metrics.png", methods=labels, title=title)
+    plot_path = report_dir / f"{out_path.stem}_metrics.png"  # not metrics.png: an evaluation folder's own
+    plot = plot_setup_bars(summaries, plot_path, methods=labels, title=title)
 
     hashes = {run["episode_set"]["content_sha256"] for _, run in runs}
-    parts = [f"# {title}\n"]
+    parts = [REPORT_MARKER, f"# {title}\n"]
     parts.append(
-        "Measures as defined in the paper (§VII.A): SR = mean success over robot-trials (success: within "
+        f"{_MEASURES_SENTENCE} (success: within "
         "1.5 m of the target before the trial ends); SPL = mean of S·ℓ/max(℘, ℓ) (eq. 12) with ℓ the "
         "shortest collision-free path from start to target on the true map; CR = mean over robot-trials of "
         "collision steps / active steps. See `docs/evaluation.md`.\n"
@@ -224,9 +252,8 @@ def write_report(
         parts.append(paper_table4_markdown())
     parts.append("## Episodes\n")
     parts.append(
-        "Videos are mp4 with OpenCV's `mp4v` codec (MPEG-4 Part 2: VLC, mpv and ffplay play it, most browsers "
-        "do not; the pip OpenCV build has no H.264 encoder), one frame per 0.2 s step at the run's frame "
-        "rate (10 fps by default: twice real time).\n"
+        "Videos are H.264 mp4 (browsers, VS Code and VLC play them), one frame per 0.2 s step at the run's "
+        "frame rate (10 fps by default: twice real time).\n"
     )
     for folder, run in runs:
         links = []

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from navformer_rl.evaluation._io import atomic_write_text
+from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.measures import MetricSummary, RobotTrial, summarize
 
 ALL_SETUPS = "all"

@@ -1,5 +1,5 @@
-"""Episode visualisation: top-down trajectory maps (PNG) and mp4 videos (OpenCV ``mp4v``) showing every
-robot's egocentric camera beside the top-down map."""
+"""Episode visualisation: top-down trajectory maps (PNG) and video frames showing every robot's egocentric
+camera beside the top-down map (written as H.264 mp4 by :class:`navformer_rl.mp4.Mp4Writer`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from navformer_rl.evaluation._io import atomic_path
+from navformer_rl.durable import atomic_path
 
 MAP_PX = 480
 """Side of the top-down map in video frames and map images, in pixels."""
@@ -107,46 +107,3 @@ def compose_frame(
         frame[y1 : y1 + CAMERA_PX, x0 : x0 + CAMERA_PX] = view
         cv2.rectangle(frame, (x0 - 2, y1 - 2), (x0 + CAMERA_PX + 1, y1 + CAMERA_PX + 1), color, 2)
     return frame
-
-
-class VideoWriter:
-    """Streams RGB frames into an mp4 (OpenCV ``mp4v``); the file appears atomically on :meth:`close`.
-
-    Args:
-        path: output ``.mp4``.
-        fps: frames per second (10 = twice real time at 0.2 s per step).
-    """
-
-    def __init__(self, path: str | os.PathLike, fps: float = 10.0) -> None:
-        self.path = Path(path)
-        self.fps = float(fps)
-        self._context = atomic_path(self.path)
-        self._tmp = self._context.__enter__()
-        self._writer: cv2.VideoWriter | None = None
-        self.frames = 0
-
-    def write(self, frame: np.ndarray) -> None:
-        """Append one uint8 RGB frame ``[H, W, 3]`` (every frame must have the first frame's size)."""
-        if self._writer is None:
-            h, w = frame.shape[:2]
-            self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (w, h))
-            if not self._writer.isOpened():
-                raise OSError(f"OpenCV cannot open an mp4v writer for {self.path}")
-        self._writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-        self.frames += 1
-
-    def close(self) -> Path:
-        """Finish the file and move it into place."""
-        if self._writer is not None:
-            self._writer.release()
-        if self.frames == 0:
-            self._context.__exit__(ValueError, ValueError("no frames"), None)
-            raise ValueError(f"no frames were written to {self.path}")
-        self._context.__exit__(None, None, None)
-        return self.path
-
-    def abort(self) -> None:
-        """Drop the partial file."""
-        if self._writer is not None:
-            self._writer.release()
-        self._context.__exit__(RuntimeError, RuntimeError("aborted"), None)

@@ -4,8 +4,24 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
-from navformer_rl.evaluation.episodes import EpisodeSet, load_episode_set, make_protocol_episodes
+from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.evaluation.episodes import (
+    PAPER_TRIALS_PER_SETUP,
+    PAPER_TRIALS_PER_WORLD,
+    EpisodeSet,
+    load_episode_set,
+    make_protocol_episodes,
+)
 from navformer_rl.evaluation.harness import EvaluationResult, PolicySpec, evaluate
+
+GENERATION_DEFAULTS = {
+    "trials_per_setup": PAPER_TRIALS_PER_SETUP,
+    "trials_per_world": PAPER_TRIALS_PER_WORLD,
+    "episode_seed": 0,
+    "max_steps": MAX_EPISODE_STEPS,
+}
+"""The config keys that shape generated episodes (in ``make_protocol_episodes``' order), with the value a
+null gets."""
 
 
 def make_episode_set(cfg: DictConfig) -> EpisodeSet:
@@ -14,15 +30,17 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
     The method and checkpoint are validated first, so a bad one fails before episode generation.
     """
     PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed)).validate()
+    generation = {name: cfg[name] for name in GENERATION_DEFAULTS}
     if cfg.episodes:
+        given = [name for name, value in generation.items() if value is not None]
+        if given:
+            raise ValueError(
+                f"{', '.join(given)}: only with `protocol`; the episode file {cfg.episodes} fixes its trials, "
+                "seeds and steps per trial"
+            )
         return load_episode_set(cfg.episodes)
-    return make_protocol_episodes(
-        cfg.protocol,
-        int(cfg.trials_per_setup),
-        int(cfg.trials_per_world),
-        int(cfg.episode_seed),
-        int(cfg.max_steps),
-    )
+    values = [int(GENERATION_DEFAULTS[n] if v is None else v) for n, v in generation.items()]
+    return make_protocol_episodes(cfg.protocol, *values)
 
 
 def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult:

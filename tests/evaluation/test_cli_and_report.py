@@ -2,6 +2,8 @@
 
 import argparse
 import json
+import shutil
+from pathlib import Path
 
 import pytest
 
@@ -34,8 +36,11 @@ def test_make_episodes_then_evaluate_then_report(tmp_path, capsys):
     report = tmp_path / "report" / "README.md"
     assert _run(["evaluate", "report", str(out), "--out", str(report)]) == 0
     text = report.read_text()
-    assert "vrw SR" in text and (tmp_path / "report" / "metrics.png").is_file()
+    assert "vrw SR" in text and (tmp_path / "report" / "README_metrics.png").is_file()
     assert "../vrw/maps/7.5m-2r_w00t00.png" in text
+    # generation options with an episode file would be ignored: refused instead
+    with pytest.raises(ValueError, match="--max-steps: only with --protocol"):
+        _run([*argv, "--max-steps", "50", "--no-progress"])
 
 
 def test_negative_seeds_are_refused_by_every_command(capsys):
@@ -90,6 +95,25 @@ def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes, vrw_run)
         write_report([a.out_dir, a.out_dir], tmp_path / "dup.md")
     with pytest.raises(FileNotFoundError, match="not an evaluation folder"):
         write_report([tmp_path], tmp_path / "none.md")
+
+
+def test_report_never_replaces_other_files(tmp_path, vrw_run):
+    out_dir = Path(shutil.copytree(vrw_run[0], tmp_path / "vrw"))  # the fixture's folder stays as it is
+    own_plot = (out_dir / "metrics.png").read_bytes()
+    # a report inside the evaluation folder keeps that folder's own plot
+    inside = write_report([out_dir], out_dir / "report.md")
+    assert (out_dir / "metrics.png").read_bytes() == own_plot and (out_dir / "report_metrics.png").is_file()
+    assert write_report([out_dir], inside) == inside  # an earlier report is replaced
+    notes = tmp_path / "notes.md"
+    notes.write_text("# my notes\n")
+    with pytest.raises(FileExistsError, match="not a report written by navformer_rl"):
+        write_report([out_dir], notes)
+    assert notes.read_text() == "# my notes\n"
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "run.json").write_text("{truncated")
+    with pytest.raises(ValueError, match="run.json is not valid JSON"):
+        write_report([broken], tmp_path / "r.md")
 
 
 def test_ablation_labels_are_compared_with_their_table4_row():

@@ -26,3 +26,35 @@ def test_recipe_smoke(tmp_path):
     rows = list(csv.DictReader((out / "summary.csv").open()))
     assert [(r["method"], r["setup"], r["n_robot_trials"]) for r in rows] == [("vrw", "7.5m-2r", "2")]
     assert "| 7.5m-2r | 7.5 × 7.5 | 2 |" in done.stdout
+
+
+def _recipe_utils():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("evaluate_recipe_utils", RECIPE.parent / "utils.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_recipe_generation_keys_default_to_the_paper_and_are_refused_beside_a_file(tmp_path):
+    from omegaconf import OmegaConf
+
+    from navformer_rl.evaluation.episodes import save_episode_set
+
+    utils = _recipe_utils()
+    cfg = OmegaConf.load(RECIPE.parent / "config.yaml")
+    cfg.output_dir = str(tmp_path)
+    cfg.trials_per_setup, cfg.max_steps = 2, 7
+    generated = utils.make_episode_set(cfg)
+    assert len(generated) == 2 and generated.max_steps == 7
+    cfg.trials_per_setup = None  # null = the paper's 60 trials (smoke: one setup), 500 steps
+    cfg.max_steps = None
+    paper = utils.make_episode_set(cfg)
+    assert len(paper) == 60 and paper.max_steps == 500
+    path = save_episode_set(generated, tmp_path / "set.json")
+    cfg.episodes = str(path)
+    assert utils.make_episode_set(cfg) == generated
+    cfg.max_steps = 50
+    with pytest.raises(ValueError, match="max_steps: only with `protocol`"):
+        utils.make_episode_set(cfg)
