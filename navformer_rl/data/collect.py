@@ -468,8 +468,8 @@ def _collect_locked(
         return total
 
     unit = 0
-    for done in sorted(int(p.name.split("-")[1]) for p in (Path(out) / "shards").glob("unit-*")):
-        items[done] = writer.shard_stats(done)["items"]
+    for done in writer.completed_units():  # checked: a damaged shard is a ValueError saying what to do
+        items[done] = writer.check_shard(done)["items"]
     bar = _progress_bar(kind, target, progress)
     bar.update(min(covered(), target))
     pool = (

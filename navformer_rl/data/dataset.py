@@ -7,7 +7,6 @@ what was expected instead of crashing (a truncated memmap would otherwise fault 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +24,19 @@ from navformer_rl.data.samplers import (
     TrajectorySampler,
 )
 from navformer_rl.data.schema import SCHEMA_VERSION, TARGET_FIELDS, DatasetKind, fields_for
-from navformer_rl.data.writer import CONSOLIDATED_DIR, METADATA_FILE, load_checked
+from navformer_rl.data.writer import (
+    CONSOLIDATED_DIR,
+    METADATA_FILE,
+    is_count,
+    load_checked,
+    read_json_object,
+    short_repr,
+)
+
+_DAMAGED = (
+    "the dataset folder was damaged after it was written (its files are written atomically): restore it "
+    "from a backup or collect the dataset again"
+)
 
 
 class AttachTargetPixels(Transform):
@@ -60,7 +71,7 @@ class NavDataset:
         self.rows = rows
         self.targets = targets
         self.episodes = (
-            EpisodeTable.from_rows(rows["episode"], rows["target_id"], str(root))
+            EpisodeTable.from_rows(rows["episode"], rows["target_id"], str(root / CONSOLIDATED_DIR / "rows"))
             if self.kind.is_trajectory
             else None
         )
@@ -150,25 +161,29 @@ class NavDataset:
 def open_dataset(path: str | Path, kind: DatasetKind | str | None = None) -> NavDataset:
     """Open and validate a finished dataset folder.
 
-    Raises ``FileNotFoundError`` for a missing folder/file, ``ValueError`` for an unknown schema version,
-    an unfinished collection, a wrong ``kind``, or a memmap whose shape, dtype or file size differs from
-    the schema.
+    Raises ``FileNotFoundError`` for a missing folder or memmap file, ``ValueError`` naming the file for
+    everything else: a ``metadata.json`` that is not a JSON object or lacks a valid ``kind`` or ``counts``,
+    an unknown schema version, an unfinished collection, a wrong ``kind``, a memmap whose file size, dtype or
+    shape differs from the schema and the recorded counts, or rows whose trajectories / target ids do not
+    match the recorded number of trajectories.
     """
     root = Path(path)
     meta_path = root / METADATA_FILE
     if not meta_path.is_file():
         raise FileNotFoundError(f"{root} is not a navformer_rl dataset: {METADATA_FILE} is missing")
-    try:
-        with open(meta_path) as f:
-            metadata = json.load(f)
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{meta_path} is not valid JSON ({err})") from None
+    metadata = read_json_object(meta_path, _DAMAGED)
     version = metadata.get("schema_version")
     if version != SCHEMA_VERSION:
         raise ValueError(
             f"{root}: schema_version {version!r} is not supported; this navformer_rl reads schema {SCHEMA_VERSION}"
         )
-    found = DatasetKind.parse(metadata.get("kind", "?"))
+    try:
+        found = DatasetKind.parse(metadata.get("kind"))
+    except (ValueError, TypeError):
+        raise ValueError(
+            f"{meta_path}: 'kind' is {short_repr(metadata.get('kind'))}, expected one of "
+            f"{[k.value for k in DatasetKind]}; {_DAMAGED}"
+        ) from None
     if kind is not None and found is not DatasetKind.parse(kind):
         raise ValueError(
             f"{root} holds a {found.value!r} dataset, expected {DatasetKind.parse(kind).value!r}"
@@ -178,12 +193,43 @@ def open_dataset(path: str | Path, kind: DatasetKind | str | None = None) -> Nav
             f"{root}: collection is not finished (status {metadata.get('status')!r}); rerun the same collect "
             "command to resume it"
         )
-    counts = metadata.get("counts", {})
+    counts = metadata.get("counts")
+    if not isinstance(counts, dict):
+        raise ValueError(
+            f"{meta_path}: 'counts' is {short_repr(counts)}, expected an object with the 'rows' and 'items' "
+            f"counts; {_DAMAGED}"
+        )
+    for name in ("rows", "items"):
+        if not is_count(counts.get(name)):
+            raise ValueError(
+                f"{meta_path}: counts.{name} is {short_repr(counts.get(name))}, expected a non-negative "
+                f"integer; {_DAMAGED}"
+            )
+    n_rows, n_items = counts["rows"], counts["items"]
     consolidated = root / CONSOLIDATED_DIR
-    rows = load_checked(consolidated / "rows", fields_for(found), int(counts.get("rows", -1)))
+    rows = load_checked(consolidated / "rows", fields_for(found), n_rows)
     targets = None
     if found.is_trajectory:
-        targets = load_checked(consolidated / "targets", TARGET_FIELDS, int(counts.get("items", -1)))[
-            "target_pixels"
-        ]
-    return NavDataset(root, metadata, rows, targets)
+        targets = load_checked(consolidated / "targets", TARGET_FIELDS, n_items)["target_pixels"]
+    dataset = NavDataset(root, metadata, rows, targets)
+    if found.is_trajectory:
+        _check_trajectory_ids(dataset, meta_path, n_items)
+    return dataset
+
+
+def _check_trajectory_ids(dataset: NavDataset, meta_path: Path, n_items: int) -> None:
+    """``ValueError`` unless the rows hold ``n_items`` trajectories whose ``target_id`` index the targets
+    table (one image per trajectory): ids out of range would otherwise fail deep inside sampling."""
+    folder = dataset.root / CONSOLIDATED_DIR / "rows"
+    if dataset.num_trajectories != n_items:
+        raise ValueError(
+            f"{folder}: 'episode' numbers {dataset.num_trajectories} trajectories, but {meta_path} records "
+            f"counts.items = {n_items}; {_DAMAGED}"
+        )
+    target_id = dataset.rows["target_id"]
+    low, high = int(target_id.min()), int(target_id.max())
+    if low < 0 or high >= n_items:
+        raise ValueError(
+            f"{folder}: 'target_id' ranges over {low}..{high}, expected 0..{n_items - 1} (rows of the "
+            f"{n_items} target images); {_DAMAGED}"
+        )

@@ -8,12 +8,19 @@ Layout of a dataset folder::
         rows/              memmapped TensorDict of the unit's rows (local episode / target ids from 0)
         targets/           memmapped TensorDict {"target_pixels": uint8 [n, 84, 84, 3]} (trajectory kinds)
         stats.json         {"items": n, "rows": r, "counters": {...}}
+    shards/.tmp-unit-*/    a shard being written; one left by a crash is deleted by the next DatasetWriter
     consolidated/          after completion: rows/ (one flat memmap, global ids) and targets/
                            (built in consolidated.tmp/, then renamed); shards/ is deleted afterwards.
 
 The finished dataset is the first ``target_count`` items (trajectories or pairs) of the contiguous run of
 completed units 0, 1, 2, ... so it does not depend on the order in which parallel workers finished, nor on
 interruptions: rerunning the same command after a crash yields the same bytes.
+
+A unit's folder is renamed into place only after all its files are written and fsynced, so a committed
+shard is complete: one whose ``stats.json`` or memmaps cannot be read was damaged afterwards (disk error,
+partial copy, manual edit). Reading it raises ``ValueError`` naming the file and the problem, and saying to
+delete that unit's folder so that the next run collects it again (same seed, same data). Temp files and
+folders (``.tmp-*``) are provably uncommitted and are deleted silently.
 """
 
 from __future__ import annotations
@@ -47,8 +54,10 @@ from navformer_rl.durable import fsync_dir, fsync_tree
 METADATA_FILE = "metadata.json"
 SHARDS_DIR = "shards"
 CONSOLIDATED_DIR = "consolidated"
+STATS_FILE = "stats.json"
 LOCK_FILE = ".collect.lock"
 _TMP_PREFIX = ".tmp-"
+_UNIT_PREFIX = "unit-"
 
 
 class FolderLockedError(RuntimeError):
@@ -123,22 +132,97 @@ def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
     """Write ``payload`` as sorted, indented JSON to ``path`` through a temp file + ``os.replace``."""
     path = Path(path)
     tmp = path.with_name(f"{_TMP_PREFIX}{path.name}.{os.getpid()}")
-    with open(tmp, "w") as f:
-        json.dump(payload, f, indent=2, sort_keys=True)
-        f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            json.dump(payload, f, indent=2, sort_keys=True)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a process killed here leaves it: DatasetWriter deletes it on reopening
+        raise
     fsync_dir(path.parent)
 
 
-def read_json(path: Path) -> dict[str, Any]:
-    with open(path) as f:
-        return json.load(f)
+_JSON_TYPES = {list: "an array", str: "a string", int: "a number", float: "a number", bool: "a boolean"}
+
+
+def short_repr(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` cut to ``limit`` characters (for error messages about values read from files)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[: limit - 3]}..."
+
+
+def is_count(value: Any) -> bool:
+    """Whether ``value`` (read from JSON) is a non-negative integer (``bool`` is not)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def read_json_object(path: str | Path, remedy: str) -> dict[str, Any]:
+    """Parse ``path`` as a JSON object.
+
+    Raises ``ValueError`` naming ``path`` and what is wrong (missing, unreadable, empty, not UTF-8, not
+    valid JSON, or JSON that is not an object), followed by ``remedy`` (what the user should do).
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ValueError(f"{path} is missing; {remedy}") from None
+    except OSError as err:
+        raise ValueError(f"{path} cannot be read ({err.strerror or err}); {remedy}") from None
+    if not data.strip():
+        raise ValueError(f"{path} is empty, expected a JSON object; {remedy}")
+    try:
+        value = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise ValueError(
+            f"{path} is not valid JSON (not UTF-8 text: {err.reason} at byte {err.start}); {remedy}"
+        ) from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path} is not valid JSON (truncated or corrupt: {err}); {remedy}") from None
+    if not isinstance(value, dict):
+        what = _JSON_TYPES.get(type(value), "null")
+        raise ValueError(f"{path} holds {what} ({short_repr(value)}), expected a JSON object; {remedy}")
+    return value
 
 
 def shard_dir(root: Path, unit: int) -> Path:
-    return Path(root) / SHARDS_DIR / f"unit-{unit:06d}"
+    return Path(root) / SHARDS_DIR / f"{_UNIT_PREFIX}{unit:06d}"
+
+
+def damaged_shard_remedy(root: str | Path, unit: int) -> str:
+    """What to tell the user about a committed shard of ``root`` whose files cannot be read."""
+    folder = shard_dir(root, unit)
+    return (
+        f"work unit {unit} was complete when its folder was renamed into place, so it was damaged afterwards "
+        f"(disk error, partial copy, manual edit): delete {folder} and run the same collection again to "
+        "collect that unit anew (same seed, same data)"
+    )
+
+
+def stats_problem(stats: dict[str, Any], kind: DatasetKind) -> str | None:
+    """What is wrong with a shard's parsed ``stats.json`` (``None`` when nothing): it must be
+    ``{"items": n, "rows": r, "counters": {name: count}}`` with non-negative integers, ``n <= r`` for
+    trajectory kinds (a trajectory has at least one row) and ``n == r`` for D_ssl (one row per pair)."""
+    for key in ("items", "rows"):
+        if key not in stats:
+            return f"{key!r} is missing, expected {{'items': n, 'rows': r, 'counters': {{...}}}}"
+        if not is_count(stats[key]):
+            return f"{key!r} is {short_repr(stats[key])}, expected a non-negative integer"
+    counters = stats.get("counters")
+    if not isinstance(counters, dict):
+        return f"'counters' is {short_repr(counters)}, expected an object of non-negative integer counters"
+    bad = {name: value for name, value in counters.items() if not is_count(value)}
+    if bad:
+        return f"counters {short_repr(bad)} are not non-negative integers"
+    items, rows = stats["items"], stats["rows"]
+    if kind.is_trajectory and items > rows:
+        return f"'items' is {items} but 'rows' {rows}; every trajectory has at least one row"
+    if not kind.is_trajectory and items != rows:
+        return f"'items' is {items} but 'rows' {rows}; a D_ssl shard has one row per pair"
+    return None
 
 
 def write_shard(
@@ -170,7 +254,7 @@ def write_shard(
         if kind.is_trajectory:
             TensorDict({"target_pixels": targets.contiguous()}, batch_size=[n_items]).memmap_(tmp / "targets")
     stats = {"items": n_items, "rows": n_rows, "counters": {k: int(v) for k, v in counters.items()}}
-    write_json_atomic(tmp / "stats.json", stats)
+    write_json_atomic(tmp / STATS_FILE, stats)
     fsync_tree(tmp)
     try:
         os.rename(tmp, final)
@@ -252,8 +336,16 @@ class DatasetWriter:
             "package_version": __version__,
         }
         meta_path = self.root / METADATA_FILE
+        for leftover in self.root.glob(f"{_TMP_PREFIX}{METADATA_FILE}.*"):
+            # a metadata rewrite interrupted before its os.replace: never committed
+            with contextlib.suppress(FileNotFoundError):
+                leftover.unlink()
         if meta_path.exists():
-            old = read_json(meta_path)
+            old = read_json_object(
+                meta_path,
+                f"{METADATA_FILE} is only ever replaced atomically, so it was damaged after it was written: "
+                f"restore it from a backup, or delete {self.root} and collect again",
+            )
             for key in ("schema_version", "kind", "settings", "target_count"):
                 if old.get(key) != header[key]:
                     was, now = old.get(key), header[key]
@@ -281,8 +373,67 @@ class DatasetWriter:
     def has_shard(self, unit: int) -> bool:
         return shard_dir(self.root, unit).is_dir()
 
+    def completed_units(self) -> list[int]:
+        """Sorted ids of the committed units (the ``shards/unit-NNNNNN/`` folders; temp folders are not).
+
+        Raises ``ValueError`` naming any other ``unit-*`` entry of ``shards/`` (e.g. a copy ``unit-000003
+        (2)`` or a file), which would otherwise be mistaken for a unit, or deleted with ``shards/`` after
+        consolidation.
+        """
+        shards = self.root / SHARDS_DIR
+        units = []
+        for path in sorted(shards.glob(f"{_UNIT_PREFIX}*")):
+            digits = path.name[len(_UNIT_PREFIX) :]
+            unit = int(digits) if digits.isascii() and digits.isdigit() else None
+            if unit is None or path.name != shard_dir(self.root, unit).name or not path.is_dir():
+                raise ValueError(
+                    f"{path} is not a work-unit folder (expected folders named {_UNIT_PREFIX}NNNNNN, e.g. "
+                    f"{shard_dir(self.root, 0).name}, written by the collection); move it out of {shards}, "
+                    "which is deleted once the dataset is consolidated"
+                )
+            units.append(unit)
+        return sorted(units)
+
     def shard_stats(self, unit: int) -> dict[str, Any]:
-        return read_json(shard_dir(self.root, unit) / "stats.json")
+        """The checked ``stats.json`` of committed unit ``unit``: ``{"items", "rows", "counters"}``.
+
+        Raises ``ValueError`` naming the file, what is wrong with it and how to recover (delete the unit's
+        folder to have it collected again): a committed shard's files are complete, so an unreadable one
+        was damaged after it was written.
+        """
+        path = shard_dir(self.root, unit) / STATS_FILE
+        stats = read_json_object(path, damaged_shard_remedy(self.root, unit))
+        problem = stats_problem(stats, self.kind)
+        if problem is not None:
+            raise ValueError(f"{path}: {problem}; {damaged_shard_remedy(self.root, unit)}")
+        return stats
+
+    def check_shard(self, unit: int) -> dict[str, Any]:
+        """:meth:`shard_stats` of committed unit ``unit`` after also checking that each of its memmap files
+        exists with the byte size its ``stats.json`` implies (``stat`` only, nothing is read). Run on every
+        unit when a collection resumes, so a damaged shard is reported before any work, not at consolidation.
+        """
+        stats = self.shard_stats(unit)
+        if stats["rows"]:
+            parts = [("rows", fields_for(self.kind), stats["rows"])]
+            if self.kind.is_trajectory:
+                parts.append(("targets", TARGET_FIELDS, stats["items"]))
+            for part, fields, n in parts:
+                try:
+                    check_memmap_files(shard_dir(self.root, unit) / part, fields, n)
+                except (ValueError, FileNotFoundError) as err:
+                    raise ValueError(f"{err}; {damaged_shard_remedy(self.root, unit)}") from None
+        return stats
+
+    def _load_shard(
+        self, unit: int, part: str, fields: dict[tuple[str, ...], FieldSpec], n: int
+    ) -> TensorDict:
+        """Memmap folder ``part`` (``rows`` / ``targets``) of committed unit ``unit``, checked like
+        :func:`load_checked`; any problem is a ``ValueError`` that says how to recover."""
+        try:
+            return load_checked(shard_dir(self.root, unit) / part, fields, n)
+        except (ValueError, FileNotFoundError) as err:
+            raise ValueError(f"{err}; {damaged_shard_remedy(self.root, unit)}") from None
 
     def write_shard(
         self, unit: int, rows: TensorDict | None, targets: torch.Tensor | None, counters: dict[str, int]
@@ -347,15 +498,13 @@ class DatasetWriter:
             if rows == 0:
                 continue
             stats = self.shard_stats(unit)
-            shard = load_checked(shard_dir(self.root, unit) / "rows", fields, stats["rows"])
+            shard = self._load_shard(unit, "rows", fields, stats["rows"])
             for key in fields:
                 out.get(key)[row_at : row_at + rows].copy_(shard.get(key)[:rows])
             if self.kind.is_trajectory:
                 out["episode"][row_at : row_at + rows] += item_at
                 out["target_id"][row_at : row_at + rows] += item_at
-                shard_targets = load_checked(
-                    shard_dir(self.root, unit) / "targets", TARGET_FIELDS, stats["items"]
-                )
+                shard_targets = self._load_shard(unit, "targets", TARGET_FIELDS, stats["items"])
                 targets_out[item_at : item_at + take].copy_(shard_targets["target_pixels"][:take])
             row_at += rows
             item_at += take
@@ -381,7 +530,7 @@ class DatasetWriter:
             return stats["rows"]
         if not self.kind.is_trajectory:
             return take_items
-        episodes = TensorDict.load_memmap(shard_dir(self.root, unit) / "rows")["episode"]
+        episodes = self._load_shard(unit, "rows", fields_for(self.kind), stats["rows"])["episode"]
         return int((episodes < take_items).sum())
 
     def _remove_shards(self) -> None:
@@ -420,13 +569,19 @@ def dataset_statistics(rows: TensorDict, kind: DatasetKind) -> dict[str, Any]:
     }
 
 
-def load_checked(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows: int) -> TensorDict:
-    """Load a memmapped TensorDict after checking every file's existence, size, dtype and shape."""
+def check_memmap_files(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows: int) -> None:
+    """Check that memmap folder ``folder`` holds, for every key of ``fields``, a file of the byte size of
+    ``n_rows`` rows (``stat`` only). Raises ``FileNotFoundError`` naming a missing folder or file,
+    ``ValueError`` naming a path that is not a folder / file or a file of the wrong size."""
     if not folder.is_dir():
-        raise FileNotFoundError(f"{folder} is missing (expected a consolidated memmap folder)")
+        if folder.exists():
+            raise ValueError(f"{folder} is not a folder (expected a memmapped TensorDict folder)")
+        raise FileNotFoundError(f"{folder} is missing (expected a memmapped TensorDict folder)")
     for key, spec in fields.items():
         file = folder.joinpath(*key[:-1], f"{key[-1]}.memmap")
         if not file.is_file():
+            if file.exists():
+                raise ValueError(f"{file} is not a file (expected the memmap of key {key_name(key)!r})")
             raise FileNotFoundError(f"{file} is missing (key {key_name(key)!r})")
         expected = spec.nbytes(n_rows)
         actual = file.stat().st_size
@@ -435,6 +590,16 @@ def load_checked(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows:
                 f"{file} has {actual} bytes, expected {expected} ({n_rows} rows of {spec.dtype} {spec.shape}); "
                 "the file is truncated or does not belong to this dataset"
             )
+
+
+def load_checked(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows: int) -> TensorDict:
+    """Load a memmapped TensorDict after checking every file's existence, size, dtype and shape.
+
+    Raises ``FileNotFoundError`` naming a missing folder or memmap file, ``ValueError`` naming the file or
+    folder for anything else (a path that is not a folder / file, a wrong byte size for ``n_rows`` rows, an
+    unreadable ``meta.json``, a key it does not list, a wrong dtype or shape).
+    """
+    check_memmap_files(folder, fields, n_rows)
     try:
         td = TensorDict.load_memmap(folder)
     except Exception as err:  # tensordict raises assorted errors for a corrupt meta.json
@@ -442,7 +607,12 @@ def load_checked(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n_rows:
             f"{folder}: cannot read the memmapped TensorDict ({type(err).__name__}: {err})"
         ) from None
     for key, spec in fields.items():
-        value = td.get(key)
+        value = td.get(key, None)
+        if not isinstance(value, torch.Tensor):
+            raise ValueError(
+                f"{folder / 'meta.json'} does not describe key {key_name(key)!r} as a tensor "
+                f"(expected {spec.dtype} {(n_rows, *spec.shape)}); the folder is damaged"
+            )
         if value.dtype != spec.dtype or tuple(value.shape) != (n_rows, *spec.shape):
             raise ValueError(
                 f"{folder}: key {key_name(key)!r} is {value.dtype} {tuple(value.shape)}, "

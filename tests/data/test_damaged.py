@@ -1,0 +1,350 @@
+"""Damaged dataset folders: resuming a collection or opening a dataset gives a ValueError naming the file,
+the problem and what to do (never a raw JSONDecodeError / KeyError / AttributeError); provably uncommitted
+temp files are deleted silently.
+
+Collections here run with a synthetic ``unit_fn`` (no simulator), so each takes well under a second.
+"""
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from navformer_rl.data import collect as collect_module
+from navformer_rl.data import open_dataset
+from navformer_rl.data import synthetic as syn
+from navformer_rl.data import writer as writer_module
+from navformer_rl.data.cli import main as cli_main
+from navformer_rl.data.collect import collect, settings_for
+from navformer_rl.data.schema import DatasetKind
+
+# 5 trajectories, 2 per unit: units 0, 1 and the first trajectory of unit 2 (a cut shard)
+SETTINGS = settings_for("e", "small", seed=7, n_trajectories=5, episodes_per_unit=2)
+REMEDY = r"delete \S*unit-{unit:06d} and run the same collection again"
+
+
+class _Crash(Exception):
+    pass
+
+
+def _synthetic_unit(root, kind, settings, unit):
+    """A ``collect`` unit function writing a small synthetic shard (deterministic in seed and unit)."""
+    n = settings.episodes_per_unit
+    rows, targets = syn._trajectory_unit(DatasetKind.EXPLORATION, syn._unit_rng(settings.seed, unit), n, 2, 5)
+    writer_module.write_shard(root, kind, unit, rows, targets, {"attempted": n})
+    return {"items": n, "rows": int(rows.shape[0])}
+
+
+def _crash_at_unit(stop):
+    def unit_fn(root, kind, settings, unit):
+        if unit == stop:
+            raise _Crash
+        return _synthetic_unit(root, kind, settings, unit)
+
+    return unit_fn
+
+
+def _collect(out, unit_fn=_synthetic_unit, settings=SETTINGS):
+    return collect("e", out, settings, workers=1, progress=False, unit_fn=unit_fn)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _fixed_code_fingerprint():
+    """The settings hold a hash of the simulator and expert source, which these synthetic units do not use:
+    a fixed one keeps the folders resumable while that source is edited during the test run."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(collect_module, "code_fingerprint", lambda: "synthetic-units")
+        yield
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """The uninterrupted collection."""
+    return _collect(tmp_path_factory.mktemp("damaged") / "ref")
+
+
+@pytest.fixture(scope="module")
+def interrupted(tmp_path_factory) -> Path:
+    """A collection stopped after its units 0, 1 and 2 were committed, before consolidation."""
+    out = tmp_path_factory.mktemp("damaged") / "interrupted"
+
+    def crash(self, **kwargs):
+        raise _Crash
+
+    with pytest.MonkeyPatch.context() as patch, pytest.raises(_Crash):
+        patch.setattr(writer_module.DatasetWriter, "finalize", crash)
+        _collect(out)
+    assert sorted(p.name for p in (out / "shards").iterdir()) == [f"unit-{u:06d}" for u in range(3)]
+    return out
+
+
+@pytest.fixture
+def resumable(interrupted, tmp_path) -> Path:
+    out = tmp_path / "resumable"
+    shutil.copytree(interrupted, out)
+    return out
+
+
+def _stats_path(root: Path, unit: int) -> Path:
+    return writer_module.shard_dir(root, unit) / "stats.json"
+
+
+def _edit_stats(**changes):
+    def damage(path: Path) -> None:
+        stats = json.loads(path.read_text())
+        stats.update(changes)
+        path.write_text(json.dumps(stats))
+
+    return damage
+
+
+def _remove_and_mkdir(path: Path) -> None:
+    path.unlink()
+    path.mkdir()
+
+
+STATS_DAMAGE = {
+    "truncated": (lambda p: p.write_bytes(p.read_bytes()[:20]), r"is not valid JSON \(truncated or corrupt"),
+    "empty": (lambda p: p.write_bytes(b""), r"is empty, expected a JSON object"),
+    "binary": (lambda p: p.write_bytes(b"\x00\xff\xfe garbage"), r"is not valid JSON \(not UTF-8 text"),
+    "array": (lambda p: p.write_text("[1, 2]"), r"holds an array \(\[1, 2\]\), expected a JSON object"),
+    "missing": (lambda p: p.unlink(), r"is missing"),
+    "a folder": (_remove_and_mkdir, r"cannot be read \(Is a directory\)"),
+    "no items": (lambda p: p.write_text('{"rows": 3, "counters": {}}'), r"'items' is missing"),
+    "negative rows": (_edit_stats(rows=-1), r"'rows' is -1, expected a non-negative integer"),
+    "items as text": (_edit_stats(items="2"), r"'items' is '2', expected a non-negative integer"),
+    "counters list": (_edit_stats(counters=[1]), r"'counters' is \[1\], expected an object"),
+    "counter float": (_edit_stats(counters={"attempted": 1.5}), r"counters \{'attempted': 1.5\} are not"),
+    "items > rows": (_edit_stats(items=99), r"'items' is 99 but 'rows' \d+; every trajectory has"),
+}
+
+
+@pytest.mark.parametrize("case", list(STATS_DAMAGE))
+def test_resume_with_damaged_stats_names_the_file_and_the_fix(case, resumable, reference, folder_bytes):
+    damage, problem = STATS_DAMAGE[case]
+    path = _stats_path(resumable, 1)
+    damage(path)
+    with pytest.raises(ValueError, match=rf"{re.escape(str(path))}:? {problem}.*{REMEDY.format(unit=1)}"):
+        _collect(resumable)
+    # following the advice: the unit is collected again and the dataset is the uninterrupted one
+    shutil.rmtree(writer_module.shard_dir(resumable, 1))
+    _collect(resumable)
+    assert folder_bytes(resumable) == folder_bytes(reference)
+
+
+def test_cli_resume_with_damaged_stats_is_a_one_line_error(tmp_path, capsys):
+    """``navformer collect`` itself: the damaged unit is reported before any unit runs (exit status 2)."""
+    settings = settings_for("e", "small", seed=0, n_trajectories=6)  # what --n 6 --seed 0 asks for
+    out = tmp_path / "e"
+    with pytest.raises(_Crash):
+        _collect(out, unit_fn=_crash_at_unit(1), settings=settings)
+    _stats_path(out, 0).write_text('{"items": 4, "rows": ')
+    argv = ["collect", "e", "--out", str(out), "--n", "6", "--workers", "1", "--no-progress"]
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"navformer collect: error: {_stats_path(out, 0)} is not valid JSON")
+    assert f"delete {writer_module.shard_dir(out, 0)} and run the same collection again" in err
+    assert "Traceback" not in err
+
+
+def _memmap_meta(part: str, unit: int = 0):
+    def damage(root: Path) -> None:
+        (writer_module.shard_dir(root, unit) / part / "meta.json").write_text("{garbage")
+
+    return damage
+
+
+SHARD_DAMAGE = {
+    "rows memmap truncated": (
+        0,
+        lambda r: (writer_module.shard_dir(r, 0) / "rows" / "action.memmap").write_bytes(b"\0" * 8),
+        r"unit-000000/rows/action.memmap has 8 bytes, expected \d+",
+    ),
+    "targets memmap missing": (
+        1,
+        lambda r: (writer_module.shard_dir(r, 1) / "targets" / "target_pixels.memmap").unlink(),
+        r"unit-000001/targets/target_pixels.memmap is missing",
+    ),
+    "rows meta.json corrupt": (0, _memmap_meta("rows"), r"unit-000000/rows: cannot read the memmapped"),
+    # unit 2 gives only its first trajectory: its rows are read to find where that one ends
+    "cut shard's rows corrupt": (2, _memmap_meta("rows", 2), r"unit-000002/rows: cannot read the memmapped"),
+}
+
+
+@pytest.mark.parametrize("case", list(SHARD_DAMAGE))
+def test_resume_with_damaged_shard_memmaps_names_the_file_and_the_fix(case, resumable):
+    unit, damage, problem = SHARD_DAMAGE[case]
+    damage(resumable)
+    with pytest.raises(ValueError, match=rf"{problem}.*{REMEDY.format(unit=unit)}"):
+        _collect(resumable)
+    assert json.loads((resumable / "metadata.json").read_text())["status"] == "collecting"
+
+
+def test_damaged_shard_memmap_is_reported_before_any_unit_runs(tmp_path):
+    out = tmp_path / "e"
+    with pytest.raises(_Crash):
+        _collect(out, unit_fn=_crash_at_unit(2))  # units 0 and 1 committed, unit 2 still to collect
+    with open(writer_module.shard_dir(out, 0) / "rows" / "pixels.memmap", "r+b") as f:
+        f.truncate(100)
+    # the resume would raise _Crash if it ran unit 2 before noticing (e.g. at consolidation)
+    with pytest.raises(
+        ValueError, match=rf"unit-000000/rows/pixels.memmap has 100 bytes.*{REMEDY.format(unit=0)}"
+    ):
+        _collect(out, unit_fn=_crash_at_unit(2))
+
+
+@pytest.mark.parametrize("name", ["unit-000001 (copy)", "unit-1", "unit-x"])
+def test_resume_refuses_foreign_unit_folders(name, resumable):
+    (resumable / "shards" / name).mkdir()
+    with pytest.raises(ValueError, match=rf"shards/{re.escape(name)} is not a work-unit folder.*move it out"):
+        _collect(resumable)
+
+
+def test_resume_refuses_a_file_in_place_of_a_unit(resumable):
+    (resumable / "shards" / "unit-000004").write_text("not a folder")
+    with pytest.raises(ValueError, match=r"shards/unit-000004 is not a work-unit folder"):
+        _collect(resumable)
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        ('{"schema_version": 1, "ki', r"is not valid JSON \(truncated or corrupt"),
+        ("null", r"holds null \(None\), expected a JSON object"),
+    ],
+    ids=["truncated", "null"],
+)
+def test_resume_with_damaged_metadata_names_the_file_and_the_fix(content, problem, resumable):
+    (resumable / "metadata.json").write_text(content)
+    with pytest.raises(ValueError, match=rf"metadata.json {problem}.*restore it from a backup, or delete"):
+        _collect(resumable)
+
+
+def test_uncommitted_metadata_temp_files_are_deleted(resumable, reference, folder_bytes, monkeypatch):
+    # a process killed while rewriting metadata.json leaves its temp file: deleted on reopening
+    (resumable / ".tmp-metadata.json.4242").write_text('{"status": "comp')
+    # an error while rewriting it removes the temp file at once
+    real_replace = writer_module.os.replace
+
+    def failing_replace(src, dst):
+        if str(dst).endswith("metadata.json"):
+            raise _Crash
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(writer_module.os, "replace", failing_replace)
+    with pytest.raises(_Crash):
+        _collect(resumable)
+    assert not list(resumable.glob(".tmp-*"))
+    monkeypatch.setattr(writer_module.os, "replace", real_replace)
+    _collect(resumable)
+    assert folder_bytes(resumable) == folder_bytes(reference)
+
+
+# ------------------------------------------------------------------------------------- open_dataset
+def _edit_metadata(edit):
+    def damage(root: Path) -> None:
+        meta = json.loads((root / "metadata.json").read_text())
+        edit(meta)
+        (root / "metadata.json").write_text(json.dumps(meta))
+
+    return damage
+
+
+def _edit_memmap_meta(part, edit):
+    def damage(root: Path) -> None:
+        path = root / "consolidated" / part / "meta.json"
+        meta = json.loads(path.read_text())
+        edit(meta)
+        path.write_text(json.dumps(meta))
+
+    return damage
+
+
+def _write_column(key, value):
+    def damage(root: Path) -> None:
+        path = root / "consolidated" / "rows" / f"{key}.memmap"
+        column = np.fromfile(path, dtype=np.int64)
+        column[-1] = value
+        column.tofile(path)
+
+    return damage
+
+
+def _drop_last_target(root: Path) -> None:
+    """A consistent targets table of one image fewer, and counts.items to match: the rows still number
+    one trajectory more."""
+    path = root / "consolidated" / "targets" / "target_pixels.memmap"
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size - 84 * 84 * 3)
+    _edit_memmap_meta("targets", lambda m: m["target_pixels"]["shape"].__setitem__(0, 11))(root)
+    _edit_memmap_meta("targets", lambda m: m.__setitem__("shape", [11]))(root)
+    _edit_metadata(lambda m: m["counts"].__setitem__("items", 11))(root)
+
+
+META = "metadata.json"
+OPEN_DAMAGE = {
+    "metadata binary": (
+        lambda r: (r / META).write_bytes(b"\x89PNG\r\n"),
+        rf"{META} is not valid JSON \(not UTF-8 text",
+    ),
+    "metadata empty": (lambda r: (r / META).write_text(" \n"), rf"{META} is empty, expected a JSON object"),
+    "metadata array": (lambda r: (r / META).write_text("[]"), rf"{META} holds an array \(\[\]\), expected"),
+    "kind missing": (_edit_metadata(lambda m: m.pop("kind")), rf"{META}: 'kind' is None, expected one of"),
+    "kind unknown": (
+        _edit_metadata(lambda m: m.__setitem__("kind", ["e"])),
+        rf"{META}: 'kind' is \['e'\], expected one of",
+    ),
+    "counts missing": (
+        _edit_metadata(lambda m: m.pop("counts")),
+        rf"{META}: 'counts' is None, expected an object with the 'rows' and 'items' counts",
+    ),
+    "counts.rows text": (
+        _edit_metadata(lambda m: m["counts"].__setitem__("rows", "many")),
+        rf"{META}: counts.rows is 'many', expected a non-negative integer",
+    ),
+    "counts.items negative": (
+        _edit_metadata(lambda m: m["counts"].__setitem__("items", -1)),
+        rf"{META}: counts.items is -1, expected a non-negative integer",
+    ),
+    "counts.rows off by one": (
+        _edit_metadata(lambda m: m["counts"].__setitem__("rows", m["counts"]["rows"] + 1)),
+        r"rows/pixels.memmap has \d+ bytes, expected \d+",
+    ),
+    "rows meta.json lacks a key": (
+        _edit_memmap_meta("rows", lambda m: m.pop("action")),
+        r"rows/meta.json does not describe key 'action' as a tensor \(expected torch.float32",
+    ),
+    "rows folder is a file": (
+        lambda r: (shutil.rmtree(r / "consolidated" / "rows"), (r / "consolidated" / "rows").write_text("")),
+        r"consolidated/rows is not a folder",
+    ),
+    "memmap is a folder": (
+        lambda r: _remove_and_mkdir(r / "consolidated" / "rows" / "step.memmap"),
+        r"rows/step.memmap is not a file \(expected the memmap of key 'step'\)",
+    ),
+    "target_id out of range": (
+        _write_column("target_id", 12),
+        r"consolidated/rows: 'target_id' ranges over 0..12, expected 0..11",
+    ),
+    "episode ids broken": (
+        _write_column("episode", 40),
+        r"consolidated/rows: 'episode' ids must be contiguous",
+    ),
+    "fewer targets than trajectories": (
+        _drop_last_target,
+        rf"consolidated/rows: 'episode' numbers 12 trajectories, but \S*{META} records counts.items = 11",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(OPEN_DAMAGE))
+def test_open_damaged_dataset_names_the_file_and_the_problem(case, e_dataset, tmp_path):
+    damage, problem = OPEN_DAMAGE[case]
+    root = tmp_path / "copy"
+    shutil.copytree(e_dataset, root)
+    damage(root)
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(root))}/\S*{problem}"):
+        open_dataset(root)
