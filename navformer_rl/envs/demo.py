@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from navformer_rl.constants import CONTROL_DT, SUCCESS_RADIUS
+from navformer_rl.envs.checks import check_int
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy
 from navformer_rl.envs.robots import JACKAL
 from navformer_rl.envs.sim import Simulator
@@ -37,10 +38,9 @@ def run_world_demo(
     goal-seeking policy (a robot stops once it is within 1.5 m of its target), and write
     ``out_dir/map.png`` and ``out_dir/egocentric.mp4`` (5 frames/s = real time) atomically.
 
-    Returns ``{"map": Path, "video": Path}``. ValueError for a bad size, robot count or step count.
+    Returns ``{"map": Path, "video": Path}``. ValueError for a bad size, robot count, step count or seed.
     """
-    if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
+    steps = check_int(steps, "steps")
     from tqdm.auto import tqdm
 
     out = Path(out_dir)

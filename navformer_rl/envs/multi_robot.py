@@ -38,12 +38,47 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
+from navformer_rl.envs.checks import check_int, check_seed
 from navformer_rl.envs.robots import get_robot_spec
 from navformer_rl.envs.sim import Simulator, simulator_for_world, validate_actions
 from navformer_rl.envs.target_image import render_target_image
-from navformer_rl.envs.world import EpisodeSpec, WorldConfig, WorldSpec, generate_world, sample_start_poses
+from navformer_rl.envs.world import (
+    EpisodeSpec,
+    WorldConfig,
+    WorldSpec,
+    check_world_config,
+    generate_world,
+    sample_start_poses,
+)
 
 _SEED_HIGH = 2**31 - 1
+_ACTION_KEY = ("agents", "action")
+
+
+def _style_list(robots) -> list:
+    """``robots`` as a list; ValueError for a single string or something that is not a sequence."""
+    try:
+        styles = None if isinstance(robots, str) else list(robots)
+    except TypeError:
+        styles = None
+    if styles is None:
+        raise ValueError(
+            f"robots must be a list of robot style names, e.g. ['jackal', 'turtlebot3'], got {robots!r}"
+        )
+    return styles
+
+
+def _check_device(device: str | torch.device | None) -> torch.device | None:
+    """``device`` as a ``torch.device``; ValueError for an unknown device string or CUDA without CUDA."""
+    if device is None:
+        return None
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"device must be a torch device such as 'cpu' or 'cuda', got {device!r}") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r} needs CUDA, which this torch build/machine does not have")
+    return dev
 
 
 class MultiRobotNavEnv(EnvBase):
@@ -57,8 +92,13 @@ class MultiRobotNavEnv(EnvBase):
         world_config: full :class:`WorldConfig`.
         episodes_per_world: resets that reuse a world (fresh starts) before a new one is drawn.
         textured: tiled floor and coloured walls in the camera images.
-        seed: seed of the env's generator (also settable with ``set_seed``).
+        seed: seed of the env's generator, a non-negative integer (also settable with ``set_seed``).
         device: torch device of the output tensors.
+
+    Bad settings raise ValueError naming the value and what was expected (counts are integers >= 1, robot
+    styles a list of names, seeds non-negative integers, a CUDA device needs CUDA). ``step`` needs the action
+    at ``("agents", "action")``, float ``[A, 2]`` (linear, angular) per robot in [-1, 1]: finite values
+    outside are clipped; a missing action, a wrong shape or NaN/inf raise ValueError.
 
     ``env.world`` (:class:`WorldSpec`) and ``env.simulator`` (:class:`Simulator`) expose the current
     episode; ``env.set_next_episode(EpisodeSpec | WorldSpec)`` makes the next reset replay a fixed
@@ -81,31 +121,31 @@ class MultiRobotNavEnv(EnvBase):
         seed: int | None = None,
         device: str | torch.device = "cpu",
     ):
-        super().__init__(device=device, batch_size=torch.Size([]))
-        styles = list(robots) if robots is not None else [robot_style] * int(n_robots)
-        if not styles:
-            raise ValueError("MultiRobotNavEnv needs at least one robot")
+        super().__init__(device=_check_device(device), batch_size=torch.Size([]))
+        if robots is not None:
+            styles = _style_list(robots)
+            if not styles:
+                raise ValueError("MultiRobotNavEnv needs at least one robot: robots is empty")
+        else:
+            styles = [robot_style] * check_int(n_robots, "n_robots")
         self.robot_specs = [get_robot_spec(s) for s in styles]
         n = len(self.robot_specs)
+        radius = max(s.radius for s in self.robot_specs)
         if world_config is None:
-            radius = max(s.radius for s in self.robot_specs)
             world_config = WorldConfig(size=size, kind=kind, n_robots=n, robot_radius=radius)
+        check_world_config(world_config, self.robot_specs)
         if world_config.n_robots != n:
             raise ValueError(f"world_config.n_robots={world_config.n_robots} but {n} robot styles were given")
-        if max_steps < 1 or episodes_per_world < 1:
-            raise ValueError(
-                f"max_steps and episodes_per_world must be >= 1, got {max_steps}, {episodes_per_world}"
-            )
         self.config = world_config
         self.n_agents = n
-        self.max_steps = int(max_steps)
-        self.episodes_per_world = int(episodes_per_world)
+        self.max_steps = check_int(max_steps, "max_steps")
+        self.episodes_per_world = check_int(episodes_per_world, "episodes_per_world")
         self.textured = textured
         self.world: WorldSpec | None = None
         self.simulator: Simulator | None = None
         self._next_episode: EpisodeSpec | WorldSpec | None = None
         self._episodes_in_world = 0
-        self._rng = np.random.default_rng(seed)
+        self._rng = np.random.default_rng(None if seed is None else check_seed(seed))
         self._make_specs()
 
     # ------------------------------------------------------------------ specs
@@ -206,8 +246,19 @@ class MultiRobotNavEnv(EnvBase):
         return self._make_tensordict(zeros, np.zeros(a, dtype=np.int8), reward=None, truncated=False)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get(("agents", "action"))
-        actions = validate_actions(action.detach().cpu().numpy(), self.n_agents)
+        if self.simulator is None:
+            raise RuntimeError("call reset() before step()")
+        action = tensordict.get(_ACTION_KEY, None)
+        if action is None:
+            keys = sorted(tensordict.keys(True, True), key=str)
+            hint = " ('action' at the root is not read: put it under 'agents')" if "action" in keys else ""
+            raise ValueError(
+                f"step() needs the action at key {_ACTION_KEY}: float [{self.n_agents}, 2] (linear, angular) "
+                f"per robot in [-1, 1]{hint}; the tensordict has keys {keys}"
+            )
+        if isinstance(action, torch.Tensor):
+            action = action.detach().cpu().numpy()
+        actions = validate_actions(action, self.n_agents)
         active = ~self._success
         contacts = self.simulator.step(actions, active)
         collided = contacts.collided & active  # a parked (succeeded) robot that is driven into is not charged
@@ -267,7 +318,7 @@ class MultiRobotNavEnv(EnvBase):
         return out.to(dev) if dev is not None and dev != torch.device("cpu") else out
 
     def _set_seed(self, seed: int | None) -> None:
-        self._rng = np.random.default_rng(seed)
+        self._rng = np.random.default_rng(None if seed is None else check_seed(seed))
         self.world, self._episodes_in_world = None, 0
 
     def close(self, *, raise_if_closed: bool = True) -> None:

@@ -15,6 +15,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from navformer_rl.constants import SUCCESS_RADIUS
+from navformer_rl.envs.checks import check_int, check_number
 from navformer_rl.envs.occupancy import OccupancyMap
 from navformer_rl.envs.sim import Simulator, wrap_angle
 from navformer_rl.envs.world import WorldSpec
@@ -83,6 +84,9 @@ class GoalSeekingPolicy:
         coarsening: planning cells are ``coarsening`` occupancy cells wide (0.2 m by default: a new goal's
             distance field then costs well under a millisecond).
         backing_steps: steps of reversing after a blocked step.
+
+    ValueError for a non-integer or too small ``coarsening`` (>= 1), ``patience`` or ``backing_steps``
+    (>= 0), a non-positive ``lookahead``, a negative ``margin`` or a ``speed`` outside [0, 1].
     """
 
     def __init__(
@@ -94,12 +98,12 @@ class GoalSeekingPolicy:
         coarsening: int = 4,
         backing_steps: int = 3,
     ):
-        self.coarsening = coarsening
-        self.backing_steps = backing_steps
-        self.lookahead = lookahead
-        self.margin = margin
-        self.patience = patience
-        self.speed = speed
+        self.coarsening = check_int(coarsening, "coarsening")
+        self.backing_steps = check_int(backing_steps, "backing_steps", minimum=0)
+        self.lookahead = check_number(lookahead, "lookahead", greater_than=0.0, unit="metres")
+        self.margin = check_number(margin, "margin", at_least=0.0, unit="metres")
+        self.patience = check_int(patience, "patience", minimum=0)
+        self.speed = check_number(speed, "speed", at_least=0.0, at_most=1.0, unit="fraction of v_max")
 
     def reset(self, world: WorldSpec, sim: Simulator, rng: np.random.Generator) -> None:
         self._rng = rng

@@ -18,6 +18,8 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from navformer_rl.envs.checks import check_number
+
 _FIELD_CACHE_SIZE = 16
 
 
@@ -34,8 +36,7 @@ class OccupancyMap:
         grid = np.asarray(grid)
         if grid.ndim != 2 or grid.dtype != np.bool_:
             raise ValueError(f"grid must be a bool array [H, W], got dtype {grid.dtype} shape {grid.shape}")
-        if not resolution > 0:
-            raise ValueError(f"resolution must be > 0 metres, got {resolution}")
+        check_number(resolution, "resolution", greater_than=0.0, unit="metres")
         self.grid = grid.copy()
         self.grid.flags.writeable = False
         self.resolution = float(resolution)
@@ -64,6 +65,8 @@ class OccupancyMap:
             circles: optional float ``[M, 3]`` discs ``(cx, cy, r)``; every cell whose square comes closer
                 than ``r`` to the centre is occupied.
         """
+        check_number(size, "size", greater_than=0.0, unit="metres")
+        check_number(resolution, "resolution", greater_than=0.0, unit="metres")
         n = int(math.ceil(size / resolution - 1e-9))
         grid = np.zeros((n, n), dtype=bool)
         eps = 1e-6

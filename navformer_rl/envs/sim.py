@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from navformer_rl.constants import CONTROL_DT, IMAGE_SIZE
+from navformer_rl.envs.checks import check_number
 from navformer_rl.envs.robots import RobotSpec
 from navformer_rl.envs.scene import WALL_PALETTE, add_box, add_floor, add_robot, add_target
 from navformer_rl.envs.world import WorldSpec
@@ -47,16 +48,33 @@ class StepContacts(NamedTuple):
 def validate_actions(actions, n: int) -> np.ndarray:
     """Check normalised actions and clip them: returns float64 ``[n, 2]`` in ``[-1, 1]``.
 
-    ValueError when the shape is not ``[n, 2]`` (or ``[2]`` for ``n == 1``) or a value is NaN/inf.
+    ValueError when the actions are not numbers, the shape is not ``[n, 2]`` (or ``[2]`` for ``n == 1``) or
+    a value is NaN/inf. Finite values outside ``[-1, 1]`` are clipped, not refused.
     """
-    a = np.asarray(actions, dtype=np.float64)
+    try:
+        a = np.asarray(actions, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"actions must be numbers (linear, angular) in [-1, 1], shape {_expected_action_shape(n)}; "
+            f"got {actions!r}"
+        ) from None
     if n == 1 and a.shape == (2,):
         a = a[None]
     if a.shape != (n, 2):
-        raise ValueError(f"actions must have shape ({n}, 2) (linear, angular) per robot, got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"actions must be finite numbers in [-1, 1], got {a.tolist()}")
+        raise ValueError(
+            f"actions must have shape {_expected_action_shape(n)}: (linear, angular) per robot in [-1, 1] "
+            f"(out-of-range values are clipped), got shape {a.shape}"
+        )
+    if not np.isfinite(a).all():
+        raise ValueError(
+            f"actions must be finite numbers in [-1, 1] (out-of-range values are clipped; NaN and inf are "
+            f"refused), got {a.tolist()}"
+        )
     return np.clip(a, -1.0, 1.0)
+
+
+def _expected_action_shape(n: int) -> str:
+    return "(1, 2) or (2,)" if n == 1 else f"({n}, 2)"
 
 
 def _arc_point(x: float, y: float, th: float, v: float, w: float, t: float) -> tuple[float, float]:
@@ -116,7 +134,10 @@ class Simulator:
         poses: optional float ``[R, 3]`` initial poses; default ``world.starts`` (then ``R`` must match).
         textured: paint the floor with a 1 m tile pattern and give each wall its own colour (spatial cues
             for the cameras); False draws a plain floor and uniform walls.
-        dt: seconds per step (default 0.2, paper §VII.A).
+        dt: seconds per step, > 0 (default 0.2, paper §VII.A).
+
+    ValueError for a world that is not a :class:`WorldSpec`, specs that are not :class:`RobotSpec` (e.g.
+    style names), a count mismatch, a non-positive or non-finite ``dt``, or colliding ``poses``.
     """
 
     def __init__(
@@ -127,9 +148,20 @@ class Simulator:
         textured: bool = True,
         dt: float = CONTROL_DT,
     ):
+        if not isinstance(world, WorldSpec):
+            raise ValueError(f"world must be a WorldSpec (see generate_world), got {type(world).__name__}")
         if isinstance(robot_specs, RobotSpec):
             robot_specs = [robot_specs] * (world.n_robots if poses is None else len(poses))
-        self.robot_specs = list(robot_specs)
+        try:
+            specs = None if isinstance(robot_specs, str) else list(robot_specs)
+        except TypeError:
+            specs = None
+        if specs is None or not all(isinstance(s, RobotSpec) for s in specs):
+            raise ValueError(
+                "robot_specs must be a RobotSpec or a sequence of them (robots.get_robot_spec(name) turns a "
+                f"style name into one), got {robot_specs!r}"
+            )
+        self.robot_specs = specs
         self.n_robots = len(self.robot_specs)
         if self.n_robots < 1:
             raise ValueError("a Simulator needs at least one robot spec")
@@ -138,7 +170,7 @@ class Simulator:
                 f"{self.n_robots} robot specs but the world has {world.n_robots} starts; pass poses explicitly"
             )
         self.world = world
-        self.dt = float(dt)
+        self.dt = check_number(dt, "dt", greater_than=0.0, unit="seconds per step")
         self._radii = np.array([s.radius for s in self.robot_specs], dtype=np.float64)
         self._limits = np.array([(s.v_max, s.w_max) for s in self.robot_specs], dtype=np.float64)
         self._boxes = world.obstacle_boxes

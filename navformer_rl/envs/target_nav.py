@@ -16,12 +16,20 @@ import gymnasium as gym
 import numpy as np
 
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
+from navformer_rl.envs.checks import check_int, check_seed
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy, ObstaclePolicy
 from navformer_rl.envs.robots import RobotSpec, get_robot_spec
 from navformer_rl.envs.sim import Simulator, simulator_for_world, validate_actions
 from navformer_rl.envs.target_image import render_target_image
 from navformer_rl.envs.topdown import draw_topdown
-from navformer_rl.envs.world import EpisodeSpec, WorldConfig, WorldSpec, generate_world, sample_start_poses
+from navformer_rl.envs.world import (
+    EpisodeSpec,
+    WorldConfig,
+    WorldSpec,
+    check_world_config,
+    generate_world,
+    sample_start_poses,
+)
 
 _SEED_HIGH = 2**31 - 1
 
@@ -51,7 +59,12 @@ class TargetNavEnv(gym.Env):
         textured: tiled floor and coloured walls in the camera images.
 
     Spaces: observation ``Dict(pixels=Box(0, 255, (84, 84, 3), uint8), target_pixels=Box(same))``;
-    action ``Box(-1, 1, (2,), float32)`` = (linear, angular), clipped; NaN or a wrong shape raise ValueError.
+    action ``Box(-1, 1, (2,), float32)`` = (linear, angular), clipped; a missing action (``None``), NaN/inf or
+    a wrong shape raise ValueError.
+
+    Bad settings raise ValueError naming the value and what was expected: counts are integers >= 1,
+    ``world_config`` a :class:`WorldConfig` whose ``robot_radius`` covers every robot, ``reset`` seeds
+    non-negative integers and ``options`` a dict.
 
     ``reset(seed=..., options={"episode": EpisodeSpec | WorldSpec})`` replays a fixed episode; its world is
     never reused implicitly (the next plain reset draws a new world, whatever ``episodes_per_world``).
@@ -81,20 +94,19 @@ class TargetNavEnv(gym.Env):
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if max_episode_steps < 1 or episodes_per_world < 1:
-            raise ValueError(
-                f"max_episode_steps and episodes_per_world must be >= 1, got {max_episode_steps}, {episodes_per_world}"
-            )
-        self.config = world_config or WorldConfig(size=size, n_robots=n_robots, kind=kind)
-        self.robot_specs = robot_specs_for(self.config.n_robots, robot_style, obstacle_style)
+        self.max_episode_steps = check_int(max_episode_steps, "max_episode_steps")
+        self.episodes_per_world = check_int(episodes_per_world, "episodes_per_world")
+        if world_config is None:
+            world_config = WorldConfig(size=size, n_robots=n_robots, kind=kind)
+        check_world_config(world_config)
+        self.robot_specs = robot_specs_for(world_config.n_robots, robot_style, obstacle_style)
+        self.config = check_world_config(world_config, self.robot_specs)
         self.obstacle_policy = obstacle_policy if obstacle_policy is not None else GoalSeekingPolicy()
         if not isinstance(self.obstacle_policy, ObstaclePolicy):
             raise ValueError(
                 f"obstacle_policy must have reset(world, sim, rng) and act(sim, indices), got {obstacle_policy!r}"
             )
-        self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
-        self.episodes_per_world = int(episodes_per_world)
         self.textured = textured
         image = gym.spaces.Box(0, 255, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
         self.observation_space = gym.spaces.Dict({"pixels": image, "target_pixels": image})
@@ -136,6 +148,13 @@ class TargetNavEnv(gym.Env):
         return world
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None:
+            seed = check_seed(seed)  # a plain int: gymnasium refuses numpy integers
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(
+                f"options must be a dict such as {{'episode': EpisodeSpec | WorldSpec}} or None, "
+                f"got {type(options).__name__}"
+            )
         super().reset(seed=seed)
         if seed is not None:
             self.world, self._episodes_in_world = None, 0
@@ -160,12 +179,19 @@ class TargetNavEnv(gym.Env):
     def step(self, action):
         if self.simulator is None:
             raise RuntimeError("call reset() before step()")
+        if action is None:
+            raise ValueError("step() needs an action: float [2] (linear, angular) in [-1, 1], got None")
         own = validate_actions(action, 1)
         n = len(self.robot_specs)
         actions = np.zeros((n, 2), dtype=np.float64)
         actions[0] = own[0]
         if n > 1:
-            actions[1:] = self.obstacle_policy.act(self.simulator, range(1, n))
+            try:
+                actions[1:] = validate_actions(self.obstacle_policy.act(self.simulator, range(1, n)), n - 1)
+            except ValueError as error:
+                raise ValueError(
+                    f"obstacle_policy.act returned bad actions for robots 1..{n - 1}: {error}"
+                ) from None
         contacts = self.simulator.step(actions)
         after = self.simulator.poses[0, :2].astype(np.float64)
         self._path_length += abs(float(self.simulator.velocities[0, 0])) * self.simulator.dt  # arc length
@@ -217,9 +243,19 @@ class TargetNavEnv(gym.Env):
 
 def compose_frame(topdown: np.ndarray, views: list[np.ndarray], view_px: int | None = None) -> np.ndarray:
     """Put camera ``views`` (uint8 ``[84, 84, 3]`` each), scaled up and stacked vertically, to the right of a
-    top-down map ``[H, W, 3]``: returns uint8 ``[H, W + view_px, 3]``."""
+    top-down map ``[H, W, 3]``: returns uint8 ``[H, W + view_px, 3]``. ``view_px`` (an integer >= 1) defaults
+    to the map height split among the views, clamped to [84, 336]. ValueError for images that are not
+    ``[H, W, 3]``."""
+    topdown = np.asarray(topdown)
+    if topdown.ndim != 3 or topdown.shape[2] != 3:
+        raise ValueError(f"topdown must be an RGB image [H, W, 3], got shape {topdown.shape}")
+    for k, view in enumerate(views):
+        if np.ndim(view) != 3 or np.shape(view)[2] != 3:
+            raise ValueError(f"views[{k}] must be an RGB image [h, w, 3], got shape {np.shape(view)}")
     h = topdown.shape[0]
-    view_px = view_px or max(84, min(h // max(len(views), 1), 336))
+    if view_px is None:
+        view_px = max(84, min(h // max(len(views), 1), 336))
+    view_px = check_int(view_px, "view_px")
     column = np.full((h, view_px, 3), 255, dtype=np.uint8)
     for k, view in enumerate(views[: max(h // view_px, 1)]):
         column[k * view_px : (k + 1) * view_px] = cv2.resize(

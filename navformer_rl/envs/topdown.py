@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from navformer_rl.constants import SUCCESS_RADIUS
+from navformer_rl.envs.checks import check_int, check_number
 from navformer_rl.envs.robots import JACKAL, RobotSpec
 from navformer_rl.envs.world import WorldSpec
 
@@ -58,9 +59,19 @@ def draw_topdown(
         px_per_m: scale; margin_px: border around the world.
         show_success_radius: draw each target's 1.5 m success circle (dashed look, in its robot's colour).
         labels: write the robot index next to each robot and target.
+
+    ValueError for a non-positive or non-finite ``px_per_m``, a negative or non-integer ``margin_px``,
+    trajectories or poses that are not ``(x, y)`` / ``(x, y, yaw)`` rows, or fewer ``robot_specs`` than poses.
     """
-    if not px_per_m > 0:
-        raise ValueError(f"px_per_m must be > 0, got {px_per_m}")
+    px_per_m = check_number(px_per_m, "px_per_m", greater_than=0.0, unit="pixels per metre")
+    margin_px = check_int(margin_px, "margin_px", minimum=0)
+    paths = [_rows(path, 2, f"trajectories[{i}]", "(x, y)") for i, path in enumerate(trajectories or [])]
+    if poses is not None:
+        poses = _rows(poses, 3, "poses", "(x, y, yaw)")
+        if robot_specs is not None and len(robot_specs) < len(poses):
+            raise ValueError(
+                f"robot_specs has {len(robot_specs)} entries for {len(poses)} poses; expected one per pose"
+            )
     side = int(round(world.size * px_per_m)) + 2 * margin_px
     img = np.full((side, side, 3), _FLOOR, dtype=np.uint8)
 
@@ -107,8 +118,7 @@ def draw_topdown(
                 cv2.LINE_AA,
             )
 
-    for i, path in enumerate(trajectories or []):
-        path = np.asarray(path, dtype=np.float64).reshape(-1, 2)
+    for i, path in enumerate(paths):
         if len(path) >= 2:
             pts = np.array([to_px(p) for p in path], dtype=np.int32)
             cv2.polylines(img, [pts], False, robot_color(i), 2, cv2.LINE_AA)
@@ -116,7 +126,6 @@ def draw_topdown(
             cv2.circle(img, to_px(path[0]), 3, robot_color(i), -1, cv2.LINE_AA)
 
     if poses is not None:
-        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         for i, (x, y, yaw) in enumerate(poses):
             radius = (robot_specs[i] if robot_specs is not None else JACKAL).radius
             r_px = max(3, int(round(radius * px_per_m)))
@@ -137,6 +146,20 @@ def draw_topdown(
                     cv2.LINE_AA,
                 )
     return img
+
+
+def _rows(values, width: int, name: str, what: str) -> np.ndarray:
+    """``values`` as float64 ``[N, width]`` (from ``[N, width]``, a flat array of a multiple of ``width``
+    numbers, or nothing); ValueError naming ``name`` otherwise."""
+    try:
+        array = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be float rows [N, {width}] {what}, got {values!r}") from None
+    if array.size == 0:
+        return array.reshape(0, width)
+    if (array.ndim == 2 and array.shape[1] == width) or (array.ndim == 1 and array.size % width == 0):
+        return array.reshape(-1, width)
+    raise ValueError(f"{name} must be float rows [N, {width}] {what}, got shape {array.shape}")
 
 
 def _dashed_circle(img: np.ndarray, centre: tuple[int, int], radius: int, color, segments: int = 24) -> None:

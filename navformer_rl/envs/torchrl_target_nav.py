@@ -1,7 +1,8 @@
 """TorchRL wrapper of the single-robot gymnasium env (``GymWrapper``) with its privileged ``info``.
 
-Keys: ``pixels`` and ``target_pixels`` uint8 ``[84, 84, 3]``, ``action`` float32 ``[2]``, ``reward``
-float32 ``[1]``, ``done``/``terminated``/``truncated`` bool ``[1]``, and ``("privileged", k)`` for
+Keys: ``pixels`` and ``target_pixels`` uint8 ``[84, 84, 3]``, ``action`` float32 ``[2]`` (required by
+``step``: ValueError when missing, of the wrong shape or NaN/inf; finite values are clipped to [-1, 1]),
+``reward`` float32 ``[1]``, ``done``/``terminated``/``truncated`` bool ``[1]``, and ``("privileged", k)`` for
 ``pose`` float32 ``[3]``, ``velocity`` ``[2]``, ``target_position`` ``[2]``, ``success``/``collision``
 bool ``[1]``, ``collision_kind``/``collisions`` int64 ``[1]``, ``path_length``/``shortest_path_length``
 float32 ``[1]``.
@@ -57,11 +58,27 @@ class PrivilegedInfoReader(BaseInfoDictReader):
         return self._spec
 
 
+class TargetNavGymWrapper(GymWrapper):
+    """``GymWrapper`` of :class:`TargetNavEnv` whose ``step`` refuses a tensordict without ``"action"`` with a
+    ValueError naming the key and the expected value (the plain wrapper raises a ``KeyError`` from inside
+    tensordict). Shapes and values are checked by :class:`TargetNavEnv` (ValueError); seeds by its ``reset``.
+    """
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if tensordict.get("action", None) is None:
+            raise ValueError(
+                "step() needs the action at key 'action': float [2] (linear, angular) in [-1, 1]; the "
+                f"tensordict has keys {sorted(tensordict.keys(True, True), key=str)}"
+            )
+        return super()._step(tensordict)
+
+
 def make_torchrl_target_nav_env(**kwargs) -> GymWrapper:
-    """``GymWrapper(TargetNavEnv(**kwargs))`` with the privileged info reader registered.
+    """``TargetNavGymWrapper(TargetNavEnv(**kwargs))`` (a ``GymWrapper``) with the privileged info reader
+    registered.
 
     ``kwargs`` are :class:`TargetNavEnv`'s (``size``, ``n_robots``, ``kind``, ``robot_style``, ...).
     """
-    env = GymWrapper(TargetNavEnv(**kwargs))
+    env = TargetNavGymWrapper(TargetNavEnv(**kwargs))
     env.set_info_dict_reader(PrivilegedInfoReader())
     return env

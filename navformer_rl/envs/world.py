@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,8 +22,9 @@ from navformer_rl.constants import (
     TARGET_COLORS,
     TARGET_SHAPES,
 )
+from navformer_rl.envs.checks import check_int, check_number, check_seed, is_integer, is_real
 from navformer_rl.envs.occupancy import OccupancyMap
-from navformer_rl.envs.robots import JACKAL
+from navformer_rl.envs.robots import JACKAL, RobotSpec
 
 TARGET_RGBA: dict[str, tuple[float, float, float, float]] = {
     "green": (0.10, 0.80, 0.15, 1.0),
@@ -69,20 +71,29 @@ class WorldConfig:
         size: side of the square world in metres, in [5, 17.5].
         kind: ``"maze"`` (random perfect maze with extra openings) or ``"arena"`` (outer walls plus a few
             short inner walls).
-        n_robots: robots to place (each gets its own distinct target).
+        n_robots: robots to place (each gets its own distinct target), an integer >= 1.
         target_shapes, target_colors: the catalogue targets are drawn from (shape x colour, without
-            replacement); known shapes are ``TARGET_HALF_EXTENT``'s keys, colours ``TARGET_RGBA``'s.
-        cell_size: nominal maze cell in metres; a side of ``size`` gets ``max(2, round(size / cell_size))``
-            cells of ``size / n`` metres (2.5 m cells leave 2.4 m corridors: two robots pass).
+            replacement), non-empty tuples; known shapes are ``TARGET_HALF_EXTENT``'s keys, colours
+            ``TARGET_RGBA``'s.
+        cell_size: nominal maze cell in metres (> 0); a side of ``size`` gets
+            ``max(2, round(size / cell_size))`` cells of ``size / n`` metres (2.5 m cells leave 2.4 m
+            corridors: two robots pass). A maze's corridors (cell minus ``wall_thickness``) must be wider
+            than ``2 * robot_radius`` unless ``loop_fraction`` is 1 (no interior walls left).
         loop_fraction: share of the interior walls left by the perfect maze that are removed again
-            (adds loops, so several routes exist).
-        wall_thickness, wall_height: wall boxes in metres.
-        arena_inner_walls: inclusive range of short inner walls in an arena.
-        arena_wall_length: inclusive range of their lengths in metres.
-        robot_radius: clearance radius used to place starts and targets (the largest robot's disc).
+            (adds loops, so several routes exist), in [0, 1].
+        wall_thickness, wall_height: wall boxes in metres (> 0).
+        arena_inner_walls: inclusive integer range ``(lo, hi)``, ``0 <= lo <= hi``, of short inner walls in
+            an arena.
+        arena_wall_length: inclusive range ``(lo, hi)``, ``0 < lo <= hi``, of their lengths in metres; a
+            wall is at most ``size - 3`` m long (longer draws are shortened: walls keep 1.5 m from the
+            border).
+        robot_radius: clearance radius used to place starts and targets (the largest robot's disc), > 0.
         start_target_margin: starts are more than ``SUCCESS_RADIUS + start_target_margin`` metres
-            (straight line, hence also geodesically) from their own target.
-        min_robot_gap: free space in metres between two robot discs at the start.
+            (straight line, hence also geodesically) from their own target; >= 0.
+        min_robot_gap: free space in metres between two robot discs at the start; >= 0.
+
+    Every field is checked on construction: a value outside its domain (also NaN or inf) raises
+    ``ValueError`` naming the field, the value and what was expected. Lists are stored as tuples.
     """
 
     size: float = 12.5
@@ -101,21 +112,25 @@ class WorldConfig:
     min_robot_gap: float = 0.2
 
     def __post_init__(self) -> None:
-        size = float(self.size)
-        if not (MIN_WORLD_SIZE <= size <= MAX_WORLD_SIZE):
+        if not is_real(self.size):
+            raise ValueError(
+                f"world size must be a number of metres in [{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}], "
+                f"got {self.size!r}"
+            )
+        if not MIN_WORLD_SIZE <= self.size <= MAX_WORLD_SIZE:
             raise ValueError(
                 f"world size {self.size!r} m is outside the supported range [{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}] m"
             )
-        if self.kind not in WORLD_KINDS:
+        if not isinstance(self.kind, str) or self.kind not in WORLD_KINDS:
             raise ValueError(f"unknown world kind {self.kind!r}; expected one of {WORLD_KINDS}")
-        if (
-            isinstance(self.n_robots, bool)
-            or not isinstance(self.n_robots, (int, np.integer))
-            or self.n_robots < 1
-        ):
-            raise ValueError(f"n_robots must be an integer >= 1, got {self.n_robots!r}")
-        object.__setattr__(self, "target_shapes", tuple(self.target_shapes))
-        object.__setattr__(self, "target_colors", tuple(self.target_colors))
+        check_int(self.n_robots, "n_robots")
+        for name, known in (("target_shapes", TARGET_HALF_EXTENT), ("target_colors", TARGET_RGBA)):
+            names = getattr(self, name)
+            if isinstance(names, str) or not isinstance(names, (tuple, list)) or not names:
+                raise ValueError(
+                    f"{name} must be a non-empty tuple of names from {sorted(known)}, got {names!r}"
+                )
+            object.__setattr__(self, name, tuple(names))
         for shape in self.target_shapes:
             if shape not in TARGET_HALF_EXTENT:
                 raise ValueError(
@@ -130,15 +145,46 @@ class WorldConfig:
                 f"n_robots={self.n_robots} needs as many distinct targets, but shapes {self.target_shapes} x "
                 f"colours {self.target_colors} give only {n_targets}"
             )
-        if not 0.0 <= self.loop_fraction <= 1.0:
-            raise ValueError(f"loop_fraction must be in [0, 1], got {self.loop_fraction}")
-        lo, hi = self.arena_inner_walls
-        if not 0 <= lo <= hi:
+        check_number(self.cell_size, "cell_size", greater_than=0.0, unit="metres")
+        check_number(self.loop_fraction, "loop_fraction", at_least=0.0, at_most=1.0)
+        check_number(self.wall_thickness, "wall_thickness", greater_than=0.0, unit="metres")
+        check_number(self.wall_height, "wall_height", greater_than=0.0, unit="metres")
+        check_number(self.robot_radius, "robot_radius", greater_than=0.0, unit="metres")
+        check_number(self.start_target_margin, "start_target_margin", at_least=0.0, unit="metres")
+        check_number(self.min_robot_gap, "min_robot_gap", at_least=0.0, unit="metres")
+        walls = self.arena_inner_walls
+        if not (
+            isinstance(walls, (tuple, list))
+            and len(walls) == 2
+            and all(is_integer(v) for v in walls)
+            and 0 <= walls[0] <= walls[1]
+        ):
             raise ValueError(
-                f"arena_inner_walls must be a range (lo, hi) with 0 <= lo <= hi, got {self.arena_inner_walls}"
+                f"arena_inner_walls must be an integer range (lo, hi) with 0 <= lo <= hi, got {walls!r}"
             )
-        if self.robot_radius <= 0 or self.wall_thickness <= 0 or self.wall_height <= 0:
-            raise ValueError("robot_radius, wall_thickness and wall_height must be > 0")
+        object.__setattr__(self, "arena_inner_walls", tuple(walls))
+        lengths = self.arena_wall_length
+        if not (
+            isinstance(lengths, (tuple, list))
+            and len(lengths) == 2
+            and all(is_real(v) and math.isfinite(v) for v in lengths)
+            and 0 < lengths[0] <= lengths[1]
+        ):
+            raise ValueError(
+                "arena_wall_length must be a range (lo, hi) of finite lengths in metres with 0 < lo <= hi, "
+                f"got {lengths!r}"
+            )
+        object.__setattr__(self, "arena_wall_length", tuple(lengths))
+        if self.kind == "maze" and self.loop_fraction < 1.0:
+            corridor = self.size / self.cells_per_side - self.wall_thickness
+            if corridor <= 2 * self.robot_radius:
+                raise ValueError(
+                    f"maze corridors would be {corridor:.3g} m wide ({self.cells_per_side} cells of "
+                    f"{self.size / self.cells_per_side:.3g} m minus wall_thickness={self.wall_thickness!r}), "
+                    f"too narrow for a robot of robot_radius={self.robot_radius!r} m; expected corridors "
+                    "wider than 2 * robot_radius: use a larger cell_size or a smaller wall_thickness or "
+                    "robot_radius"
+                )
 
     @property
     def cells_per_side(self) -> int:
@@ -231,6 +277,21 @@ class EpisodeSpec:
         return replace_layout(world, self.starts, self.targets)
 
 
+def check_world_config(config: WorldConfig, robot_specs: Sequence[RobotSpec] = ()) -> WorldConfig:
+    """``config`` itself; ValueError unless it is a :class:`WorldConfig` whose ``robot_radius`` (used to place
+    starts and targets) is at least the radius of every robot in ``robot_specs``."""
+    if not isinstance(config, WorldConfig):
+        raise ValueError(f"world_config must be a WorldConfig, got {type(config).__name__}")
+    largest = max(robot_specs, key=lambda spec: spec.radius, default=None)
+    if largest is not None and config.robot_radius < largest.radius:
+        raise ValueError(
+            f"world_config.robot_radius={config.robot_radius!r} m is smaller than the {largest.name} robot's "
+            f"radius {largest.radius} m; expected at least the largest robot's radius (starts and targets "
+            "are placed with it)"
+        )
+    return config
+
+
 # ---------------------------------------------------------------------------------------------- walls
 def _maze_walls(config: WorldConfig, rng: np.random.Generator) -> np.ndarray:
     """Random DFS perfect maze, then ``loop_fraction`` of the remaining interior walls removed; walls merged
@@ -308,7 +369,8 @@ def _arena_walls(config: WorldConfig, rng: np.random.Generator) -> np.ndarray:
     lo, hi = config.arena_inner_walls
     h = config.wall_thickness / 2
     for _ in range(int(rng.integers(lo, hi + 1))):
-        length = float(rng.uniform(*config.arena_wall_length))
+        # at most size - 3 m: the wall keeps 1.5 m from the border at both ends
+        length = min(float(rng.uniform(*config.arena_wall_length)), config.size - 3.0)
         along = rng.uniform(1.5 + length / 2, config.size - 1.5 - length / 2)
         across = rng.uniform(2.0, config.size - 2.0)
         if rng.random() < 0.5:
@@ -483,19 +545,31 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
     start_target_margin`` from its own target. The free space (inflated by ``robot_radius``) is one
     connected component. ValueError when the robots/targets do not fit.
     """
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5EED]))
+    if not isinstance(config, WorldConfig):
+        raise ValueError(f"config must be a WorldConfig, got {type(config).__name__}")
+    seed = check_seed(seed)
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
     for _ in range(100):
         walls = _maze_walls(config, rng) if config.kind == "maze" else _arena_walls(config, rng)
         wall_map = OccupancyMap.from_shapes(config.size, OCCUPANCY_RESOLUTION, walls)
         _, n_components = wall_map.free_components(config.robot_radius)
         if n_components == 1:
             break
-        if config.kind == "maze":  # a maze with corridors wider than two robots is always connected
-            raise RuntimeError(f"maze generator produced {n_components} free components (seed {seed})")
+        if config.kind == "maze":  # corridors wider than a robot plus the grid's rounding are connected
+            raise ValueError(
+                f"the maze's free space for robot_radius={config.robot_radius!r} m falls into {n_components} "
+                f"components on the {OCCUPANCY_RESOLUTION} m occupancy grid (corridors of "
+                f"{config.size / config.cells_per_side - config.wall_thickness:.3g} m, seed {seed}); "
+                "expected corridors wider than 2 * robot_radius + 0.1 m: use a larger cell_size or a smaller "
+                "wall_thickness or robot_radius"
+            )
     else:
-        raise RuntimeError(f"could not draw a connected arena for seed {seed}")
+        raise ValueError(
+            "could not draw an arena whose free space is connected for "
+            f"robot_radius={config.robot_radius!r} m in 100 tries (seed {seed}, "
+            f"arena_inner_walls={config.arena_inner_walls}, arena_wall_length={config.arena_wall_length}); "
+            "use a smaller robot_radius or fewer or shorter inner walls"
+        )
 
     pairs = [(s, c) for s in dict.fromkeys(config.target_shapes) for c in dict.fromkeys(config.target_colors)]
     chosen = rng.permutation(len(pairs))[: config.n_robots]
@@ -516,8 +590,9 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
             break
     else:
         raise ValueError(
-            f"could not place {config.n_robots} reachable targets in this {config.size} m {config.kind}; "
-            "use fewer robots or a larger world"
+            f"could not place {config.n_robots} reachable targets in this {config.size} m {config.kind} "
+            f"(each {target_clearance:.2f} m from walls for robot_radius={config.robot_radius!r} m); "
+            "use fewer robots, a larger world or a smaller robot_radius"
         )
     world = WorldSpec(
         size=float(config.size),

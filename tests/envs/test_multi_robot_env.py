@@ -7,7 +7,7 @@ from torchrl.envs.utils import check_env_specs, step_mdp
 
 from navformer_rl.envs.multi_robot import MultiRobotNavEnv
 from navformer_rl.envs.torchrl_target_nav import make_torchrl_target_nav_env
-from navformer_rl.envs.world import EpisodeSpec
+from navformer_rl.envs.world import EpisodeSpec, WorldConfig
 
 
 def test_check_env_specs_and_keys():
@@ -155,3 +155,84 @@ def test_episodes_per_world_and_fixed_episodes():
     assert np.allclose(td["privileged", "pose"].numpy(), first.starts)
     env.reset()  # a fixed episode is not reused implicitly: a new world is drawn
     assert not np.array_equal(env.world.walls, first.walls) or env.world.seed != first.seed
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "3", True])
+def test_bad_seeds_raise_value_error(seed):
+    with pytest.raises(ValueError, match=f"seed must be a non-negative integer, got {seed!r}"):
+        MultiRobotNavEnv(size=5.0, n_robots=1, seed=seed)
+    env = MultiRobotNavEnv(size=5.0, n_robots=1, seed=np.int64(3))  # numpy integers are fine
+    with pytest.raises(ValueError, match=f"seed must be a non-negative integer, got {seed!r}"):
+        env.set_seed(seed)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"n_robots": 0}, "n_robots must be an integer >= 1, got 0"),
+        ({"n_robots": 2.5}, r"n_robots must be an integer >= 1, got 2\.5"),
+        ({"robots": "jackal"}, "robots must be a list of robot style names.*got 'jackal'"),
+        ({"robots": 2}, "robots must be a list of robot style names.*got 2"),
+        ({"robots": []}, "at least one robot"),
+        ({"max_steps": 1.5}, r"max_steps must be an integer >= 1, got 1\.5"),
+        ({"max_steps": None}, "max_steps must be an integer >= 1, got None"),
+        ({"episodes_per_world": 0}, "episodes_per_world must be an integer >= 1, got 0"),
+        ({"world_config": {"size": 5.0}}, "world_config must be a WorldConfig, got dict"),
+        (
+            {"world_config": WorldConfig(size=5.0, n_robots=2, robot_radius=0.2)},
+            r"robot_radius=0\.2 .*jackal",
+        ),
+        ({"device": "gpu0"}, "device must be a torch device.*got 'gpu0'"),
+    ],
+)
+def test_bad_settings_raise_value_error(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        MultiRobotNavEnv(**{"size": 5.0, "n_robots": 2, **kwargs})
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="CUDA is available here")
+def test_cuda_device_without_cuda_raises_value_error():
+    with pytest.raises(ValueError, match="needs CUDA"):
+        MultiRobotNavEnv(size=5.0, n_robots=1, device="cuda")
+
+
+def test_step_without_a_valid_action_raises_value_error():
+    env = MultiRobotNavEnv(size=5.0, n_robots=2, seed=0)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(env.full_action_spec.zero())
+    td = env.reset()
+    with pytest.raises(ValueError, match=r"\('agents', 'action'\): float \[2, 2\]"):
+        env.step(td.clone())
+    root = td.clone()
+    root["action"] = torch.zeros(2, 2)
+    with pytest.raises(ValueError, match="put it under 'agents'"):
+        env.step(root)
+    for bad, message in (
+        (torch.zeros(2, 3), r"shape \(2, 2\).*clipped.*got shape \(2, 3\)"),
+        (torch.tensor([[float("inf"), 0.0], [0.0, 0.0]]), "finite"),
+    ):
+        td["agents", "action"] = bad
+        with pytest.raises(ValueError, match=message):
+            env.step(td)
+    td["agents", "action"] = torch.tensor([[5.0, -5.0], [0.0, 0.0]])  # out of range: clipped, not refused
+    env.step(td)
+    env.close()
+
+
+def test_torchrl_wrapper_refuses_bad_actions_and_seeds():
+    env = make_torchrl_target_nav_env(size=5.0, n_robots=1)
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
+        env.set_seed(-1)
+    td = env.reset()
+    with pytest.raises(ValueError, match="step\\(\\) needs the action at key 'action': float \\[2\\]"):
+        env.step(td.clone())
+    for bad, message in (
+        (torch.zeros(3), r"shape \(1, 2\) or \(2,\)"),
+        (torch.tensor([float("nan"), 0.0]), "finite"),
+    ):
+        td["action"] = bad
+        with pytest.raises(ValueError, match=message):
+            env.step(td)
+    td["action"] = torch.zeros(2)
+    env.step(td)
+    env.close()

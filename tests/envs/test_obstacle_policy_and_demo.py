@@ -2,6 +2,7 @@
 
 import cv2
 import numpy as np
+import pytest
 
 from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.envs.demo import run_world_demo
@@ -65,3 +66,26 @@ def test_descent_successors_point_downhill():
     ramp = np.array([[0.0, 1.0, 2.0, 3.0]])
     assert descent_successors(ramp).tolist() == [0, 0, 1, 2]
     assert descent_successors(np.full((2, 2), np.inf)).tolist() == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"coarsening": 0}, "coarsening must be an integer >= 1, got 0"),
+        ({"coarsening": 2.5}, r"coarsening must be an integer >= 1, got 2\.5"),
+        ({"lookahead": 0.0}, r"lookahead must be a finite number > 0 \(metres\), got 0\.0"),
+        ({"margin": -0.1}, r"margin must be a finite number >= 0 \(metres\), got -0\.1"),
+        ({"speed": 1.5}, r"speed must be a finite number >= 0 and <= 1 \(fraction of v_max\), got 1\.5"),
+        ({"patience": -1}, "patience must be an integer >= 0, got -1"),
+        ({"backing_steps": None}, "backing_steps must be an integer >= 0, got None"),
+    ],
+)
+def test_goal_seeking_policy_refuses_bad_settings(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        GoalSeekingPolicy(**kwargs)
+
+
+def test_world_demo_refuses_bad_step_counts(tmp_path):
+    for steps in (0, 2.5):
+        with pytest.raises(ValueError, match=f"steps must be an integer >= 1, got {steps}"):
+            run_world_demo(tmp_path / "demo", size=5.0, n_robots=1, steps=steps, progress=False)

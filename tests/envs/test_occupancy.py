@@ -111,3 +111,9 @@ def test_bad_inputs_raise_value_error():
         occ.shortest_path_length((np.nan, 0.5), (0.5, 0.5), 0.0)
     with pytest.raises(ValueError, match=">= 0"):
         occ.inflate(-0.1)
+    with pytest.raises(ValueError, match="resolution must be a finite number > 0 \\(metres\\), got 0.0"):
+        OccupancyMap.from_shapes(5.0, 0.0, np.zeros((0, 4)))
+    with pytest.raises(ValueError, match="size must be a finite number > 0 \\(metres\\), got nan"):
+        OccupancyMap.from_shapes(math.nan, 0.05, np.zeros((0, 4)))
+    with pytest.raises(ValueError, match="resolution .*got inf"):
+        OccupancyMap(np.zeros((3, 3), dtype=bool), math.inf)

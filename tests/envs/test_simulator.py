@@ -63,6 +63,25 @@ def test_actions_are_clipped_and_validated(make_open_world):
         a.step(np.array([[np.nan, 0.0]]))
     with pytest.raises(ValueError, match=r"shape \(1, 2\)"):
         a.step(np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="actions must be numbers.*got 'forward'"):
+        a.step("forward")
+    with pytest.raises(ValueError, match="actions must be numbers"):
+        a.step([{"v": 1.0}, 0.0])
+
+
+def test_bad_simulator_arguments_raise_value_error(make_open_world):
+    world = make_open_world([(1.0, 2.5, 0.0)], FAR_TARGET)
+    with pytest.raises(ValueError, match="robot_specs must be a RobotSpec.*get_robot_spec.*got 'jackal'"):
+        Simulator(world, "jackal")
+    with pytest.raises(ValueError, match="robot_specs must be a RobotSpec.*got \\['jackal'\\]"):
+        Simulator(world, ["jackal"])
+    for dt in (0.0, -0.2, math.nan):
+        with pytest.raises(
+            ValueError, match=f"dt must be a finite number > 0 \\(seconds per step\\), got {dt}"
+        ):
+            Simulator(world, JACKAL, dt=dt)
+    with pytest.raises(ValueError, match="world must be a WorldSpec"):
+        Simulator(world.config, JACKAL)
 
 
 def test_robot_driven_into_a_wall_stops_and_counts(make_open_world):

@@ -7,6 +7,7 @@ import pytest
 
 from navformer_rl.constants import TARGET_COLORS, TARGET_SHAPES
 from navformer_rl.envs.target_image import render_target_image
+from navformer_rl.envs.target_nav import compose_frame
 from navformer_rl.envs.topdown import ROBOT_COLORS, draw_topdown
 
 
@@ -56,3 +57,30 @@ def test_topdown_draws_walls_targets_robots_and_paths(make_open_world):
     assert np.array_equal(at(1.0, 1.5), ROBOT_COLORS[0])  # its trajectory
     assert np.array_equal(at(3.0, 1.0), [228, 225, 218])  # a 1 m grid line
     assert np.array_equal(at(3.5, 1.5), [245, 243, 238])  # empty floor
+
+
+def test_topdown_and_frame_refuse_bad_arguments(make_open_world):
+    world = make_open_world([(1.0, 1.0, 0.0)], [(4.0, 4.0, "sphere", "red")])
+    for kwargs, message in (
+        ({"px_per_m": float("inf")}, r"px_per_m must be a finite number > 0 \(pixels per metre\), got inf"),
+        ({"margin_px": -100}, "margin_px must be an integer >= 0, got -100"),
+        ({"margin_px": 2.5}, r"margin_px must be an integer >= 0, got 2\.5"),
+        ({"poses": np.zeros((2, 2))}, r"poses must be float rows \[N, 3\] \(x, y, yaw\), got shape \(2, 2\)"),
+        ({"trajectories": [np.zeros((4, 3))]}, r"trajectories\[0\] must be float rows \[N, 2\]"),
+        ({"poses": np.zeros((2, 3)), "robot_specs": []}, "robot_specs has 0 entries for 2 poses"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            draw_topdown(world, **kwargs)
+    flat = draw_topdown(world, trajectories=[np.zeros(4)], poses=np.zeros(3))  # flat rows still work
+    assert flat.shape[2] == 3
+    topdown = draw_topdown(world, px_per_m=20)
+    view = np.zeros((84, 84, 3), dtype=np.uint8)
+    with pytest.raises(ValueError, match="view_px must be an integer >= 1, got -5"):
+        compose_frame(topdown, [view], view_px=-5)
+    with pytest.raises(
+        ValueError, match=r"views\[0\] must be an RGB image \[h, w, 3\], got shape \(84, 84\)"
+    ):
+        compose_frame(topdown, [view[:, :, 0]])
+    with pytest.raises(ValueError, match=r"topdown must be an RGB image \[H, W, 3\]"):
+        compose_frame(topdown[:, :, 0], [view])
+    assert compose_frame(topdown, [view], view_px=84).shape == (topdown.shape[0], topdown.shape[1] + 84, 3)

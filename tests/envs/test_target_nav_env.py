@@ -10,6 +10,7 @@ from gymnasium.utils.env_checker import check_env
 import navformer_rl  # noqa: F401  (registers the id)
 from navformer_rl.envs.registration import ENV_ID
 from navformer_rl.envs.target_nav import TargetNavEnv
+from navformer_rl.envs.world import WorldConfig
 
 
 def test_registered_env_passes_gymnasium_check_env():
@@ -89,6 +90,64 @@ def test_bad_actions_and_settings_raise_value_error():
         TargetNavEnv(robot_style="turtlebot4")
     with pytest.raises(ValueError, match="render_mode"):
         TargetNavEnv(render_mode="human")
+    with pytest.raises(ValueError, match=r"step\(\) needs an action: float \[2\]"):
+        env.step(None)
+    with pytest.raises(ValueError, match="actions must be numbers.*got 'fast'"):
+        env.step("fast")
+
+
+@pytest.mark.parametrize("seed", [-1, 2.5, "7"])
+def test_bad_reset_seeds_raise_value_error(seed):
+    env = TargetNavEnv(size=5.0)
+    with pytest.raises(ValueError, match=f"seed must be a non-negative integer, got {seed!r}"):
+        env.reset(seed=seed)
+    with pytest.raises(ValueError, match="options must be a dict"):
+        env.reset(seed=0, options=["episode"])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"n_robots": 0}, "n_robots must be an integer >= 1, got 0"),
+        ({"max_episode_steps": 1.5}, r"max_episode_steps must be an integer >= 1, got 1\.5"),
+        ({"episodes_per_world": None}, "episodes_per_world must be an integer >= 1, got None"),
+        ({"world_config": {"size": 5.0}}, "world_config must be a WorldConfig, got dict"),
+        ({"world_config": WorldConfig(size=5.0, robot_radius=0.2)}, r"robot_radius=0\.2 .*jackal"),
+    ],
+)
+def test_bad_settings_raise_value_error(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        TargetNavEnv(**{"size": 5.0, **kwargs})
+
+
+def test_numpy_integer_seeds_are_accepted():
+    env = TargetNavEnv(size=5.0)
+    _, info = env.reset(seed=np.int64(4))
+    assert info["world_seed"] == TargetNavEnv(size=5.0).reset(seed=4)[1]["world_seed"]
+
+
+def test_turtlebots_fit_a_world_config_with_their_radius():
+    env = TargetNavEnv(
+        robot_style="turtlebot3", world_config=WorldConfig(size=5.0, n_robots=2, robot_radius=0.2)
+    )
+    assert env.config.robot_radius == 0.2
+
+
+class WrongShapePolicy:
+    """Returns three numbers per obstacle robot instead of (linear, angular)."""
+
+    def reset(self, world, sim, rng):
+        pass
+
+    def act(self, sim, robot_indices):
+        return np.zeros((len(robot_indices), 3), dtype=np.float32)
+
+
+def test_obstacle_policy_with_bad_actions_raises_value_error():
+    env = TargetNavEnv(size=5.0, n_robots=3, obstacle_policy=WrongShapePolicy())
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"obstacle_policy.act returned bad actions.*shape \(2, 2\)"):
+        env.step(np.zeros(2, dtype=np.float32))
 
 
 class RecordingPolicy:

@@ -1,5 +1,6 @@
 """World generator: valid, connected, seeded mazes and arenas; clear errors for bad configurations."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -89,11 +90,75 @@ def test_arena_has_outer_walls_and_few_inner_walls():
         ({"target_colors": ("pink",)}, "pink"),
         ({"n_robots": 11}, "n_robots=11"),
         ({"n_robots": 0}, "n_robots"),
+        ({"n_robots": 2.0}, r"n_robots must be an integer >= 1, got 2\.0"),
+        ({"size": "12.5"}, r"world size must be a number.*got '12\.5'"),
+        ({"size": math.nan}, r"world size nan m"),
+        ({"kind": ["maze"]}, "world kind"),
+        ({"target_shapes": "sphere"}, r"target_shapes must be a non-empty tuple.*got 'sphere'"),
+        ({"target_colors": ()}, r"target_colors must be a non-empty tuple.*got \(\)"),
+        ({"cell_size": 0.0}, r"cell_size must be a finite number > 0 \(metres\), got 0\.0"),
+        ({"cell_size": -2.5}, r"cell_size .*got -2\.5"),
+        ({"cell_size": math.nan}, r"cell_size .*got nan"),
+        ({"loop_fraction": math.nan}, r"loop_fraction must be a finite number >= 0 and <= 1, got nan"),
+        ({"loop_fraction": 1.5}, r"loop_fraction .*got 1\.5"),
+        ({"wall_thickness": 0.0}, r"wall_thickness must be a finite number > 0 \(metres\), got 0\.0"),
+        ({"wall_height": math.nan}, r"wall_height must be a finite number > 0 \(metres\), got nan"),
+        ({"wall_height": math.inf}, r"wall_height .*got inf"),
+        ({"wall_height": -1.0}, r"wall_height .*got -1\.0"),
+        ({"robot_radius": math.nan}, r"robot_radius must be a finite number > 0 \(metres\), got nan"),
+        ({"robot_radius": 0.0}, r"robot_radius .*got 0\.0"),
+        ({"start_target_margin": -0.5}, r"start_target_margin must be a finite number >= 0.*got -0\.5"),
+        ({"start_target_margin": math.inf}, r"start_target_margin .*got inf"),
+        ({"min_robot_gap": -0.1}, r"min_robot_gap must be a finite number >= 0.*got -0\.1"),
+        ({"min_robot_gap": math.nan}, r"min_robot_gap .*got nan"),
+        ({"arena_inner_walls": (3, 1)}, r"arena_inner_walls must be an integer range.*got \(3, 1\)"),
+        ({"arena_inner_walls": (0.5, 2.5)}, r"arena_inner_walls .*got \(0\.5, 2\.5\)"),
+        ({"arena_inner_walls": 2}, r"arena_inner_walls .*got 2"),
+        (
+            {"arena_wall_length": (2.5, 1.0)},
+            r"arena_wall_length must be a range.*0 < lo <= hi, got \(2\.5, 1\.0\)",
+        ),
+        ({"arena_wall_length": (0.0, 1.0)}, r"arena_wall_length .*got \(0\.0, 1\.0\)"),
+        ({"arena_wall_length": (1.0, math.inf)}, r"arena_wall_length .*got \(1\.0, inf\)"),
+        ({"arena_wall_length": (1.0, 2.0, 3.0)}, r"arena_wall_length .*got \(1\.0, 2\.0, 3\.0\)"),
+        # a maze whose corridors (cell minus wall) cannot fit the robot's disc
+        ({"cell_size": 0.5}, r"corridors would be 0\.4 m wide.*robot_radius=0\.3"),
+        ({"robot_radius": 1.3}, r"corridors would be 2\.4 m wide.*robot_radius=1\.3"),
+        ({"wall_thickness": 2.0}, r"corridors would be 0\.5 m wide.*wall_thickness=2\.0"),
     ],
 )
 def test_bad_config_raises_value_error(kwargs, message):
     with pytest.raises(ValueError, match=message):
         WorldConfig(**kwargs)
+
+
+def test_configs_the_project_uses_are_valid():
+    """Defaults, the evaluation sizes, arenas, TurtleBot radii, the JSON form (lists) of stored episode sets,
+    a maze without interior walls and configs built with numpy scalars all pass."""
+    default = WorldConfig()
+    for size in (5.0, 7.5, 12.5, 17.5, 5, 6.25, 8.75):
+        for kind in ("maze", "arena"):
+            WorldConfig(size=size, kind=kind, n_robots=6, robot_radius=0.2)
+            WorldConfig(size=size, kind=kind, n_robots=6)
+    as_json = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(default).items()}
+    round_trip = WorldConfig(**as_json)
+    assert round_trip == default and hash(round_trip) == hash(default)  # lists are stored as tuples
+    assert round_trip.arena_inner_walls == (0, 3) and round_trip.arena_wall_length == (1.0, 2.5)
+    WorldConfig(cell_size=0.5, loop_fraction=1.0)  # no interior walls left: any cell size
+    WorldConfig(size=np.float32(7.5), n_robots=np.int64(2), arena_inner_walls=(np.int64(0), np.int64(2)))
+    WorldConfig(start_target_margin=0, min_robot_gap=0)
+
+
+def test_long_arena_walls_are_shortened_to_fit_small_arenas():
+    """An inner wall is at most size - 3 m long (1.5 m from the border at both ends), whatever the range."""
+    for seed in range(6):
+        world = generate_world(WorldConfig(size=5.0, kind="arena", arena_inner_walls=(3, 3)), seed)
+        inner = world.walls[4:]
+        assert len(inner) == 3
+        assert (2 * inner[:, 2:].max(axis=1) <= 2.0 + 1e-5).all()
+    assert (
+        len(generate_world(WorldConfig(size=5.5, kind="arena", arena_wall_length=(4.0, 6.0)), 0).walls) >= 4
+    )
 
 
 def test_too_many_robots_for_the_space_raises_value_error():
@@ -104,6 +169,11 @@ def test_too_many_robots_for_the_space_raises_value_error():
 def test_bad_seed_raises_value_error():
     with pytest.raises(ValueError, match="seed"):
         generate_world(WorldConfig(size=5.0), seed=-1)
+    for seed in (1.5, True, "3"):
+        with pytest.raises(ValueError, match=f"seed must be a non-negative integer, got {seed!r}"):
+            generate_world(WorldConfig(size=5.0), seed=seed)
+    with pytest.raises(ValueError, match="config must be a WorldConfig, got dict"):
+        generate_world({"size": 5.0}, seed=0)
 
 
 def test_replace_layout_checks_starts(tiny_maze):
