@@ -1,26 +1,27 @@
 """World demo: a seeded maze, robots driven by the goal-seeking policy, a map and an egocentric video.
 
 ``run_world_demo`` writes ``map.png`` (top-down map with every robot's trajectory) and ``egocentric.mp4``
-(each frame: the top-down map beside all robots' 84x84 cameras, scaled up) and returns their paths.
+(H.264; each frame: the top-down map beside all robots' 84x84 cameras, scaled up) and returns their paths.
 """
 
 from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from navformer_rl.constants import CONTROL_DT, SUCCESS_RADIUS
+from navformer_rl.durable import atomic_path
 from navformer_rl.envs.checks import check_int
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy
 from navformer_rl.envs.robots import JACKAL
 from navformer_rl.envs.sim import Simulator
 from navformer_rl.envs.topdown import ROBOT_COLORS, draw_topdown
 from navformer_rl.envs.world import WorldConfig, generate_world
+from navformer_rl.mp4 import Mp4Writer
 
 _MAP_PX = 600
 _CAMERA_PX = 168
@@ -54,38 +55,22 @@ def run_world_demo(
     paths = [[p[:2].astype(np.float64)] for p in sim.poses]
     px_per_m = (_MAP_PX - 24) / world.size
     video_path = out / "egocentric.mp4"
-    fd, tmp_video = tempfile.mkstemp(suffix=".mp4", dir=out, prefix=".egocentric.")
-    os.close(fd)
-    writer = None
     try:
-        cameras = sim.render_all()
-        frame = _frame(world, paths, sim, cameras, found, 0, steps, px_per_m)
-        writer = cv2.VideoWriter(
-            tmp_video, cv2.VideoWriter_fourcc(*"mp4v"), 1.0 / CONTROL_DT, (frame.shape[1], frame.shape[0])
-        )
-        if not writer.isOpened():
-            raise RuntimeError("OpenCV could not open an mp4v video writer")
-        writer.write(frame[:, :, ::-1])
-        for t in tqdm(range(1, steps + 1), desc="world demo", unit="step", disable=not progress):
-            active = ~found
-            actions = policy.act(sim, range(n_robots))
-            sim.step(actions, active)
-            poses = sim.poses
-            for i in np.flatnonzero(active):
-                paths[i].append(poses[i, :2].astype(np.float64))
-            found |= np.hypot(*(poses[:, :2] - targets).T) <= SUCCESS_RADIUS
-            fresh = sim.render_all(active)
-            cameras[active] = fresh[active]
-            writer.write(_frame(world, paths, sim, cameras, found, t, steps, px_per_m)[:, :, ::-1])
-        writer.release()
-        writer = None
-        os.chmod(tmp_video, 0o644)  # mkstemp creates 0600
-        os.replace(tmp_video, video_path)
+        with Mp4Writer(video_path, 1.0 / CONTROL_DT) as video:
+            cameras = sim.render_all()
+            video.write(_frame(world, paths, sim, cameras, found, 0, steps, px_per_m))
+            for t in tqdm(range(1, steps + 1), desc="world demo", unit="step", disable=not progress):
+                active = ~found
+                actions = policy.act(sim, range(n_robots))
+                sim.step(actions, active)
+                poses = sim.poses
+                for i in np.flatnonzero(active):
+                    paths[i].append(poses[i, :2].astype(np.float64))
+                found |= np.hypot(*(poses[:, :2] - targets).T) <= SUCCESS_RADIUS
+                fresh = sim.render_all(active)
+                cameras[active] = fresh[active]
+                video.write(_frame(world, paths, sim, cameras, found, t, steps, px_per_m))
     finally:
-        if writer is not None:
-            writer.release()
-        if os.path.exists(tmp_video):
-            os.remove(tmp_video)
         sim.close()
     map_path = out / "map.png"
     image = draw_topdown(world, [np.array(p) for p in paths], sim.poses, sim.robot_specs, px_per_m=px_per_m)
@@ -125,9 +110,6 @@ def _frame(
 
 
 def _write_png_atomic(path: Path, image_rgb: np.ndarray) -> None:
-    ok, data = cv2.imencode(".png", image_rgb[:, :, ::-1])
-    if not ok:
-        raise RuntimeError(f"could not encode {path}")
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data.tobytes())
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), image_rgb[:, :, ::-1]):
+            raise OSError(f"could not write {path}")
