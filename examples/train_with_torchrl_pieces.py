@@ -30,12 +30,18 @@ def main() -> None:
         "--data", type=Path, default=None, help="folder with e/, ca/, ssl/ (default: synthetic)"
     )
     args = parser.parse_args()
-    torch.manual_seed(0)
-
-    root = args.data or Path(tempfile.mkdtemp(prefix="navformer-example-"))
-    if args.data is None:
+    if args.data is not None:
+        train(args.data, args.iterations)
+        return
+    with tempfile.TemporaryDirectory(prefix="navformer-example-") as tmp:  # removed afterwards
         for kind, n in (("e", 12), ("ca", 24), ("ssl", 64)):
-            make_synthetic_dataset(root / kind, kind, n, min_len=8, max_len=40, seed=1)
+            make_synthetic_dataset(Path(tmp) / kind, kind, n, min_len=8, max_len=40, seed=1)
+        train(Path(tmp), args.iterations)
+
+
+def train(root: Path, iterations: int) -> None:
+    """``iterations`` NavFormer iterations on the datasets ``root/{e,ca,ssl}``, printing both losses."""
+    torch.manual_seed(0)
     e, ca, ssl = (open_dataset(root / kind) for kind in ("e", "ca", "ssl"))
 
     # D_e and D_ca alternate each iteration (paper §VI); batches are [N] TensorDicts with [N, T] steps + mask.
@@ -46,14 +52,14 @@ def main() -> None:
     dt_loss = NavFormerLoss(make_navformer_actor(model))  # reads pixels, target_pixels, return_to_go, ...
     byol_loss = BYOLLoss(model.static_encoder, model.general_encoder, seed=4)  # the same encoder modules
     updater = SoftUpdate(byol_loss, eps=0.996)
-    tau = BYOLTauSchedule(updater, args.iterations, 0.996)
+    tau = BYOLTauSchedule(updater, iterations, 0.996)
     model_ids = {id(p) for p in model.parameters()}
     optim = torch.optim.AdamW(model.parameters(), lr=2e-4, weight_decay=1e-4)
     dve_optim = torch.optim.Adam(
         [p for p in byol_loss.parameters() if id(p) not in model_ids], lr=4e-4, weight_decay=4e-4
     )
 
-    for iteration in range(args.iterations):
+    for iteration in range(iterations):
         task, batch = cross_task.sample()
         loss_dt = dt_loss(batch)["loss_dt"]
         loss_byol = byol_loss(pairs.sample())["loss_byol"]

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from navformer_rl import cli_args
 
@@ -35,7 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("kind", choices=KINDS, help="which dataset")
-    parser.add_argument("--out", type=Path, required=True, help="dataset folder (for 'all': parent folder)")
+    parser.add_argument(
+        "--out", type=cli_args.output_folder, required=True, help="dataset folder (for 'all': parent folder)"
+    )
     parser.add_argument(
         "--scale", choices=("small", "paper"), default="small", help="dataset sizes (default: small)"
     )

@@ -3,9 +3,10 @@
 Keys: ``pixels`` and ``target_pixels`` uint8 ``[84, 84, 3]``, ``action`` float32 ``[2]`` (required by
 ``step``: ValueError when missing, of the wrong shape or NaN/inf; finite values are clipped to [-1, 1]),
 ``reward`` float32 ``[1]``, ``done``/``terminated``/``truncated`` bool ``[1]``, and ``("privileged", k)`` for
-``pose`` float32 ``[3]``, ``velocity`` ``[2]``, ``target_position`` ``[2]``, ``success``/``collision``
-bool ``[1]``, ``collision_kind``/``collisions`` int64 ``[1]``, ``path_length``/``shortest_path_length``
-float32 ``[1]``.
+every entry of :class:`TargetNavEnv`'s ``info``: ``pose`` float32 ``[3]``, ``velocity`` ``[2]``,
+``target_position`` ``[2]``, ``success``/``collision`` bool ``[1]``, ``collision_kind``/``collisions`` int64
+``[1]``, ``path_length``/``shortest_path_length``/``distance_to_target`` float32 ``[1]``, ``robot_poses``
+float32 ``[n_robots, 3]`` (every robot, the controlled one first), ``world_seed``/``step`` int64 ``[1]``.
 """
 
 from __future__ import annotations
@@ -31,15 +32,23 @@ _PRIVILEGED: dict[str, tuple[tuple[int, ...], torch.dtype]] = {
     "collisions": ((1,), torch.int64),
     "path_length": ((1,), torch.float32),
     "shortest_path_length": ((1,), torch.float32),
+    "distance_to_target": ((1,), torch.float32),
+    "world_seed": ((1,), torch.int64),
+    "step": ((1,), torch.int64),
 }
 
 
 class PrivilegedInfoReader(BaseInfoDictReader):
-    """Copies :class:`TargetNavEnv`'s ``info`` entries to ``("privileged", key)`` with fixed specs."""
+    """Copies :class:`TargetNavEnv`'s ``info`` entries to ``("privileged", key)`` with fixed specs.
 
-    def __init__(self) -> None:
+    Args:
+        n_robots: robots in the env (the first dimension of ``robot_poses``).
+    """
+
+    def __init__(self, n_robots: int) -> None:
+        self._entries = {**_PRIVILEGED, "robot_poses": ((n_robots, 3), torch.float32)}
         specs = {}
-        for key, (shape, dtype) in _PRIVILEGED.items():
+        for key, (shape, dtype) in self._entries.items():
             specs[key] = (
                 Categorical(2, shape=shape, dtype=dtype)
                 if dtype is torch.bool
@@ -48,7 +57,7 @@ class PrivilegedInfoReader(BaseInfoDictReader):
         self._spec = Composite(privileged=Composite(specs, shape=()), shape=())
 
     def __call__(self, info_dict: dict[str, Any], tensordict: TensorDictBase) -> TensorDictBase:
-        for key, (shape, dtype) in _PRIVILEGED.items():
+        for key, (shape, dtype) in self._entries.items():
             value = torch.as_tensor(np.asarray(info_dict[key]), dtype=dtype).reshape(shape)
             tensordict.set(("privileged", key), value)
         return tensordict
@@ -79,6 +88,7 @@ def make_torchrl_target_nav_env(**kwargs) -> GymWrapper:
 
     ``kwargs`` are :class:`TargetNavEnv`'s (``size``, ``n_robots``, ``kind``, ``robot_style``, ...).
     """
-    env = TargetNavGymWrapper(TargetNavEnv(**kwargs))
-    env.set_info_dict_reader(PrivilegedInfoReader())
+    base = TargetNavEnv(**kwargs)
+    env = TargetNavGymWrapper(base)
+    env.set_info_dict_reader(PrivilegedInfoReader(len(base.robot_specs)))
     return env

@@ -141,6 +141,17 @@ def test_torchrl_wrapper_of_the_single_robot_env():
     check_env_specs(env, seed=0)
     td = env.reset()
     assert td["pixels"].shape == (84, 84, 3) and td["privileged", "pose"].shape == (3,)
+    # every entry of the gymnasium env's info is carried, with the same values
+    step = env.rand_step(td)["next"]
+    privileged = step["privileged"]
+    assert set(privileged.keys()) >= {"distance_to_target", "robot_poses", "world_seed", "step"}
+    assert privileged["robot_poses"].shape == (2, 3) and privileged["step"].item() == 1
+    assert torch.allclose(privileged["robot_poses"][0], privileged["pose"])
+    assert privileged["world_seed"].item() == env._env.unwrapped.world.seed
+    target = privileged["target_position"]
+    assert privileged["distance_to_target"].item() == pytest.approx(
+        torch.linalg.vector_norm(privileged["pose"][:2] - target).item(), abs=1e-5
+    )
     env.close()
 
 
