@@ -18,6 +18,10 @@ Layout of a run directory::
 Atomicity: a checkpoint is written completely into a private temporary folder, flushed to disk, then
 renamed into place with ``os.replace``; only then is ``latest`` rewritten (temp file + ``os.replace``). A
 crash at any point leaves the previous checkpoint, and ``latest`` pointing at it, intact.
+
+Permissions: ``mkdtemp`` / ``mkstemp`` (and safetensors) create owner-only folders and files; before the
+rename they get the modes that ``mkdir`` / ``open`` give under the process umask (``0o777 & ~umask`` and
+``0o666 & ~umask``: 0755 / 0644 with umask 022), so other users and containers can evaluate a checkpoint.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from navformer_rl.durable import fsync_dir, fsync_file
+from navformer_rl.durable import _UMASK, fsync_dir, fsync_file
 
 RUN_FORMAT = "navformer_rl.run/1"
 """Format tag written into every run part; a file without it is refused."""
@@ -52,8 +56,21 @@ def checkpoint_name(iteration: int) -> str:
     return f"iter_{iteration:06d}"
 
 
+def _file_mode() -> int:
+    """Mode of a file created with ``open`` under the process umask (0644 with umask 022)."""
+    return 0o666 & ~_UMASK
+
+
+def _dir_mode() -> int:
+    """Mode of a folder created with ``mkdir`` under the process umask (0755 with umask 022)."""
+    return 0o777 & ~_UMASK
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``.
+
+    The file gets the usual ``0o666 & ~umask`` mode (``mkstemp`` alone would leave it owner-only).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -62,6 +79,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
             handle.write(text)
             handle.flush()
             os.fsync(handle.fileno())
+        os.chmod(tmp, _file_mode())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -114,7 +132,9 @@ def save_checkpoint(
         if resume_state is not None:
             torch.save(dict(resume_state), tmp / RESUME_FILENAME)
         for child in tmp.iterdir():
+            os.chmod(child, _file_mode())  # safetensors creates its file owner-only (0600)
             fsync_file(child)
+        os.chmod(tmp, _dir_mode())  # mkdtemp creates 0700
         if final.exists():
             # Same iteration saved twice (e.g. the final save after a periodic one): move the old
             # folder aside first so that the rename below cannot fail on a non-empty target.
@@ -148,9 +168,8 @@ def _prune(root: Path, keep_last: int, latest: Path) -> None:
             shutil.rmtree(old, ignore_errors=True)
 
 
-def latest_checkpoint(run_dir: str | os.PathLike) -> Path | None:
-    """The newest complete checkpoint folder of ``run_dir`` (``None`` when it has none)."""
-    root = Path(run_dir) / CHECKPOINTS_DIRNAME
+def _latest_in(root: Path) -> Path | None:
+    """The checkpoint folder that ``root/latest`` names (``None`` when ``root`` has no ``latest``)."""
     pointer = root / LATEST_FILENAME
     if not pointer.is_file():
         return None
@@ -163,21 +182,49 @@ def latest_checkpoint(run_dir: str | os.PathLike) -> Path | None:
     return target
 
 
+def latest_checkpoint(run_dir: str | os.PathLike) -> Path | None:
+    """The newest complete checkpoint folder of ``run_dir`` (``None`` when it has none)."""
+    return _latest_in(Path(run_dir) / CHECKPOINTS_DIRNAME)
+
+
+ACCEPTED_CHECKPOINT_PATHS = (
+    f"a run directory (its {CHECKPOINTS_DIRNAME}/{LATEST_FILENAME}), its {CHECKPOINTS_DIRNAME}/ folder "
+    f"or the {CHECKPOINTS_DIRNAME}/{LATEST_FILENAME} file (the latest checkpoint), a checkpoint folder "
+    f"({CHECKPOINTS_DIRNAME}/iter_XXXXXX, holding {CONFIG_FILENAME} and {WEIGHTS_FILENAME}) "
+    f"or a file in it such as {WEIGHTS_FILENAME}"
+)
+"""The path forms :func:`resolve_checkpoint` accepts, in words (for error messages and ``--help``)."""
+
+
 def resolve_checkpoint(path: str | os.PathLike) -> Path:
-    """Turn a run directory, a checkpoint folder or its ``model.safetensors`` into a checkpoint folder."""
+    """Turn any path that designates a checkpoint into its checkpoint folder.
+
+    Accepted: a run directory (its latest checkpoint); its ``checkpoints/`` folder or the
+    ``checkpoints/latest`` pointer file (the checkpoint ``latest`` names); a checkpoint folder
+    ``checkpoints/iter_XXXXXX``; or one of that folder's files (``model.safetensors``, ``config.json``,
+    ``resume.pt``).
+
+    Raises:
+        FileNotFoundError: ``path`` is none of these (the message lists the accepted forms), or it has
+            checkpoints but no completed one, or ``latest`` names a folder that is not a checkpoint.
+    """
     path = Path(path)
     if path.is_file() and path.name in (WEIGHTS_FILENAME, CONFIG_FILENAME, RESUME_FILENAME):
         path = path.parent
+    elif path.is_file() and path.name == LATEST_FILENAME:
+        path = path.parent
     if (path / CONFIG_FILENAME).is_file() and (path / WEIGHTS_FILENAME).is_file():
         return path
-    if (path / CHECKPOINTS_DIRNAME).is_dir():
-        latest = latest_checkpoint(path)
+    for root in (path, path / CHECKPOINTS_DIRNAME):  # a checkpoints/ folder, or a run directory
+        latest = _latest_in(root)
         if latest is not None:
             return latest
-    raise FileNotFoundError(
-        f"no checkpoint at {str(path)!r}: expected a run directory with {CHECKPOINTS_DIRNAME}/{LATEST_FILENAME}, "
-        f"a checkpoint folder holding {CONFIG_FILENAME} and {WEIGHTS_FILENAME}, or the {WEIGHTS_FILENAME} file"
-    )
+    if (path / CHECKPOINTS_DIRNAME).is_dir() or path.name == CHECKPOINTS_DIRNAME:
+        raise FileNotFoundError(
+            f"no complete checkpoint at {str(path)!r} yet: no {LATEST_FILENAME} pointer (the run has not "
+            "finished writing its first checkpoint)"
+        )
+    raise FileNotFoundError(f"no checkpoint at {str(path)!r}: expected {ACCEPTED_CHECKPOINT_PATHS}")
 
 
 def read_checkpoint_config(path: str | os.PathLike) -> dict[str, Any]:
@@ -242,7 +289,8 @@ def load_policy_model(path: str | os.PathLike, expected_config: Any | None = Non
     """Rebuild the trained ``NavFormerModel`` from a checkpoint's run part, in eval mode on CPU.
 
     Args:
-        path: a run directory (its latest checkpoint), a checkpoint folder or its ``model.safetensors``.
+        path: a run directory, its ``checkpoints/`` folder or ``checkpoints/latest`` (the latest checkpoint),
+            a checkpoint folder or its ``model.safetensors`` (see :func:`resolve_checkpoint`).
         expected_config: optional ``NavFormerConfig``; a checkpoint with another configuration is refused.
 
     Returns:

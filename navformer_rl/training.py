@@ -233,12 +233,65 @@ def default_config_path() -> Path:
     return Path(__file__).parent / "config" / "train.yaml"
 
 
+RESOLVED_MODEL_KEY = "resolved_model"
+"""Key under which :func:`printable_config` (``navformer train --print-config``) shows the model a run builds.
+
+It is output only: :func:`config_from_dict` accepts a configuration that has it (so printed YAML can be fed
+back with ``--config``) but ignores it, warning when it differs from the model the configuration builds."""
+
+
+def printable_config(cfg: TrainConfig) -> dict[str, Any]:
+    """``cfg.to_dict()`` plus, right after ``model``, :data:`RESOLVED_MODEL_KEY`: every field of the
+    ``NavFormerConfig`` the run builds (:func:`model_config`: the ablation's model, the ``model.*``
+    overrides, ``detach_encoders`` from ``encoder_training``)."""
+    resolved = dataclasses.asdict(model_config(cfg))
+    printed: dict[str, Any] = {}
+    for key, value in cfg.to_dict().items():
+        printed[key] = value
+        if key == "model":
+            printed[RESOLVED_MODEL_KEY] = resolved
+    return printed
+
+
+def _warn_if_resolved_model_differs(cfg: TrainConfig, printed: Any) -> None:
+    """Warn when a configuration's (ignored) ``resolved_model`` is not the model ``cfg`` builds."""
+    import warnings
+
+    if not isinstance(printed, Mapping):
+        raise ValueError(
+            f"{RESOLVED_MODEL_KEY} must be a mapping (as --print-config writes it), got {printed!r}"
+        )
+    try:
+        built = dataclasses.asdict(model_config(cfg))
+    except ValueError:
+        return  # an invalid model configuration is reported by validate_config
+    differ = sorted(k for k in set(built) | set(printed) if built.get(k) != printed.get(k))
+    if differ:
+        warnings.warn(
+            f"{RESOLVED_MODEL_KEY} is output of --print-config and is ignored; it differs from the model "
+            f"this configuration builds in {differ} (built: {[built.get(k) for k in differ]}): set "
+            "ablation= or model.<key> to change the model",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
 def config_from_dict(values: Mapping[str, Any]) -> TrainConfig:
     """Build a :class:`TrainConfig` from a nested dict (e.g. a resolved YAML / OmegaConf container).
 
     Unknown keys raise ``ValueError`` naming them and the accepted ones; missing keys keep their defaults.
+    A :data:`RESOLVED_MODEL_KEY` section (printed by ``--print-config``) is ignored, with a warning when it
+    does not describe the model the configuration builds.
     """
     values = dict(values)
+    printed_model = values.pop(RESOLVED_MODEL_KEY, None)
+    cfg = _config_from_values(values)
+    if printed_model is not None:
+        _warn_if_resolved_model_differs(cfg, printed_model)
+    return cfg
+
+
+def _config_from_values(values: dict[str, Any]) -> TrainConfig:
     top = {f.name for f in dataclasses.fields(TrainConfig)}
     unknown = sorted(set(values) - top)
     if unknown:
@@ -321,6 +374,14 @@ def load_train_config(
             bad = [item for item in overrides if "=" not in item]
             if bad:
                 raise ValueError(f"overrides must look like key=value, got {bad}")
+            printed = [
+                item for item in overrides if item.split("=", 1)[0].split(".")[0] == RESOLVED_MODEL_KEY
+            ]
+            if printed:
+                raise ValueError(
+                    f"{printed}: {RESOLVED_MODEL_KEY} is output of --print-config; set ablation= or "
+                    "model.<key>=... to change the model"
+                )
             base = OmegaConf.merge(base, OmegaConf.from_dotlist(list(overrides)))
         container = OmegaConf.to_container(base, resolve=True)
     except OmegaConfBaseException as err:
@@ -733,23 +794,24 @@ class Trainer:
 
 
 def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
-    """Open (and validate: schema version, kind, file sizes) the datasets the configuration uses."""
+    """Open (and validate: schema version, kind, file sizes) the datasets the configuration uses.
+
+    A dataset smaller than one batch is refused with the batch-size key to lower and the largest value that
+    fits (every such dataset in one message, so that a single edit of the command line fixes them all).
+    """
     from navformer_rl.data import open_dataset
 
     wanted = {
-        "e": (
-            cfg.uses_exploration,
-            cfg.data.exploration_path,
-            cfg.data.exploration_batch_trajs,
-            "exploration_path",
-        ),
-        "ca": (cfg.uses_collision, cfg.data.collision_path, cfg.data.collision_batch_trajs, "collision_path"),
-        "ssl": (cfg.uses_ssl, cfg.data.ssl_path, cfg.data.ssl_batch_pairs, "ssl_path"),
+        "e": (cfg.uses_exploration, "exploration_path", "exploration_batch_trajs"),
+        "ca": (cfg.uses_collision, "collision_path", "collision_batch_trajs"),
+        "ssl": (cfg.uses_ssl, "ssl_path", "ssl_batch_pairs"),
     }
     datasets = {}
-    for kind, (used, path, batch, key) in wanted.items():
+    too_small: list[tuple[str, str, int | None]] = []
+    for kind, (used, key, batch_key) in wanted.items():
         if not used:
             continue
+        path = getattr(cfg.data, key)
         if not Path(path).exists():
             raise FileNotFoundError(f"data.{key}={path!r} does not exist")
         try:
@@ -757,14 +819,45 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
         except (ValueError, FileNotFoundError) as err:
             raise type(err)(f"data.{key}: {err}") from None
         available = dataset.num_trajectories if kind != "ssl" else len(dataset)
-        unit = "pairs" if kind == "ssl" else "trajectories"
+        batch = getattr(cfg.data, batch_key)
         if batch > available:
-            raise ValueError(
-                f"data.{key}={path!r} holds {available} {unit}, fewer than one batch of {batch}; "
-                "lower the batch size or collect more data"
+            unit = "pairs" if kind == "ssl" else "trajectories"
+            problem = (
+                f"data.{key}={path!r} holds {available} {unit}, fewer than one batch of "
+                f"data.{batch_key}={batch}"
             )
+            too_small.append((problem, f"data.{batch_key}", _largest_batch(cfg, kind, available)))
         datasets[kind] = dataset
+    if too_small:
+        fixes = " ".join(f"{key}={fits}" for _, key, fits in too_small if fits is not None)
+        hopeless = [key for _, key, fits in too_small if fits is None]
+        chunks = cfg.optim.trajectory_chunks
+        if hopeless:
+            advice = f"no value of {' / '.join(hopeless)} fits this little data: collect more data"
+            if chunks > 1 and any(key != "data.ssl_batch_pairs" for key in hopeless):
+                advice += f" or lower optim.trajectory_chunks={chunks}"
+            advice += f" (and add {fixes})" if fixes else ""
+        else:
+            if len(too_small) == 1:
+                largest = "the largest batch size that fits"
+                largest += f" and is a multiple of optim.trajectory_chunks={chunks}" if chunks > 1 else ""
+            else:
+                largest = "the largest batch sizes that fit"
+                largest += f" and are multiples of optim.trajectory_chunks={chunks}" if chunks > 1 else ""
+            advice = f"add {fixes} ({largest}) or collect more data"
+        raise ValueError("; ".join([*(problem for problem, _, _ in too_small), advice]))
     return datasets
+
+
+def _largest_batch(cfg: TrainConfig, kind: str, available: int) -> int | None:
+    """The largest valid batch size of dataset ``kind`` holding ``available`` items (None when none is).
+
+    Trajectory batches must divide by ``optim.trajectory_chunks``; BYOL needs at least 2 pairs.
+    """
+    if kind == "ssl":
+        return available if available >= 2 else None
+    fits = available - available % cfg.optim.trajectory_chunks
+    return fits if fits > 0 else None
 
 
 def check_datasets_fit_model(cfg: TrainConfig, datasets: Mapping[str, Any]) -> None:

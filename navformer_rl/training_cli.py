@@ -18,7 +18,7 @@ examples:
   navformer train ... ablation=no_thsc output_dir=runs/no_thsc
   navformer train ... model.autocast_dtype=bfloat16 model.encoder_micro_batch=512   # CPU levers
   navformer train ... output_dir=runs/navformer resume=true
-  navformer train --print-config ablation=dt
+  navformer train --print-config ablation=dt        # resolved_model: the model the run builds
 
 ablations (paper Table IV + DT baseline): {ablations}
 every key: docs/training.md
@@ -49,7 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="YAML file to read instead of the packaged train.yaml (keys it leaves out keep their defaults)",
     )
     parser.add_argument(
-        "--print-config", action="store_true", help="print the resolved configuration as YAML and exit"
+        "--print-config",
+        action="store_true",
+        help="print the resolved configuration as YAML and exit; its resolved_model section is the model "
+        "the run builds (after the ablation and model.* overrides). The output is a valid --config FILE",
     )
     parser.set_defaults(run=run)
     return parser
@@ -57,14 +60,14 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Resolve the configuration, train, print where the results are."""
-    from navformer_rl.training import load_train_config, train, validate_config
+    from navformer_rl.training import load_train_config, printable_config, train, validate_config
 
     cfg = load_train_config(args.overrides, args.config)
     if args.print_config:
         from omegaconf import OmegaConf
 
         validate_config(cfg, require_data=False)  # the datasets may not exist yet
-        print(OmegaConf.to_yaml(cfg.to_dict()), end="")
+        print(OmegaConf.to_yaml(printable_config(cfg)), end="")
         return 0
     result = train(cfg)
     summary = ", ".join(

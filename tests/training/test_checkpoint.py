@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import random
+import stat
 
 import numpy as np
 import pytest
@@ -43,6 +45,25 @@ def test_policy_model_loads_from_the_run_part_alone(trained):
         assert torch.equal(model(*inputs), again(*inputs))
     with pytest.raises(FileNotFoundError, match="no resume part"):
         ckpt.load_resume_state(folder)
+
+
+def test_every_documented_checkpoint_path_form_loads(trained):
+    run_dir, folder = trained.run_dir, trained.checkpoint
+    root = run_dir / ckpt.CHECKPOINTS_DIRNAME
+    forms = [
+        run_dir,
+        root,  # `navformer evaluate --checkpoint runs/nav/checkpoints`
+        root / ckpt.LATEST_FILENAME,  # `--checkpoint runs/nav/checkpoints/latest`
+        folder,
+        folder / ckpt.WEIGHTS_FILENAME,
+        folder / ckpt.CONFIG_FILENAME,
+    ]
+    for form in forms:
+        assert ckpt.resolve_checkpoint(form) == folder, form
+        assert ckpt.resolve_checkpoint(str(form)) == folder, form
+    config, _ = ckpt.load_policy_model(root)
+    assert config.d_embed == 16
+    ckpt.load_policy_model(root / ckpt.LATEST_FILENAME)
 
 
 def test_resume_part_loads_with_weights_only(trained):
@@ -120,6 +141,55 @@ def test_a_crash_mid_save_keeps_the_previous_checkpoint(tiny_config, monkeypatch
     # a resumed trainer continues from iteration 1
     resumed = build_trainer(tiny_config("optim.iterations=4", "checkpoint.keep_last=0", "resume=true"))
     assert resumed.iteration == 1
+
+
+def _save_tiny(run_dir, iteration=1, keep_last=0):
+    return ckpt.save_checkpoint(
+        run_dir, iteration, model_state={"w": torch.zeros(2)}, model_config={}, train_config={},
+        resume_state={"iteration": iteration}, keep_last=keep_last,
+    )  # fmt: skip
+
+
+def test_other_paths_are_refused_with_the_accepted_forms(tmp_path):
+    _save_tiny(tmp_path / "run")
+    accepted = (
+        r"a run directory .* its checkpoints/ folder or the checkpoints/latest file .* a checkpoint folder"
+    )
+    for wrong in (tmp_path, tmp_path / "run" / "logs", tmp_path / "nowhere"):
+        with pytest.raises(FileNotFoundError, match=f"no checkpoint at .*: expected {accepted}"):
+            ckpt.resolve_checkpoint(wrong)
+    (tmp_path / "stray.txt").write_text("x")
+    with pytest.raises(FileNotFoundError, match=accepted):
+        ckpt.resolve_checkpoint(tmp_path / "stray.txt")
+    # checkpoints/ without `latest`: a run that has not completed its first checkpoint
+    (tmp_path / "early" / ckpt.CHECKPOINTS_DIRNAME).mkdir(parents=True)
+    for early in (tmp_path / "early", tmp_path / "early" / ckpt.CHECKPOINTS_DIRNAME):
+        with pytest.raises(FileNotFoundError, match="no complete checkpoint .* yet: no latest pointer"):
+            ckpt.resolve_checkpoint(early)
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o002], ids=oct)
+def test_checkpoints_get_the_modes_of_the_umask(tmp_path, monkeypatch, umask):
+    """mkdtemp / mkstemp / safetensors create owner-only (0700 / 0600) entries; a checkpoint must be
+    readable by whoever the umask lets read, like any file the run writes with open()."""
+    monkeypatch.setattr(ckpt, "_UMASK", umask)  # what navformer_rl.durable read at import time
+    previous = os.umask(umask)
+    try:
+        folder = _save_tiny(tmp_path / "run")
+        _save_tiny(tmp_path / "run", iteration=1)  # the same iteration saved again (replaces the folder)
+        ckpt.atomic_write_text(tmp_path / "run" / "train_config.json", "{}")
+    finally:
+        os.umask(previous)
+
+    def mode(path):
+        return stat.S_IMODE(path.stat().st_mode)
+
+    root = folder.parent
+    assert {p.name for p in folder.iterdir()} == {"config.json", "model.safetensors", "resume.pt"}
+    assert mode(folder) == 0o777 & ~umask
+    for path in (*folder.iterdir(), root / ckpt.LATEST_FILENAME, tmp_path / "run" / "train_config.json"):
+        assert mode(path) == 0o666 & ~umask, path.name
+    assert not [p for p in root.iterdir() if p.name.startswith(".")]
 
 
 def test_keep_last_prunes_old_checkpoints(tiny_config):

@@ -3,14 +3,24 @@ configurations - raised before any training starts (nothing is written)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import re
 import shutil
+import warnings
 from pathlib import Path
 
 import pytest
 import yaml
 
-from navformer_rl.training import ABLATIONS, TrainConfig, build_trainer, load_train_config, model_config
+from navformer_rl.training import (
+    ABLATIONS,
+    TrainConfig,
+    build_trainer,
+    load_train_config,
+    model_config,
+    printable_config,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -131,7 +141,12 @@ BAD_CONFIGS = [
         FileNotFoundError,
         "data.ssl_path='/nonexistent/ssl' does not exist",
     ),
-    (["data.collision_batch_trajs=40"], ValueError, "holds 8 trajectories, fewer than one batch of 40"),
+    (
+        ["data.collision_batch_trajs=40"],
+        ValueError,
+        r"holds 8 trajectories, fewer than one batch of data.collision_batch_trajs=40; "
+        r"add data.collision_batch_trajs=8 \(the largest batch size that fits\) or collect more data",
+    ),
     (["encoder_training=frozen", "ablation=no_ssl"], ValueError, "nothing would train the encoders"),
     (["encoder_training=sometimes"], ValueError, "encoder_training='sometimes'"),
     (["logger.backend=wandb"], ValueError, "logger.backend='wandb'"),
@@ -168,6 +183,77 @@ def test_bad_configs_fail_before_training(tiny_config, overrides, error, message
     with pytest.raises(error, match=message):
         build_trainer(tiny_config(*overrides))  # refused while loading the config or building the trainer
     assert not Path(output_dir).exists()  # nothing was written
+
+
+@pytest.mark.parametrize(
+    "overrides, fits",
+    [
+        # one too-large batch: the README's small-scale case (64 D_ca trajectories < 150)
+        (["data.collision_batch_trajs=150"], "data.collision_batch_trajs=8"),
+        # every too-large batch in one message; with trajectory chunks the fit is a multiple of them
+        (
+            [
+                "data.exploration_batch_trajs=9",
+                "data.collision_batch_trajs=12",
+                "data.ssl_batch_pairs=20",
+                "optim.trajectory_chunks=3",
+            ],
+            "data.exploration_batch_trajs=6 data.collision_batch_trajs=6 data.ssl_batch_pairs=16",
+        ),
+    ],
+)
+def test_a_batch_larger_than_the_data_names_the_key_and_the_value_that_fits(tiny_config, overrides, fits):
+    """6 D_e, 8 D_ca trajectories, 16 D_ssl pairs: the message's own suggestion must build the trainer."""
+    with pytest.raises(ValueError) as error:
+        build_trainer(tiny_config(*overrides))
+    message = str(error.value)
+    suggested = re.search(r"; add (.*?) \(the largest", message)
+    assert suggested is not None and suggested.group(1) == fits, message
+    assert message.endswith("or collect more data")
+    if "optim.trajectory_chunks=3" in overrides:
+        assert "fit and are multiples of optim.trajectory_chunks=3" in message
+    trainer = build_trainer(tiny_config(*overrides, *fits.split()))
+    assert trainer.iteration == 0
+
+
+def test_a_dataset_smaller_than_any_valid_batch_says_to_collect_more(tiny_config):
+    # 6 D_e trajectories cannot form a batch that is a multiple of 7 chunks
+    cfg = tiny_config(
+        "data.exploration_batch_trajs=7", "data.collision_batch_trajs=7", "optim.trajectory_chunks=7"
+    )
+    message = (
+        "no value of data.exploration_batch_trajs fits this little data: collect more data or lower optim"
+    )
+    with pytest.raises(ValueError, match=message):
+        build_trainer(cfg)
+
+
+def test_printable_config_shows_the_resolved_model_and_reads_back(tmp_path):
+    cfg = load_train_config(["ablation=dt", "model.d_embed=64", "model.d_head=32"])
+    printed = printable_config(cfg)
+    assert list(printed).index("resolved_model") == list(printed).index("model") + 1
+    assert printed["resolved_model"] == dataclasses.asdict(model_config(cfg))
+    resolved = printed["resolved_model"]
+    assert (resolved["thsc"], resolved["use_static_encoder"], resolved["use_general_encoder"]) == (
+        False,
+        False,
+        True,
+    )
+    assert (resolved["d_embed"], resolved["encoder"], resolved["detach_encoders"]) == (64, "cnn", False)
+
+    # the printed YAML is a usable --config FILE: same configuration, no warning
+    path = tmp_path / "printed.yaml"
+    path.write_text(yaml.safe_dump(printed, sort_keys=False))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert load_train_config(path=path) == cfg
+    # resolved_model is output only: editing it changes nothing, and says so
+    with pytest.warns(
+        UserWarning, match=r"resolved_model .* is ignored; it differs .* \['thsc', 'use_static_encoder'\]"
+    ):
+        assert model_config(load_train_config(["ablation=none"], path=path)).thsc
+    with pytest.raises(ValueError, match="resolved_model is output of --print-config"):
+        load_train_config(["resolved_model.thsc=true"], path=path)
 
 
 def test_dataset_of_the_wrong_kind_is_refused(tiny_config, datasets):

@@ -86,6 +86,38 @@ def test_navformer_train_help_and_print_config(capsys):
     assert "ablation: dt" in printed and "lr: 0.0002" in printed
 
 
+@pytest.mark.parametrize("source", ["overrides", "config_file"])
+def test_print_config_shows_the_model_the_ablation_builds(tmp_path, capsys, source):
+    """The ``model:`` section holds only the user's overrides (``{}`` with a --config FILE without one);
+    ``resolved_model:`` is the whole NavFormerConfig of the run, and the output reads back as --config."""
+    import yaml
+
+    if source == "overrides":
+        argv = ["train", "--print-config", "ablation=dt"]
+    else:
+        (tmp_path / "mine.yaml").write_text("ablation: dt\n")
+        argv = ["train", "--print-config", "--config", str(tmp_path / "mine.yaml")]
+    args = _parser().parse_args(argv)
+    assert args.run(args) == 0
+    printed = yaml.safe_load(capsys.readouterr().out)
+    resolved = printed["resolved_model"]
+    switches = ("thsc", "use_static_encoder", "use_general_encoder", "encoder", "detach_encoders")
+    assert {k: resolved[k] for k in switches} == {
+        "thsc": False,
+        "use_static_encoder": False,
+        "use_general_encoder": True,
+        "encoder": "cnn",
+        "detach_encoders": False,
+    }
+    assert (resolved["d_embed"], resolved["n_blocks"], resolved["image_size"]) == (128, 3, 84)
+    if source == "config_file":
+        assert printed["model"] == {}
+    (tmp_path / "printed.yaml").write_text(yaml.safe_dump(printed))
+    again = _parser().parse_args(["train", "--print-config", "--config", str(tmp_path / "printed.yaml")])
+    assert again.run(again) == 0
+    assert yaml.safe_load(capsys.readouterr().out) == printed
+
+
 def test_navformer_cli_reports_bad_config_in_one_line(capsys):
     """Through the real ``navformer`` entry point (once every subcommand module exists)."""
     from navformer_rl import cli
