@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from navformer_rl.durable import _UMASK, fsync_dir, fsync_file
+from navformer_rl.durable import atomic_write_text, dir_mode, file_mode, fsync_dir, fsync_file
 
 RUN_FORMAT = "navformer_rl.run/1"
 """Format tag written into every run part; a file without it is refused."""
@@ -54,37 +54,6 @@ RESUME_FILENAME = "resume.pt"
 def checkpoint_name(iteration: int) -> str:
     """Folder name of the checkpoint taken after ``iteration`` completed iterations."""
     return f"iter_{iteration:06d}"
-
-
-def _file_mode() -> int:
-    """Mode of a file created with ``open`` under the process umask (0644 with umask 022)."""
-    return 0o666 & ~_UMASK
-
-
-def _dir_mode() -> int:
-    """Mode of a folder created with ``mkdir`` under the process umask (0755 with umask 022)."""
-    return 0o777 & ~_UMASK
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``.
-
-    The file gets the usual ``0o666 & ~umask`` mode (``mkstemp`` alone would leave it owner-only).
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.chmod(tmp, _file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    fsync_dir(path.parent)
 
 
 def save_checkpoint(
@@ -132,9 +101,9 @@ def save_checkpoint(
         if resume_state is not None:
             torch.save(dict(resume_state), tmp / RESUME_FILENAME)
         for child in tmp.iterdir():
-            os.chmod(child, _file_mode())  # safetensors creates its file owner-only (0600)
+            os.chmod(child, file_mode())  # safetensors creates its file owner-only (0600)
             fsync_file(child)
-        os.chmod(tmp, _dir_mode())  # mkdtemp creates 0700
+        os.chmod(tmp, dir_mode())  # mkdtemp creates 0700
         if final.exists():
             # Same iteration saved twice (e.g. the final save after a periodic one): move the old
             # folder aside first so that the rename below cannot fail on a non-empty target.

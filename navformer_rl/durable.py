@@ -12,6 +12,18 @@ _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
+def file_mode() -> int:
+    """Mode of a file created with ``open`` under the process umask (0644 with umask 022); ``mkstemp``
+    alone would leave a file owner-only (0600)."""
+    return 0o666 & ~_UMASK
+
+
+def dir_mode() -> int:
+    """Mode of a folder created with ``mkdir`` under the process umask (0755 with umask 022; ``mkdtemp``
+    creates 0700)."""
+    return 0o777 & ~_UMASK
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` (same suffix); on success it is renamed onto ``path``.
@@ -23,7 +35,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
-    os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the file the usual permissions
+    os.chmod(tmp, file_mode())  # mkstemp creates 0600; give the file the usual permissions
     try:
         yield Path(tmp)
         os.replace(tmp, path)
@@ -33,12 +45,13 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    """Write ``text`` (UTF-8) to ``path`` atomically and durably (file and folder fsynced)."""
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="utf-8") as handle:
             handle.write(text)
             handle.flush()
             os.fsync(handle.fileno())
+    fsync_dir(Path(path).parent)
 
 
 def fsync_file(path: str | os.PathLike) -> None:

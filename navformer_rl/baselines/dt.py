@@ -13,7 +13,8 @@ def is_dt_config(config) -> bool:
 
 
 def load_dt_policy(checkpoint: str | os.PathLike):
-    """``(NavFormerPolicy, NavFormerConfig)`` from a DT checkpoint (run dir, checkpoint folder or weights).
+    """``(NavFormerPolicy, NavFormerConfig)`` from a DT checkpoint (any path
+    ``navformer_rl.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...).
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.

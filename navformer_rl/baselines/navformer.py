@@ -8,8 +8,8 @@ from navformer_rl.baselines.dt import is_dt_config
 
 
 def load_navformer_policy(checkpoint: str | os.PathLike):
-    """``(NavFormerPolicy, NavFormerConfig)`` from a NavFormer checkpoint (run dir, checkpoint folder or
-    ``model.safetensors``). The policy conditions on R-hat_1 = 1 and uses the KV cache.
+    """``(NavFormerPolicy, NavFormerConfig)`` from a NavFormer checkpoint (any path
+    ``navformer_rl.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...). The policy conditions on R-hat_1 = 1 and uses the KV cache.
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.
