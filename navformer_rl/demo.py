@@ -9,23 +9,34 @@
 
 Every stage is resumable: rerunning the same command after an interruption reuses what is finished.
 ``DemoConfig`` holds the knobs; ``DemoConfig.preset("quick" | "default")`` gives the two sizes we ship.
+
+The report's stage times are the wall-clock time that computed each stage's result, across invocations
+(an interrupted run plus the rerun that finished it), beside this invocation's own time: a rerun that
+reuses everything leaves the first ones unchanged. Collection and training keep theirs in
+``<out>/stage_times.json`` (:class:`StageTimes`); evaluation's is the sum of the methods' ``run.json``
+``seconds``, which each evaluation keeps with its finished episodes.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, TypeVar
 
 from navformer_rl import cli_args
 
 BASELINES = ("vrw", "fca")
 TRAINED_METHODS = ("navformer", "dt")
+STAGE_TIMES_FILENAME = "stage_times.json"
+"""File of the run folder keeping the seconds that computed each stage's result (:class:`StageTimes`)."""
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -189,28 +200,127 @@ def evaluate_stage(cfg: DemoConfig, train_dirs: dict[str, Path], progress: bool 
     return folders
 
 
+class StageTimes:
+    """The wall-clock seconds that computed each stage's current result, kept in ``<out>/stage_times.json``.
+
+    :meth:`run` times a stage and reads a fingerprint of its result before and after it: a stage that ended
+    normally with the fingerprint unchanged computed nothing (it found its result finished), so the time
+    recorded for that result stays as it was; otherwise this invocation's time is added to it (an
+    interrupted run and the rerun that finishes it add up). When the result is not the one recorded (none
+    yet, deleted, or made without this file) its time counts from zero, and is unknown (None) when this
+    invocation found it finished.
+
+    Args:
+        out_dir: the demo's run folder.
+    """
+
+    def __init__(self, out_dir: Path) -> None:
+        self.path = Path(out_dir) / STAGE_TIMES_FILENAME
+        self.saved: dict[str, dict[str, Any]] = {}
+        try:
+            loaded = json.loads(self.path.read_text())
+        except (OSError, ValueError):
+            loaded = {}
+        if isinstance(loaded, dict):
+            self.saved = {k: v for k, v in loaded.items() if isinstance(v, dict)}
+        self.this_invocation: dict[str, float] = {}
+        """Seconds each stage took in this invocation."""
+
+    def run(self, stage: str, fingerprint: Callable[[], str | None], work: Callable[[], T]) -> T:
+        """``work()``, timed as ``stage``; ``fingerprint()`` identifies the stage's result (None: none)."""
+        before = fingerprint()
+        entry = self.saved.get(stage, {})
+        same = before is not None and entry.get("result") == before
+        carried = entry.get("seconds") if same else None
+        started = time.perf_counter()
+        finished = False
+        try:
+            value = work()
+            finished = True
+            return value
+        finally:
+            elapsed = time.perf_counter() - started
+            self.this_invocation[stage] = elapsed
+            try:
+                after = fingerprint()
+            except Exception:  # a half-written result after an error: time it as new work
+                after = None
+            if finished and before is not None and after == before:
+                seconds = carried  # found finished: its time is the one recorded (None: not recorded)
+            else:
+                seconds = round((carried or 0.0) + elapsed, 3)
+            self.saved[stage] = {"seconds": seconds, "result": after}
+            write_json(self.path, self.saved)
+
+    def seconds(self, stage: str) -> float | None:
+        """The seconds that computed ``stage``'s current result (None: not known)."""
+        return self.saved.get(stage, {}).get("seconds")
+
+
+def _digest(parts: list[str]) -> str:
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def _collect_fingerprint(cfg: DemoConfig) -> str | None:
+    """The collection's state: the three datasets' ``metadata.json`` (status, settings, counts)."""
+    from navformer_rl.data.schema import DatasetKind
+    from navformer_rl.data.writer import METADATA_FILE
+
+    texts = []
+    for kind in (DatasetKind.EXPLORATION, DatasetKind.COLLISION_AVOIDANCE, DatasetKind.SSL):
+        path = cfg.out_dir / "data" / kind.value / METADATA_FILE
+        texts.append(path.read_text() if path.is_file() else "-")
+    return None if set(texts) == {"-"} else _digest(texts)
+
+
+def _train_fingerprint(cfg: DemoConfig, method: str) -> str | None:
+    """The training run's state: the name of its latest checkpoint."""
+    from navformer_rl.checkpoint import latest_checkpoint
+
+    try:
+        latest = latest_checkpoint(cfg.out_dir / "train" / method)
+    except (OSError, ValueError):
+        return None
+    return None if latest is None else latest.name
+
+
+def _evaluation_seconds(folders: list[Path]) -> float | None:
+    """The sum of the evaluations' ``run.json`` ``seconds`` (None when one is unknown)."""
+    total = 0.0
+    for folder in folders:
+        try:
+            seconds = json.loads((folder / "run.json").read_text()).get("seconds")
+        except (OSError, ValueError, AttributeError):
+            seconds = None
+        if not isinstance(seconds, int | float):
+            return None
+        total += seconds
+    return round(total, 3)
+
+
 def run_demo(cfg: DemoConfig, progress: bool = True, log: Callable[[str], None] = print) -> Path:
     """Run the four stages; returns the path of ``report.md``. See the module docstring."""
     cfg.validate()
     cfg.out_dir.mkdir(parents=True, exist_ok=True)
-    timings: dict[str, float] = {}
+    clock = StageTimes(cfg.out_dir)
 
-    started = time.perf_counter()
     log(f"[1/4] collecting D_e, D_ca, D_ssl into {cfg.out_dir / 'data'}")
-    data = collect_stage(cfg, progress)
-    timings["collect"] = time.perf_counter() - started
+    data = clock.run("collect", lambda: _collect_fingerprint(cfg), lambda: collect_stage(cfg, progress))
 
     train_dirs: dict[str, Path] = {}
     for method in (m for m in TRAINED_METHODS if m in cfg.methods):
-        started = time.perf_counter()
         log(f"[2/4] training {method} ({cfg.iterations} iterations)")
-        train_dirs[method] = train_stage(cfg, data, method, progress)
-        timings[f"train {method}"] = time.perf_counter() - started
+        train_dirs[method] = clock.run(
+            f"train {method}",
+            lambda method=method: _train_fingerprint(cfg, method),
+            lambda method=method: train_stage(cfg, data, method, progress),
+        )
+    timings = {stage: (clock.seconds(stage), seconds) for stage, seconds in clock.this_invocation.items()}
 
     started = time.perf_counter()
     log(f"[3/4] evaluating {', '.join(cfg.methods)} on the '{cfg.setups}' episodes")
     folders = evaluate_stage(cfg, train_dirs, progress)
-    timings["evaluate"] = time.perf_counter() - started
+    timings["evaluate"] = (_evaluation_seconds(folders), time.perf_counter() - started)
 
     log("[4/4] writing the report")
     from navformer_rl.demo_report import write_demo_report

@@ -91,14 +91,37 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
     return lines
 
 
+def timings_markdown(timings: dict[str, tuple[float | None, float]]) -> list[str]:
+    """The stage-time table of the report: per stage the seconds that computed its result and the seconds
+    of this invocation (which only checked and reused a result it found finished)."""
+    lines = [
+        "| stage | seconds computing the result | seconds in this invocation |",
+        "|---|---|---|",
+    ]
+    for stage, (computed, now) in timings.items():
+        lines.append(f"| {stage} | {'-' if computed is None else f'{computed:.0f}'} | {now:.0f} |")
+    return lines + [
+        "",
+        "The first column is the wall-clock time that produced each stage's result, over every invocation "
+        "that worked on it (an interrupted run and the rerun that finished it add up); a rerun that reuses a "
+        "finished result leaves it unchanged and only shows its own time in the second column. Evaluation: "
+        "the sum of the methods' times in the Methods table below. `-`: not recorded (a result computed "
+        "before `stage_times.json` existed).\n",
+    ]
+
+
 def write_demo_report(
     cfg: DemoConfig,
     data: dict[str, Path],
     train_dirs: dict[str, Path],
     eval_dirs: Sequence[Path],
-    timings: dict[str, float],
+    timings: dict[str, tuple[float | None, float]],
 ) -> Path:
-    """Write ``<out>/report.md`` (and ``figures/``) and return its path."""
+    """Write ``<out>/report.md`` (and ``figures/``) and return its path.
+
+    ``timings`` maps a stage to ``(seconds that computed its result, None when unknown; seconds it took in
+    this invocation)`` (see :mod:`navformer_rl.demo`).
+    """
     from navformer_rl.demo import environment_summary, write_json
     from navformer_rl.evaluation.report import write_report
 
@@ -118,10 +141,7 @@ def write_demo_report(
         f"the `{cfg.setups}` protocol instead of 60 on each of Table I's 9 setups), so NavFormer's numbers "
         "show the pipeline working, not the paper's result. `docs/reproduce.md` has the paper-scale "
         "commands.\n",
-        "| stage | seconds |",
-        "|---|---|",
-        *[f"| {stage} | {seconds:.0f} |" for stage, seconds in timings.items()],
-        "",
+        *timings_markdown(timings),
     ]
     lines += _dataset_section(data, report_dir)
     lines += _training_section(train_dirs, report_dir)

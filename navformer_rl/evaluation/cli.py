@@ -48,7 +48,11 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument(
         "--maps", type=int, default=2, help="episodes per setup drawn as top-down maps (default 2)"
     )
-    parser.add_argument("--label", help="method name in tables (default: --method), e.g. navformer-no_thsc")
+    parser.add_argument(
+        "--label",
+        help="method name in tables (default: --method), e.g. navformer-no_thsc (a label naming a training "
+        "ablation must be the checkpoint's)",
+    )
     parser.add_argument(
         "--seed", type=cli_args.seed, default=0, help="seed of stochastic policies (default 0)"
     )
@@ -134,8 +138,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         raise ValueError("--out DIR is required")
     if args.episodes is None and args.protocol is None:
         raise ValueError("give the episodes: --episodes FILE or --protocol {table1,table3,table4,smoke}")
-    # Refuse a bad method / checkpoint before spending time on episode generation.
-    PolicySpec(args.method, args.checkpoint, args.seed).validate()
+    # Refuse a bad method / checkpoint / label before spending time on episode generation.
+    PolicySpec(args.method, args.checkpoint, args.seed).validate(args.label)
     if args.episodes is not None:
         given = [name for name in _GENERATION_OPTIONS if getattr(args, name) is not None]
         if given:  # the file fixes them: silently ignoring them would run other episodes than asked for

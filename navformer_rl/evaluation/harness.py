@@ -10,7 +10,12 @@ every robot driven by the evaluated method (paper §VII.A), measures each robot-
 - ``maps/<episode>.png``: top-down maps with every robot's trajectory (first ``maps_per_setup`` episodes
   of each setup); ``videos/<episode>.mp4``: the robots' cameras beside the top-down map (first
   ``videos_per_setup`` episodes of each setup);
-- ``episode_set.json``: the episode set that was run; ``run.json``: method, checkpoint, settings, hashes;
+- ``episode_set.json``: the episode set that was run; ``run.json``: method, label, checkpoint (its weights'
+  sha256, model config and training ``ablation``), settings, hashes and timing: ``seconds`` is the
+  wall-clock time that computed the results (each episode stores its share, so a resumed run keeps the
+  time of the episodes it reused), ``episode_seconds`` the sum of the episodes' own run times (about
+  ``seconds`` x workers), ``invocation_seconds`` this call's wall time, ``episodes_computed`` /
+  ``episodes_reused`` what this call ran or reused;
 - ``per_episode/<episode>.json``: each finished episode's rows, written as soon as it ends, so that an
   interrupted run resumes where it stopped (``resume=True``, the default, reuses the rows whose method,
   label, checkpoint weights, seed, trial length, episode and visuals are the same).
@@ -40,6 +45,7 @@ from navformer_rl import __version__
 from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
+from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, label_ablation
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
 from navformer_rl.evaluation.video import MAP_PNG_PX, compose_frame, draw_map, save_map_png
 from navformer_rl.mp4 import Mp4Writer
@@ -49,6 +55,8 @@ METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
 CHECKPOINT_METHODS = ("navformer", "dt")
 PARTIAL_DIRNAME = "per_episode"
 """Sub-folder of the output folder holding one result file per finished episode (for resuming)."""
+TRAIN_CONFIG_FILENAME = "train_config.json"
+"""The resolved training configuration a training run writes into its run directory."""
 
 
 @dataclass(frozen=True)
@@ -68,16 +76,21 @@ class PolicySpec:
     """For your own policy: a picklable zero-argument callable (e.g. a module-level function) returning a
     ``TensorDictModuleBase`` that writes ``("agents", "action")``; ``method`` is then its label."""
 
-    def validate(self) -> dict[str, Any]:
-        """Check the method and (by loading it) the checkpoint; returns a description for ``run.json``."""
+    def validate(self, label: str | None = None) -> dict[str, Any]:
+        """Check the method, (by loading it) the checkpoint, and that ``label`` (default: the method) names no
+        training ablation the checkpoint was not trained with (:func:`label_ablation_problem`; ValueError);
+        returns a description for ``run.json`` (``model_config``, ``checkpoint_sha256`` and the checkpoint's
+        training ``ablation`` for ``navformer`` / ``dt``)."""
         if self.factory is not None:
             if self.checkpoint is not None:
                 raise ValueError("a policy factory takes no checkpoint; load it inside the factory")
+            # your own policy: nothing to check a label against
             return {
                 "factory": f"{getattr(self.factory, '__module__', '?')}.{getattr(self.factory, '__qualname__', self.factory)}"
             }
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+        description: dict[str, Any] = {}
         if self.method in CHECKPOINT_METHODS:
             if self.checkpoint is None:
                 raise ValueError(f"method {self.method!r} needs a checkpoint (--checkpoint PATH)")
@@ -85,13 +98,23 @@ class PolicySpec:
 
             _, config = self.build_with_config()
             weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
-            return {
+            description = {
                 "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
                 "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
+                "ablation": checkpoint_ablation(self.checkpoint),
             }
-        if self.checkpoint is not None:
+        elif self.checkpoint is not None:
             raise ValueError(f"method {self.method!r} takes no checkpoint (got {self.checkpoint!r})")
-        return {}
+        problem = label_ablation_problem(
+            label or self.method,
+            self.method,
+            description.get("ablation"),
+            description.get("model_config"),
+            self.checkpoint,
+        )
+        if problem is not None:
+            raise ValueError(problem)
+        return description
 
     def build_with_config(self):
         """``(policy, model config or None)``."""
@@ -114,6 +137,80 @@ class PolicySpec:
 
             return FCAPolicy(), None
         raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+
+
+def checkpoint_ablation(checkpoint: str | os.PathLike) -> str | None:
+    """The training ablation (``TrainConfig.ablation``: ``none``, ``no_thsc``, ..., ``dt``) a checkpoint was
+    trained with: from the training config stored in its ``config.json``, else from the run directory's
+    ``train_config.json``; None when neither records it (a checkpoint written by hand)."""
+    from navformer_rl.checkpoint import CHECKPOINTS_DIRNAME, read_checkpoint_config, resolve_checkpoint
+
+    train_config = read_checkpoint_config(checkpoint).get("train_config")
+    ablation = train_config.get("ablation") if isinstance(train_config, dict) else None
+    folder = resolve_checkpoint(checkpoint)
+    run_config = folder.parent.parent / TRAIN_CONFIG_FILENAME
+    if ablation is None and folder.parent.name == CHECKPOINTS_DIRNAME and run_config.is_file():
+        try:
+            ablation = json.loads(run_config.read_text()).get("ablation")
+        except (ValueError, AttributeError):
+            ablation = None
+    return ablation if isinstance(ablation, str) else None
+
+
+ARCHITECTURE_FIELDS = ("encoder", "use_static_encoder", "use_general_encoder", "thsc")
+"""The ``NavFormerConfig`` fields a model-level ablation changes (checked when a checkpoint does not record
+its training ablation)."""
+
+
+def label_ablation_problem(
+    label: str,
+    method: str,
+    ablation: str | None,
+    model_config: dict[str, Any] | None,
+    checkpoint: str | os.PathLike | None = None,
+) -> str | None:
+    """Why ``label`` misnames the evaluated model, or None when it does not.
+
+    A label that names a training ablation (:func:`~navformer_rl.evaluation.paper_results.label_ablation`:
+    ``navformer-no_thsc``) is compared in reports with that ablation's Table IV row, so it must be a
+    ``navformer`` / ``dt`` checkpoint trained with that ablation: ``ablation`` (the checkpoint's
+    ``TrainConfig.ablation``) must be the named one; when the checkpoint does not record it, its
+    ``model_config`` must at least have that ablation's architecture (:data:`ARCHITECTURE_FIELDS`). Labels
+    that name no ablation (``navformer-seed1``) are free.
+    """
+    named = label_ablation(label)
+    if named is None:
+        return None
+    row = ABLATION_TO_TABLE4[named]
+    claim = f"the label {label!r} names the training ablation {named!r} (compared with Table IV's {row!r})"
+    fix = (
+        f"evaluate the checkpoint trained with ablation={named}, or choose a label that names no ablation "
+        "(e.g. navformer-seed1)"
+    )
+    if method not in CHECKPOINT_METHODS:
+        return f"{claim}, but method {method!r} is not a trained model; {fix}"
+    where = f"checkpoint {checkpoint}" if checkpoint is not None else "the checkpoint"
+    if ablation is not None:
+        if ablation != named:
+            return f"{claim}, but {where} was trained with ablation={ablation}; {fix}"
+        return None
+    if model_config is None:
+        return None
+    from navformer_rl.training import TrainConfig
+    from navformer_rl.training import model_config as ablation_model
+
+    expected = ablation_model(TrainConfig(ablation=named))
+    differ = {
+        name: (model_config.get(name), getattr(expected, name))
+        for name in ARCHITECTURE_FIELDS
+        if model_config.get(name) != getattr(expected, name)
+    }
+    if differ:
+        return (
+            f"{claim}, but {where} records no training ablation and its model lacks that ablation's "
+            f"architecture ((checkpoint, {named}): {differ}); {fix}"
+        )
+    return None
 
 
 @dataclass(frozen=True)
@@ -139,6 +236,10 @@ class EvaluationResult:
     records: list[RobotTrial]
     summaries: list[SetupSummary]
     files: dict[str, Any] = field(default_factory=dict)
+    episodes_computed: int = 0
+    """Episodes run by this call (the others were reused from ``per_episode/``)."""
+    seconds: float | None = None
+    """Wall-clock seconds that computed these results (``run.json`` ``seconds``), reused episodes included."""
 
 
 def evaluate(
@@ -169,7 +270,9 @@ def evaluate(
             another label's finished results is refused with ``FileExistsError``).
         checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``.
         workers: processes (>= 1; 1 runs in this process).
-        label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation).
+        label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation). A
+            label naming a training ablation must match the checkpoint's (ValueError before any episode
+            runs, see :func:`label_ablation_problem`); other labels (``navformer-seed1``) are free.
         seed: base seed of stochastic policies.
         maps_per_setup, videos_per_setup: how many episodes per setup (the first ones) get a top-down map
             PNG / an mp4 video.
@@ -197,8 +300,8 @@ def evaluate(
     else:
         factory = None
     spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory)
-    description = spec.validate()
     label = label or method
+    description = spec.validate(label)
     out_dir = Path(out_dir)
     _refuse_other_runs_results(out_dir, label)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -216,7 +319,9 @@ def evaluate(
     }
     tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup, identity)
     started = time.perf_counter()
-    outputs = _run_tasks(tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume)
+    outputs, computed = _run_tasks(
+        tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume
+    )
     elapsed = time.perf_counter() - started
 
     records = [record for output in outputs for record in output["records"]]
@@ -247,13 +352,38 @@ def evaluate(
             "setups": episode_set.setups,
         },
         "confidence": confidence,
-        "seconds": round(elapsed, 3),
+        **_timing(outputs, computed, elapsed),
         "package_version": __version__,
         "files": files,
         **description,
     }
     atomic_write_text(out_dir / "run.json", json.dumps(run, indent=2, sort_keys=True, default=str) + "\n")
-    return EvaluationResult(out_dir=out_dir, records=records, summaries=summaries, files=files)
+    return EvaluationResult(
+        out_dir=out_dir,
+        records=records,
+        summaries=summaries,
+        files=files,
+        episodes_computed=computed,
+        seconds=run["seconds"],
+    )
+
+
+def _timing(outputs: list[dict[str, Any]], computed: int, elapsed: float) -> dict[str, Any]:
+    """The timing entries of ``run.json`` (see :func:`evaluate`): the time that computed the results, summed
+    from what each episode stored when it was computed, beside this invocation's own wall time."""
+
+    def total(key: str) -> float | None:
+        values = [o.get(key) for o in outputs]
+        # an episode stored without its time (never by this version) makes the total unknown, not smaller
+        return None if any(v is None for v in values) else round(sum(values), 3)
+
+    return {
+        "seconds": total("wall_seconds"),
+        "episode_seconds": total("seconds"),
+        "invocation_seconds": round(elapsed, 3),
+        "episodes_computed": computed,
+        "episodes_reused": len(outputs) - computed,
+    }
 
 
 def _refuse_other_runs_results(out_dir: Path, label: str) -> None:
@@ -302,6 +432,8 @@ def _store_partial(task: EpisodeTask, output: dict[str, Any]) -> None:
         "records": [r.to_dict() for r in output["records"]],
         "maps": output["maps"],
         "videos": output["videos"],
+        "seconds": output.get("seconds"),
+        "wall_seconds": output.get("wall_seconds"),
     }
     atomic_write_text(_partial_path(task), json.dumps(document, sort_keys=True) + "\n")
 
@@ -317,6 +449,9 @@ def _load_partial(task: EpisodeTask) -> dict[str, Any] | None:
             "records": [RobotTrial.from_dict(r) for r in document["records"]],
             "maps": list(document["maps"]),
             "videos": list(document["videos"]),
+            # the times it took when it was computed (None in files of versions that did not store them)
+            "seconds": document.get("seconds"),
+            "wall_seconds": document.get("wall_seconds"),
         }
     except (OSError, ValueError, KeyError, TypeError):
         return None
@@ -334,7 +469,14 @@ def _run_tasks(
     progress: bool,
     label: str,
     resume: bool,
-) -> list[dict[str, Any]]:
+) -> tuple[list[dict[str, Any]], int]:
+    """Every task's output (stored ones reused when ``resume``) and how many tasks were run.
+
+    Each output run here gets ``seconds`` (the episode's own run time, in the process that ran it) and
+    ``wall_seconds`` (wall-clock time from the previous episode's finish, or the start, to its own: summed
+    over the episodes of a run, the run's wall time without what an interruption discarded); both are stored
+    with the episode, so a resumed run still reports the time that computed a reused one.
+    """
     from tqdm.auto import tqdm
 
     results: list[dict[str, Any] | None] = [None] * len(tasks)
@@ -350,7 +492,13 @@ def _run_tasks(
         disable=not progress,
     )
 
+    last_finish = time.perf_counter()
+
     def finish(task: EpisodeTask, output: dict[str, Any]) -> None:
+        nonlocal last_finish
+        now = time.perf_counter()
+        output["wall_seconds"] = round(now - last_finish, 3)
+        last_finish = now
         _store_partial(task, output)
         results[task.index] = output
         bar.update(1)
@@ -366,7 +514,7 @@ def _run_tasks(
             runner = EpisodeRunner(spec, max_steps, video_fps)
             try:
                 for task in todo:
-                    finish(task, runner.run(task))
+                    finish(task, _timed_run(runner, task))
             finally:
                 runner.close()
                 torch.set_num_threads(threads)
@@ -389,7 +537,15 @@ def _run_tasks(
             pool.shutdown()
     finally:
         bar.close()
-    return [r for r in results if r is not None]
+    return [r for r in results if r is not None], len(todo)
+
+
+def _timed_run(runner: EpisodeRunner, task: EpisodeTask) -> dict[str, Any]:
+    """``runner.run(task)`` with ``seconds``: how long the episode took in this process."""
+    started = time.perf_counter()
+    output = runner.run(task)
+    output["seconds"] = round(time.perf_counter() - started, 3)
+    return output
 
 
 _WORKER_RUNNER: EpisodeRunner | None = None
@@ -406,7 +562,7 @@ def _init_worker(spec: PolicySpec, max_steps: int, video_fps: float) -> None:
 def _run_in_worker(task: EpisodeTask) -> dict[str, Any]:
     if _WORKER_RUNNER is None:
         raise RuntimeError("evaluation worker used before its initialiser ran")
-    return _WORKER_RUNNER.run(task)
+    return _timed_run(_WORKER_RUNNER, task)
 
 
 class EpisodeRunner:

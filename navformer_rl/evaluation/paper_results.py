@@ -79,3 +79,18 @@ ABLATION_TO_TABLE4: dict[str, str] = {
 """The training recipe's ablation names -> their Table IV rows."""
 TABLE4_SETUP: tuple[float, int] = (12.5, 4)
 """Table IV's setup: 60 trials in 12.5 m mazes with 4 robots (paper §VII.D)."""
+
+
+def label_ablation(label: str) -> str | None:
+    """The training ablation (a key of :data:`ABLATION_TO_TABLE4`) that a method label names, or None.
+
+    Only NavFormer labels name one: ``navformer-no_thsc`` and ``navformer_resnet18`` name ``no_thsc`` and
+    ``resnet18``; ``navformer``, ``navformer-seed1``, ``dt-no_thsc`` or ``vrw`` name none.
+    """
+    lowered = label.lower()
+    if METHOD_TO_PAPER_COLUMN.get(lowered.split("-")[0].split("_")[0]) != "NavFormer":
+        return None
+    for ablation in ABLATION_TO_TABLE4:
+        if ablation in lowered[len("navformer") :]:
+            return ablation
+    return None

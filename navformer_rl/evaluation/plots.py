@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from navformer_rl.durable import atomic_path
-from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, setup_order_key
+from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, ordered_setups
 
 _METRICS = (("sr", "SR", "sr_ci"), ("spl", "SPL", "spl_ci"), ("cr", "CR", "cr_ci"))
 
@@ -39,7 +39,7 @@ def plot_setup_bars(
         raise ValueError("no per-setup summaries to plot")
     if methods is None:
         methods = list(dict.fromkeys(s.method for s in rows))
-    setups = sorted({(s.size, s.n_robots, s.setup) for s in rows}, key=lambda k: setup_order_key(*k))
+    setups = ordered_setups(rows)
     labels = [setup for _, _, setup in setups]
     by_key = {(s.method, s.setup): s.metrics for s in rows}
     x = np.arange(len(setups))

@@ -8,17 +8,27 @@ aggregates from the per-robot-trial rows, and writes:
 - a combined bar plot (``<report stem>_metrics.png`` next to the report);
 - for setups that appear in the paper's Table I / III / IV, the paper's numbers beside ours, labelled as
   measured in another simulator (Gazebo) on other worlds with the authors' models;
-- links to each method's top-down maps and videos, and the episode-set hash each method ran on.
+- links to each method's top-down maps and videos, and the episode-set hash each method ran on;
+- a warning for an evaluation whose label names a training ablation (``navformer-no_thsc``) that its
+  checkpoint was not trained with (possible in folders written before ``evaluate`` refused such labels):
+  its rows are compared with the paper's row of the checkpoint's actual ablation when ``run.json`` or the
+  checkpoint tells it, and with no paper row otherwise.
+
+Every table and the plot list the setups in one order
+(:func:`~navformer_rl.evaluation.tables.ordered_setups`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from navformer_rl.durable import atomic_write_text
+from navformer_rl.evaluation.harness import checkpoint_ablation, label_ablation_problem
 from navformer_rl.evaluation.paper_results import (
     ABLATION_TO_TABLE4,
     METHOD_TO_PAPER_COLUMN,
@@ -27,6 +37,7 @@ from navformer_rl.evaluation.paper_results import (
     TABLE3,
     TABLE4,
     TABLE4_SETUP,
+    label_ablation,
 )
 from navformer_rl.evaluation.plots import plot_setup_bars
 from navformer_rl.evaluation.tables import (
@@ -35,6 +46,7 @@ from navformer_rl.evaluation.tables import (
     SetupSummary,
     format_ratio,
     format_sr,
+    ordered_setups,
     read_records,
     summarize_by_setup,
     table_markdown,
@@ -48,20 +60,41 @@ PAPER_CAVEAT = (
 )
 
 
-def _paper_column(label: str) -> str | None:
+def _paper_column(label: str, ablation: str | None = None) -> str | None:
     """The paper column or Table IV row matching one of our method labels.
 
     ``vrw``, ``dt``, ``fca``, ``navformer`` (and ``navformer-<anything>``) -> the Table I / III column; a
     NavFormer label naming a training ablation (``navformer-no_thsc``, ``navformer_resnet18``) -> its
-    Table IV row (``ABLATION_TO_TABLE4``), compared only on Table IV's setup.
+    Table IV row (``ABLATION_TO_TABLE4``), compared only on Table IV's setup. ``ablation``, the training
+    ablation ``run.json`` records for the evaluated checkpoint, decides over the label when given:
+    ``none`` -> NavFormer, ``dt`` -> DT, a Table IV ablation -> its row.
     """
-    lowered = label.lower()
-    column = METHOD_TO_PAPER_COLUMN.get(lowered.split("-")[0].split("_")[0])
-    if column == "NavFormer":
-        for ablation, row in ABLATION_TO_TABLE4.items():
-            if ablation in lowered[len("navformer") :]:
-                return row
-    return column
+    if ablation is not None:
+        return ABLATION_TO_TABLE4.get(ablation) or {"none": "NavFormer", "dt": "DT"}.get(ablation)
+    named = label_ablation(label)
+    if named is not None:
+        return ABLATION_TO_TABLE4[named]
+    return METHOD_TO_PAPER_COLUMN.get(label.lower().split("-")[0].split("_")[0])
+
+
+def _recorded_ablation(run: dict[str, Any]) -> str | None:
+    """The training ablation of the checkpoint an evaluation ran: ``run.json``'s ``ablation``; for a
+    ``run.json`` written before it was recorded, read from the checkpoint when it is still at the recorded
+    path with the same weights (sha256); None when unknown or not a checkpoint method."""
+    if "ablation" in run:
+        return run["ablation"]
+    checkpoint, sha256 = run.get("checkpoint"), run.get("checkpoint_sha256")
+    if not checkpoint or not sha256:
+        return None
+    from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
+
+    try:
+        folder = resolve_checkpoint(checkpoint)
+        if hashlib.sha256((folder / WEIGHTS_FILENAME).read_bytes()).hexdigest() != sha256:
+            return None
+        return checkpoint_ablation(folder)
+    except (OSError, ValueError):
+        return None
 
 
 def _paper_numbers(summary: SetupSummary, column: str) -> tuple[float, float, float] | None:
@@ -76,23 +109,31 @@ def _paper_numbers(summary: SetupSummary, column: str) -> tuple[float, float, fl
     return TABLE1.get((summary.size, summary.n_robots), {}).get(column)
 
 
-def paper_comparison_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str]) -> str:
+def paper_comparison_markdown(
+    summaries: Sequence[SetupSummary],
+    methods: Sequence[str],
+    columns: Mapping[str, str | None] | None = None,
+) -> str:
     """Side-by-side table: per setup and method, ``ours / paper`` for SR, SPL and CR (paper's Table I, or
-    Table III for the ``-seen`` / ``-unseen`` setups); empty when no method/setup has a paper value."""
+    Table III for the ``-seen`` / ``-unseen`` setups); empty when no method/setup has a paper value.
+
+    ``columns`` maps a method label to the paper column or Table IV row it is compared with (None: not
+    compared); a label it leaves out gets the column its name implies (``_paper_column``).
+    """
+    columns = {m: (columns[m] if columns is not None and m in columns else _paper_column(m)) for m in methods}
     by_key = {(s.method, s.setup): s for s in summaries if s.setup != ALL_SETUPS}
-    compared = [m for m in methods if _paper_column(m) is not None]
-    setups = list(dict.fromkeys(s.setup for s in summaries if s.setup != ALL_SETUPS))
+    compared = [m for m in methods if columns[m] is not None]
+    setups = [setup for _, _, setup in ordered_setups(summaries) if setup != ALL_SETUPS]
     header = ["Setup"]
     for method in compared:
-        col = _paper_column(method)
-        header += [f"{method} SR (ours / paper {col})", "SPL (ours / paper)", "CR (ours / paper)"]
+        header += [f"{method} SR (ours / paper {columns[method]})", "SPL (ours / paper)", "CR (ours / paper)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     any_value = False
     for setup in setups:
         cells = [setup]
         for method in compared:
             s = by_key.get((method, setup))
-            paper = None if s is None else _paper_numbers(s, _paper_column(method))
+            paper = None if s is None else _paper_numbers(s, columns[method])
             if s is None or paper is None:
                 cells += ["-", "-", "-"]
                 continue
@@ -110,7 +151,7 @@ def paper_comparison_markdown(summaries: Sequence[SetupSummary], methods: Sequen
 def spl_disc_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str]) -> str:
     """Table of the secondary SPL-disc measure: one row per setup, one column per method."""
     by_key = {(s.method, s.setup): s.metrics for s in summaries}
-    setups = list(dict.fromkeys(s.setup for s in summaries))
+    setups = [setup for _, _, setup in ordered_setups(summaries)]
     lines = [
         "| Setup | " + " | ".join(f"{m} SPL-disc" for m in methods) + " |",
         "|" + "---|" * (len(methods) + 1),
@@ -220,17 +261,59 @@ def write_report(
             + ", ".join(sorted(h[:12] for h in hashes))
             + "), so their rows are not paired comparisons.\n"
         )
+    columns, ablations = {}, {}
+    for folder, run in runs:
+        ablations[run["label"]] = ablation = _recorded_ablation(run)
+        columns[run["label"]] = _paper_column(run["label"], ablation)
+        problem = label_ablation_problem(
+            run["label"], run.get("method", ""), ablation, run.get("model_config"), run.get("checkpoint")
+        )
+        if problem is not None and "factory" not in run:
+            column = columns[run["label"]] if ablation is not None else None
+            columns[run["label"]] = column
+            parts.append(
+                f"**Warning: {folder}**: {problem}. That evaluation predates the check that now refuses "
+                "such a label; its rows are "
+                + (
+                    f"compared with the paper's {column} instead."
+                    if column
+                    else "not compared with the paper."
+                )
+                + "\n"
+            )
     parts.append("## Methods\n")
     parts.append(
-        "| Method | Episode set | Episodes | Max steps | Checkpoint | Seconds |\n|---|---|---|---|---|---|"
+        "| Method | Episode set | Episodes | Max steps | Checkpoint | Training ablation | Seconds |\n"
+        "|---|---|---|---|---|---|---|"
     )
+    legacy_seconds = False
     for _, run in runs:
         es = run["episode_set"]
+        seconds = run.get("seconds")
+        if "invocation_seconds" not in run and seconds is not None:  # an earlier version's run.json
+            legacy_seconds = True
+            seconds_cell = f"{seconds:.0f}†"
+        else:
+            seconds_cell = "-" if seconds is None else f"{seconds:.0f}"
+        ablation = ablations[run["label"]]
         parts.append(
             f"| {run['label']} | {es['name']} (`{es['content_sha256'][:12]}`) | {es['episodes']} | "
-            f"{es['max_steps']} | {run.get('checkpoint') or '-'} | {run.get('seconds', '-')} |"
+            f"{es['max_steps']} | {run.get('checkpoint') or '-'} | {ablation or '-'} | {seconds_cell} |"
         )
     parts.append("")
+    parts.append(
+        "Seconds: the wall-clock time that computed the results, whatever the number of invocations: each "
+        "episode stores the time it took, so an evaluation resumed or rerun over finished episodes keeps "
+        "the time that computed them (`run.json`: `seconds`; `invocation_seconds` is the last invocation's "
+        "own time)."
+        + (
+            " † `run.json` of an earlier version: the wall time of the last invocation only, which is too "
+            "small when that invocation reused finished episodes."
+            if legacy_seconds
+            else ""
+        )
+        + "\n"
+    )
     parts.append(f"## Results (ours, {100 * confidence:g} % confidence intervals in brackets)\n")
     parts.append(f"Intervals: {INTERVAL_METHOD.strip('()')}.\n")
     parts.append(table_markdown(summaries, labels))
@@ -240,14 +323,17 @@ def write_report(
         "the 1.5 m of slack that eq. 12's ℓ gives a robot that stops at the disc's edge):\n"
     )
     parts.append(spl_disc_markdown(summaries, labels))
-    comparison = paper_comparison_markdown(summaries, labels)
+    comparison = paper_comparison_markdown(summaries, labels, columns)
     parts.append("## Beside the paper\n")
     parts.append(PAPER_CAVEAT.format(source=PAPER_SOURCE) + "\n")
     if comparison:
         parts.append(comparison)
     parts.append("### The paper's Table I (Gazebo, for reference)\n")
     parts.append(paper_table1_markdown())
-    if any(s.setup == "12.5m-4r" for s in summaries) and any("-" in label for label in labels):
+    ablation_rows = any(column in ABLATION_TO_TABLE4.values() for column in columns.values())
+    if any(s.setup == "12.5m-4r" for s in summaries) and (
+        ablation_rows or any("-" in label for label in labels)
+    ):
         parts.append("### The paper's Table IV (ablations, Gazebo, for reference)\n")
         parts.append(paper_table4_markdown())
     parts.append("## Episodes\n")

@@ -62,6 +62,15 @@ def setup_order_key(size: float | None, n_robots: int | None, setup: str) -> tup
     return (0, size or 0.0, n_robots or 0, setup)
 
 
+def ordered_setups(summaries: Sequence[SetupSummary]) -> list[tuple[float | None, int | None, str]]:
+    """Every setup of ``summaries`` once, as ``(size, robots, name)`` in the order of every table and plot
+    (:func:`setup_order_key`: size, robot count, name; the pooled ``all`` last), whichever methods have it."""
+    first: dict[str, tuple[float | None, int | None, str]] = {}
+    for s in summaries:
+        first.setdefault(s.setup, (s.size, s.n_robots, s.setup))
+    return sorted(first.values(), key=lambda k: setup_order_key(*k))
+
+
 INTERVAL_METHOD = (
     "(Wilson on the trial-clustered effective sample size for SR - robots of one trial are not independent, "
     "and when every outcome is equal the number of trials is the sample size; trial-level bootstrap for SPL "
@@ -73,7 +82,8 @@ INTERVAL_METHOD = (
 def summarize_by_setup(
     records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0
 ) -> list[SetupSummary]:
-    """One :class:`SetupSummary` per (method, setup) plus a pooled ``"all"`` row per method.
+    """One :class:`SetupSummary` per (method, setup), plus a pooled ``"all"`` row per method that ran more
+    than one setup (with a single setup it would repeat that setup's row).
 
     Only ``measured`` robot-trials count (see :func:`~navformer_rl.evaluation.measures.summarize`).
     """
@@ -128,7 +138,7 @@ def table_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str] | N
     if methods is None:
         methods = list(dict.fromkeys(s.method for s in summaries))
     by_key = {(s.method, s.setup): s for s in summaries}
-    rows = sorted({(s.size, s.n_robots, s.setup) for s in summaries}, key=lambda k: setup_order_key(*k))
+    rows = ordered_setups(summaries)
     header = ["Setup", "Env size (m)", "# of robots"]
     for method in methods:
         header += [f"{method} SR", f"{method} SPL", f"{method} CR"]

@@ -2,17 +2,23 @@
 
 Builds the episode set (a file, or a protocol generated on the fly), then runs
 :func:`navformer_rl.evaluation.harness.evaluate`, which writes per-robot-trial JSONL, the Table I-layout
-CSV / markdown with 95 % intervals, bar plots, top-down maps and videos into the hydra run directory.
+CSV / markdown with 95 % intervals, bar plots, top-down maps and videos into ``output_dir`` (by default a
+new timestamped hydra run directory). It prints that folder first, with the command that resumes it:
+a rerun reuses finished episodes only when given the same ``output_dir``.
 """
 
 from __future__ import annotations
 
+import sys
+
 import hydra
-from utils import make_episode_set, run_evaluation
+from hydra.core.hydra_config import HydraConfig
+from utils import make_episode_set, resume_hint, run_evaluation
 
 
 @hydra.main(config_path="", config_name="config", version_base="1.3")
 def main(cfg) -> None:
+    print(resume_hint(cfg.output_dir, HydraConfig.get().overrides.task, sys.argv[0]), flush=True)
     episode_set = make_episode_set(cfg)
     result = run_evaluation(cfg, episode_set)
     print((result.out_dir / "summary.md").read_text(), end="")

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import shlex
+from collections.abc import Sequence
+
 from omegaconf import DictConfig
 
 from navformer_rl.constants import MAX_EPISODE_STEPS
@@ -27,9 +31,10 @@ null gets."""
 def make_episode_set(cfg: DictConfig) -> EpisodeSet:
     """The episode set: ``cfg.episodes`` (a file) if given, else the episodes of ``cfg.protocol``.
 
-    The method and checkpoint are validated first, so a bad one fails before episode generation.
+    The method, checkpoint and label are validated first, so a bad one (or a label naming a training ablation
+    the checkpoint was not trained with) fails before episode generation.
     """
-    PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed)).validate()
+    PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed)).validate(cfg.label)
     generation = {name: cfg[name] for name in GENERATION_DEFAULTS}
     if cfg.episodes:
         given = [name for name, value in generation.items() if value is not None]
@@ -57,4 +62,27 @@ def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult
         videos_per_setup=int(cfg.videos_per_setup),
         progress=bool(cfg.progress),
         resume=bool(cfg.resume),
+    )
+
+
+def resume_hint(
+    output_dir: str, overrides: Sequence[str], script: str = "recipes/evaluate/evaluate.py"
+) -> str:
+    """What the recipe prints at start: the output folder, and the command that resumes this evaluation.
+
+    The default ``output_dir`` is a new timestamped folder per run, so a plain rerun starts over elsewhere;
+    rerunning with ``output_dir=<this folder>`` (and the same settings) reuses its finished episodes.
+
+    Args:
+        output_dir: this run's output folder.
+        overrides: the command line's overrides (hydra's task overrides); an ``output_dir`` one is replaced.
+        script: the recipe's path as it is invoked.
+    """
+    folder = os.path.abspath(output_dir)
+    kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") != "output_dir"]
+    command = " ".join(["python", script, *map(shlex.quote, kept), shlex.quote(f"output_dir={folder}")])
+    return (
+        f"output folder: {folder}\n"
+        "to resume this evaluation (after an interruption, or to reuse its finished episodes), rerun it into "
+        f"the same folder:\n  {command}"
     )

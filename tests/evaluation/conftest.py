@@ -29,7 +29,8 @@ def vrw_run(tmp_path_factory, tiny_episodes):
     return out, result
 
 
-def _checkpoint(run_dir, config):
+def make_checkpoint(run_dir, config, train_config=None):
+    """A seeded, untrained checkpoint of ``config`` in ``run_dir`` (``train_config`` stored in its header)."""
     torch.manual_seed(0)
     model = NavFormerModel(config)
     state = model.state_dict()
@@ -38,10 +39,16 @@ def _checkpoint(run_dir, config):
         1,
         model_state=state,
         model_config=dataclasses.asdict(config),
-        train_config={},
+        train_config=train_config or {},
         resume_state=None,
     )
     return run_dir
+
+
+@pytest.fixture(scope="session")
+def checkpoint_factory():
+    """:func:`make_checkpoint`: ``(run_dir, config, train_config=None) -> run_dir``."""
+    return make_checkpoint
 
 
 @pytest.fixture(scope="session")
@@ -49,6 +56,6 @@ def checkpoints(tmp_path_factory):
     """Untrained (seeded) NavFormer and DT-baseline checkpoints: ``{"navformer": dir, "dt": dir}``."""
     root = tmp_path_factory.mktemp("ckpt")
     return {
-        "navformer": _checkpoint(root / "navformer", NavFormerConfig()),
-        "dt": _checkpoint(root / "dt", NavFormerConfig.dt_baseline()),
+        "navformer": make_checkpoint(root / "navformer", NavFormerConfig()),
+        "dt": make_checkpoint(root / "dt", NavFormerConfig.dt_baseline()),
     }

@@ -1,6 +1,7 @@
 """`navformer evaluate` (make-episodes, run, report) and the markdown report."""
 
 import argparse
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -145,3 +146,143 @@ def test_ablation_labels_are_compared_with_their_table4_row():
     assert by_setup["12.5m-4r"].startswith("| 12.5m-4r | 100.00% / 32.08% | 0.800 / 0.261 | 0.000 / 0.500 |")
     # Table IV has no 7.5 m row: no paper value for the ablation there, Table I's for the full model
     assert by_setup["7.5m-2r"] == "| 7.5m-2r | - | - | - | 100.00% / 80.83% | 0.800 / 0.562 | 0.000 / 0.228 |"
+
+
+def test_cli_refuses_a_label_naming_another_ablation_before_generating_episodes(
+    tmp_path, checkpoint_factory, monkeypatch
+):
+    from navformer_rl.evaluation import episodes
+    from navformer_rl.modules import NavFormerConfig
+
+    full = checkpoint_factory(tmp_path / "full", NavFormerConfig(), {"ablation": "none"})
+
+    def no_generation(*args, **kwargs):
+        raise AssertionError("episodes generated before the label was checked")
+
+    monkeypatch.setattr(episodes, "make_protocol_episodes", no_generation)
+    argv = ["evaluate", "--method", "navformer", "--checkpoint", str(full), "--protocol", "table1"]
+    with pytest.raises(
+        ValueError, match=r"'navformer-no_thsc' names the training ablation 'no_thsc'.*ablation=none"
+    ):
+        _run([*argv, "--label", "navformer-no_thsc", "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
+
+
+def _relabel(source: Path, target: Path, label: str, **run_changes) -> Path:
+    """A copy of an evaluation folder as an earlier version wrote it under another label (no `ablation`
+    and no timing beyond `seconds` in run.json)."""
+    shutil.copytree(source, target)
+    run = json.loads((target / "run.json").read_text())
+    for key in ("ablation", "invocation_seconds", "episode_seconds", "episodes_computed", "episodes_reused"):
+        run.pop(key, None)
+    run.update(label=label, **run_changes)
+    (target / "run.json").write_text(json.dumps(run))
+    rows = [json.loads(line) for line in (target / "episodes.jsonl").read_text().splitlines()]
+    (target / "episodes.jsonl").write_text("".join(json.dumps({**r, "method": label}) + "\n" for r in rows))
+    return target
+
+
+def test_report_warns_about_older_runs_whose_label_names_another_ablation(
+    tmp_path, tiny_episodes, checkpoints, checkpoint_factory
+):
+    from navformer_rl.modules import NavFormerConfig
+
+    kwargs = dict(maps_per_setup=0, videos_per_setup=0, progress=False)
+    run = evaluate("navformer", tiny_episodes, tmp_path / "nf", checkpoint=checkpoints["navformer"], **kwargs)
+    # The fixture's checkpoint records no training ablation, but its model has THSC: not w/o THSC.
+    old = _relabel(run.out_dir, tmp_path / "old", "navformer-no_thsc")
+    text = write_report([old], tmp_path / "report.md").read_text()
+    assert f"**Warning: {old}**: the label 'navformer-no_thsc' names the training ablation 'no_thsc'" in text
+    assert "its rows are not compared with the paper." in text
+    assert "navformer-no_thsc SR (ours / paper" not in text
+    assert "| navformer-no_thsc |" in text and "†" in text  # the older run.json's seconds are marked
+    # The same weights, now in a checkpoint that records ablation=none: compared with the full model's row.
+    full = checkpoint_factory(tmp_path / "full", NavFormerConfig(), {"ablation": "none"})
+    sha256 = hashlib.sha256(next(full.rglob("model.safetensors")).read_bytes()).hexdigest()
+    old2 = _relabel(
+        run.out_dir, tmp_path / "old2", "navformer-no_thsc", checkpoint=str(full), checkpoint_sha256=sha256
+    )
+    text = write_report([old2], tmp_path / "report.md").read_text()
+    assert "but checkpoint" in text and "was trained with ablation=none" in text
+    assert "compared with the paper's NavFormer instead." in text
+    assert "navformer-no_thsc SR (ours / paper NavFormer)" in text and "/ 80.83%" in text
+    # ... but only while the checkpoint at the recorded path has the weights that were evaluated
+    (full / "checkpoints" / "iter_000001" / "model.safetensors").write_bytes(b"other weights")
+    assert "its rows are not compared with the paper." in write_report([old2], tmp_path / "r.md").read_text()
+    # A run of this version is not warned about; its checkpoint's ablation is listed.
+    text = write_report([run.out_dir], tmp_path / "report.md").read_text()
+    assert "Warning" not in text and "navformer SR (ours / paper NavFormer)" in text and "†" not in text
+
+
+def test_the_recorded_ablation_decides_the_paper_column():
+    from navformer_rl.evaluation.paper_results import label_ablation
+    from navformer_rl.evaluation.report import _paper_column
+
+    assert _paper_column("navformer", "no_thsc") == "NavFormer w/o THSC"
+    assert _paper_column("navformer-seed1", "none") == "NavFormer"
+    assert _paper_column("dt", "dt") == "DT" and _paper_column("vrw") == "VRW"
+    assert _paper_column("navformer_resnet18") == "NavFormer w ResNet18"
+    assert [label_ablation(x) for x in ("navformer-no_de", "navformer-seed1", "dt-no_thsc", "vrw")] == [
+        "no_de", None, None, None,
+    ]  # fmt: skip
+
+
+def _records(methods_and_setups):
+    import dataclasses
+
+    from navformer_rl.evaluation.measures import RobotTrial
+
+    base = RobotTrial(
+        method="", episode_id="", setup="", size=0.0, n_robots=0, world_seed=0, trial=0, robot=0,
+        robot_style="jackal", measured=True, success=True, success_step=10, steps=10, collisions=0,
+        path_length=5.0, shortest_path=4.0, shortest_path_to_disc=3.0, final_distance=0.5,
+    )  # fmt: skip
+    return [
+        dataclasses.replace(
+            base, method=method, episode_id=f"{setup}-{i}", setup=setup, size=size, n_robots=n
+        )
+        for method, setups in methods_and_setups.items()
+        for setup, size, n in setups
+        for i in range(2)
+    ]
+
+
+def test_every_table_and_the_plot_order_setups_alike(tmp_path, monkeypatch):
+    import matplotlib.axes
+
+    from navformer_rl.evaluation.plots import plot_setup_bars
+    from navformer_rl.evaluation.report import paper_comparison_markdown, spl_disc_markdown
+    from navformer_rl.evaluation.tables import summarize_by_setup, table_markdown
+
+    table3 = [("12.5m-4r-seen", 12.5, 4), ("12.5m-4r-unseen", 12.5, 4)]
+    summaries = summarize_by_setup(_records({"fca": table3, "vrw": [("7.5m-2r", 7.5, 2)]}))
+    expected = ["7.5m-2r", "12.5m-4r-seen", "12.5m-4r-unseen", "all"]
+
+    def setups(table):
+        return [row.split(" | ")[0].strip("| ") for row in table.strip().splitlines()[2:]]
+
+    assert setups(table_markdown(summaries, ["fca", "vrw"])) == expected
+    assert setups(spl_disc_markdown(summaries, ["fca", "vrw"])) == expected
+    assert setups(paper_comparison_markdown(summaries, ["fca", "vrw"])) == expected[:-1]
+    ticks = []
+    original = matplotlib.axes.Axes.set_xticks
+    monkeypatch.setattr(
+        matplotlib.axes.Axes,
+        "set_xticks",
+        lambda self, positions, labels=None, **kw: (
+            ticks.append(list(labels)) or original(self, positions, labels, **kw)
+        ),
+    )
+    plot_setup_bars(summaries, tmp_path / "plot.png", methods=["fca", "vrw"])
+    assert ticks == [expected[:-1]]
+
+
+def test_the_pooled_row_exists_only_with_more_than_one_setup(vrw_run):
+    import csv
+
+    from navformer_rl.evaluation.tables import summarize_by_setup
+
+    out, _ = vrw_run  # one setup: its row only (an `all` row would repeat it)
+    assert [r["setup"] for r in csv.DictReader((out / "summary.csv").open())] == ["7.5m-2r"]
+    two = summarize_by_setup(_records({"vrw": [("7.5m-2r", 7.5, 2), ("12.5m-4r", 12.5, 4)]}))
+    assert [s.setup for s in two] == ["7.5m-2r", "12.5m-4r", "all"]

@@ -150,3 +150,44 @@ def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes, monkeypatch):
     partial.write_text(json.dumps(document))
     evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False, resume=False)
     assert (out / "episodes.jsonl").read_text() == first
+
+
+def test_run_json_times_the_computation_not_the_rerun(tmp_path, tiny_episodes):
+    """A rerun that reuses finished episodes reports the time that computed them, not its own ~0 s."""
+    from navformer_rl.evaluation.report import write_report
+
+    out = tmp_path / "timed"
+    kwargs = dict(maps_per_setup=0, videos_per_setup=0, progress=False)
+    evaluate("vrw", tiny_episodes, out, **kwargs)
+    first = json.loads((out / "run.json").read_text())
+    stored = {p.name: json.loads(p.read_text()) for p in sorted((out / "per_episode").glob("*.json"))}
+    assert first["seconds"] == round(sum(d["wall_seconds"] for d in stored.values()), 3) > 0
+    assert first["episode_seconds"] == round(sum(d["seconds"] for d in stored.values()), 3) > 0
+    assert first["seconds"] <= first["invocation_seconds"]
+    assert (first["episodes_computed"], first["episodes_reused"]) == (2, 0)
+
+    result = evaluate("vrw", tiny_episodes, out, **kwargs)
+    rerun = json.loads((out / "run.json").read_text())
+    assert (rerun["seconds"], rerun["episode_seconds"]) == (first["seconds"], first["episode_seconds"])
+    assert (rerun["episodes_computed"], rerun["episodes_reused"]) == (0, 2)
+    assert result.episodes_computed == 0 and result.seconds == first["seconds"]
+
+    # one episode reused (with a marked time), one recomputed: their times add up
+    reused, redone = (out / "per_episode" / name for name in stored)
+    document = json.loads(reused.read_text())
+    document["wall_seconds"] = 1000.0
+    reused.write_text(json.dumps(document))
+    redone.unlink()
+    evaluate("vrw", tiny_episodes, out, **kwargs)
+    third = json.loads((out / "run.json").read_text())
+    assert third["seconds"] == round(1000.0 + json.loads(redone.read_text())["wall_seconds"], 3)
+    assert (third["episodes_computed"], third["episodes_reused"]) == (1, 1)
+    report = write_report([out], tmp_path / "report.md").read_text()
+    assert f"| - | - | {third['seconds']:.0f} |" in report  # checkpoint, ablation, seconds
+
+    # an episode stored without its time (an older version's file) makes the total unknown, not smaller
+    del document["wall_seconds"]
+    reused.write_text(json.dumps(document))
+    evaluate("vrw", tiny_episodes, out, **kwargs)
+    assert json.loads((out / "run.json").read_text())["seconds"] is None
+    assert "| - | - | - |" in write_report([out], tmp_path / "report.md").read_text()

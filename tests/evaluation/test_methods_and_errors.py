@@ -2,11 +2,13 @@
 
 import dataclasses
 import json
+import shutil
 
 import pytest
 
 from navformer_rl.evaluation.episodes import save_episode_set
-from navformer_rl.evaluation.harness import METHODS, evaluate
+from navformer_rl.evaluation.harness import METHODS, PolicySpec, checkpoint_ablation, evaluate
+from navformer_rl.modules import NavFormerConfig
 
 
 @pytest.mark.parametrize("method", ["navformer", "dt"])
@@ -20,6 +22,55 @@ def test_checkpoint_methods_run_every_robot(tmp_path, tiny_episodes, checkpoints
     assert all(r.path_length > 0 for r in result.records)
     run = json.loads((tmp_path / method / "run.json").read_text())
     assert run["model_config"]["thsc"] is (method == "navformer")
+    assert run["ablation"] is None  # the fixture's checkpoints record no training configuration
+
+
+def test_a_label_naming_an_ablation_must_be_the_checkpoints(tmp_path, tiny_episodes, checkpoint_factory):
+    """`--label navformer-no_thsc` on a full model would be compared with Table IV's w/o THSC row."""
+    make_checkpoint = checkpoint_factory
+    full = make_checkpoint(tmp_path / "full", NavFormerConfig(), {"ablation": "none"})
+    out = tmp_path / "out"
+    named = {
+        "navformer-no_thsc": "no_thsc",
+        "navformer-no_ssl": "no_ssl",
+        "NavFormer_resnet18-s1": "resnet18",
+    }
+    for label, ablation in named.items():
+        with pytest.raises(
+            ValueError, match=f"names the training ablation '{ablation}'.*trained with ablation=none"
+        ):
+            evaluate("navformer", tiny_episodes, out, checkpoint=full, label=label, progress=False)
+    assert not out.exists()  # refused before anything was written or run
+    # labels that name no ablation stay free; the checkpoint's ablation is recorded
+    for label in (None, "navformer-seed1", "navformer-none"):
+        assert PolicySpec("navformer", str(full)).validate(label)["ablation"] == "none"
+    # the matching ablation is accepted
+    no_thsc = make_checkpoint(tmp_path / "no_thsc", NavFormerConfig(thsc=False), {"ablation": "no_thsc"})
+    assert PolicySpec("navformer", str(no_thsc)).validate("navformer-no_thsc")["ablation"] == "no_thsc"
+    # a DT checkpoint, or a method without a checkpoint, is no NavFormer ablation either
+    dt = make_checkpoint(tmp_path / "dt", NavFormerConfig.dt_baseline(), {"ablation": "dt"})
+    with pytest.raises(ValueError, match="trained with ablation=dt"):
+        evaluate("dt", tiny_episodes, out, checkpoint=dt, label="navformer-no_thsc", progress=False)
+    with pytest.raises(ValueError, match="method 'vrw' is not a trained model"):
+        evaluate("vrw", tiny_episodes, out, label="navformer-no_thsc", progress=False)
+    assert not out.exists()
+
+
+def test_without_a_recorded_ablation_the_architecture_is_checked(tmp_path, checkpoints):
+    # the fixtures' checkpoints record no training config (written by hand): the architecture decides
+    assert (
+        PolicySpec("navformer", str(checkpoints["navformer"])).validate("navformer-seed1")["ablation"] is None
+    )
+    with pytest.raises(ValueError, match=r"records no training ablation.*'thsc': \(True, False\)"):
+        PolicySpec("navformer", str(checkpoints["navformer"])).validate("navformer-no_thsc")
+    # no_ssl only changes the training data: the full architecture is all that can be checked
+    PolicySpec("navformer", str(checkpoints["navformer"])).validate("navformer-no_ssl")
+    # the run directory's train_config.json is read when the checkpoint header has no training config
+    run = shutil.copytree(checkpoints["navformer"], tmp_path / "run")
+    (run / "train_config.json").write_text(json.dumps({"ablation": "none"}))
+    assert checkpoint_ablation(run) == "none"
+    with pytest.raises(ValueError, match="trained with ablation=none"):
+        PolicySpec("navformer", str(run)).validate("navformer-no_ssl")
 
 
 def test_wrong_checkpoint_kind_is_refused(tmp_path, tiny_episodes, checkpoints):

@@ -26,6 +26,9 @@ def test_recipe_smoke(tmp_path):
     rows = list(csv.DictReader((out / "summary.csv").open()))
     assert [(r["method"], r["setup"], r["n_robot_trials"]) for r in rows] == [("vrw", "7.5m-2r", "2")]
     assert "| 7.5m-2r | 7.5 × 7.5 | 2 |" in done.stdout
+    # it says first where it writes and how to resume there (its default folder is new on every run)
+    assert done.stdout.startswith(f"output folder: {out}\n")
+    assert "method=vrw protocol=smoke" in done.stdout and f"output_dir={out}\n" in done.stdout
 
 
 def _recipe_utils():
@@ -57,4 +60,31 @@ def test_recipe_generation_keys_default_to_the_paper_and_are_refused_beside_a_fi
     assert utils.make_episode_set(cfg) == generated
     cfg.max_steps = 50
     with pytest.raises(ValueError, match="max_steps: only with `protocol`"):
+        utils.make_episode_set(cfg)
+
+
+def test_recipe_prints_how_to_resume_its_output_folder(tmp_path):
+    utils = _recipe_utils()
+    hint = utils.resume_hint("outputs/evaluate/vrw/x", ["method=vrw", "label=my label", "output_dir=old"])
+    folder = Path("outputs/evaluate/vrw/x").resolve()
+    assert hint.splitlines()[0] == f"output folder: {folder}"
+    assert hint.splitlines()[-1] == (
+        f"  python recipes/evaluate/evaluate.py method=vrw 'label=my label' output_dir={folder}"
+    )
+
+
+def test_recipe_refuses_a_label_naming_another_ablation_before_generating_episodes(
+    tmp_path, checkpoint_factory
+):
+    from omegaconf import OmegaConf
+
+    from navformer_rl.modules import NavFormerConfig
+
+    utils = _recipe_utils()
+    cfg = OmegaConf.load(RECIPE.parent / "config.yaml")
+    cfg.output_dir = str(tmp_path / "out")
+    cfg.method, cfg.protocol = "navformer", "table1"  # generating table1 would take a minute
+    cfg.checkpoint = str(checkpoint_factory(tmp_path / "full", NavFormerConfig(), {"ablation": "none"}))
+    cfg.label = "navformer-no_fg"
+    with pytest.raises(ValueError, match="names the training ablation 'no_fg'.*trained with ablation=none"):
         utils.make_episode_set(cfg)

@@ -1,0 +1,126 @@
+"""The demo's stage times describe the computation that produced each stage's result, not the last rerun."""
+
+import json
+
+import pytest
+
+from navformer_rl import demo
+from navformer_rl.demo import DemoConfig, StageTimes
+from navformer_rl.demo_report import timings_markdown
+
+
+class FakeClock:
+    """``time.perf_counter`` of the demo module, advanced by hand."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = FakeClock()
+    monkeypatch.setattr(demo, "time", fake)
+    return fake
+
+
+def test_stage_times_keep_the_time_that_computed_a_result(tmp_path, clock):
+    result = {"collect": None, "train": None}
+
+    def stage(name, seconds, produces=None, fails=False):
+        def work():
+            clock.now += seconds
+            if produces is not None:
+                result[name] = produces
+            if fails:
+                raise KeyboardInterrupt
+            return name
+
+        return lambda: result[name], work
+
+    times = StageTimes(tmp_path)
+    assert times.run("collect", *stage("collect", 100.0, "data-1")) == "collect"
+    assert times.seconds("collect") == 100.0
+    # a rerun (a new process) that finds the result finished keeps the first time
+    times = StageTimes(tmp_path)
+    times.run("collect", *stage("collect", 1.5))
+    assert times.seconds("collect") == 100.0 and times.this_invocation["collect"] == 1.5
+    # an interrupted stage and the rerun that finishes it add up
+    with pytest.raises(KeyboardInterrupt):
+        StageTimes(tmp_path).run("train", *stage("train", 30.0, "iter_000010", fails=True))
+    times = StageTimes(tmp_path)
+    times.run("train", *stage("train", 50.0, "iter_000020"))
+    assert times.seconds("train") == 80.0
+    # a deleted result starts over instead of adding to the old time
+    result["train"] = None
+    times = StageTimes(tmp_path)
+    times.run("train", *stage("train", 70.0, "iter_000020"))
+    assert times.seconds("train") == 70.0
+    saved = json.loads((tmp_path / "stage_times.json").read_text())
+    assert saved == {
+        "collect": {"seconds": 100.0, "result": "data-1"},
+        "train": {"seconds": 70.0, "result": "iter_000020"},
+    }
+    # a finished result that no invocation timed (made before stage_times.json existed): unknown
+    (tmp_path / "stage_times.json").unlink()
+    times = StageTimes(tmp_path)
+    times.run("collect", *stage("collect", 2.0))
+    assert times.seconds("collect") is None
+
+
+def test_a_rerun_of_the_demo_reports_the_first_runs_times(tmp_path, clock, monkeypatch):
+    """run_demo with stand-in stages that do their work once (as the real ones resume) and take known time."""
+    cfg = DemoConfig.preset("quick", out_dir=tmp_path, methods=("navformer", "vrw"))
+
+    def collect_stage(cfg, progress=True):
+        metadata = cfg.out_dir / "data" / "e" / "metadata.json"
+        if not metadata.is_file():
+            clock.now += 300.0
+            metadata.parent.mkdir(parents=True)
+            metadata.write_text('{"status": "complete"}')
+        clock.now += 1.0  # checking what is there
+        return {"e": metadata.parent}
+
+    def train_stage(cfg, data, method, progress=True):
+        run_dir = cfg.out_dir / "train" / method
+        checkpoint = run_dir / "checkpoints" / "iter_000020"
+        if not checkpoint.is_dir():
+            clock.now += 600.0
+            checkpoint.mkdir(parents=True)
+            (checkpoint / "config.json").write_text("{}")
+            (run_dir / "checkpoints" / "latest").write_text("iter_000020\n")
+        clock.now += 2.0
+        return run_dir
+
+    def evaluate_stage(cfg, train_dirs, progress=True):
+        folders = []
+        for seconds, method in zip((40.0, 60.0), cfg.methods):
+            folder = cfg.out_dir / "eval" / method
+            if not folder.is_dir():
+                clock.now += seconds
+                folder.mkdir(parents=True)
+                # what the harness writes: the time that computed its episodes, kept on reruns
+                (folder / "run.json").write_text(json.dumps({"seconds": seconds}))
+            clock.now += 0.5
+            folders.append(folder)
+        return folders
+
+    reports = []
+    monkeypatch.setattr(demo, "collect_stage", collect_stage)
+    monkeypatch.setattr(demo, "train_stage", train_stage)
+    monkeypatch.setattr(demo, "evaluate_stage", evaluate_stage)
+    monkeypatch.setattr(
+        "navformer_rl.demo_report.write_demo_report",
+        lambda cfg, data, train_dirs, folders, timings: reports.append(timings) or cfg.out_dir / "report.md",
+    )
+    for _ in range(2):
+        demo.run_demo(cfg, progress=False, log=lambda line: None)
+    first, rerun = reports
+    assert first == {"collect": (301.0, 301.0), "train navformer": (602.0, 602.0), "evaluate": (100.0, 101.0)}
+    assert rerun == {"collect": (301.0, 1.0), "train navformer": (602.0, 2.0), "evaluate": (100.0, 1.0)}
+    table = "\n".join(timings_markdown(rerun))
+    assert "| stage | seconds computing the result | seconds in this invocation |" in table
+    assert "| collect | 301 | 1 |" in table and "| evaluate | 100 | 1 |" in table
+    assert "| train navformer | - | 2 |" in "\n".join(timings_markdown({"train navformer": (None, 2.0)}))
