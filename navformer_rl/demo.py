@@ -372,7 +372,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "evaluate them with VRW and FCA on fixed episodes, and write report.md in --out. Rerun the same "
         "command to resume after an interruption.",
     )
-    demo.add_argument("--out", default="runs/demo", help="run folder (default runs/demo)")
+    demo.add_argument(
+        "--out", type=cli_args.output_folder, default="runs/demo", help="run folder (default runs/demo)"
+    )
     demo.add_argument(
         "--preset",
         default="default",
@@ -392,7 +394,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Generate a seeded maze with several robots, drive them with the goal-seeking obstacle "
         "policy, and write map.png (trajectories) and egocentric.mp4 into --out.",
     )
-    world.add_argument("--out", default="runs/world-demo", help="output folder (default runs/world-demo)")
+    world.add_argument(
+        "--out",
+        type=cli_args.output_folder,
+        default="runs/world-demo",
+        help="output folder (default runs/world-demo)",
+    )
     world.add_argument("--size", type=float, default=12.5, help="maze side in metres, 5-17.5 (default 12.5)")
     world.add_argument("--robots", type=int, default=4, help="number of robots (default 4)")
     world.add_argument("--steps", type=int, default=200, help="steps of 0.2 s (default 200)")

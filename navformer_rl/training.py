@@ -902,6 +902,8 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
     """
     validate_config(cfg)
     run_dir = Path(cfg.output_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"output_dir={str(run_dir)!r} is a file; expected a folder (created if missing)")
     latest = ckpt.latest_checkpoint(run_dir) if (run_dir / ckpt.CHECKPOINTS_DIRNAME).is_dir() else None
     if latest is not None and not cfg.resume:
         raise FileExistsError(

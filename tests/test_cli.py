@@ -14,6 +14,9 @@ REPO = Path(__file__).resolve().parents[1]
     "argv",
     [
         ["collect", "e", "--out", "{file}"],
+        ["demo", "--out", "{file}"],
+        ["world-demo", "--out", "{file}"],
+        ["evaluate", "--method", "vrw", "--protocol", "smoke", "--out", "{file}"],
     ],
 )
 def test_an_existing_file_as_output_folder_is_a_one_line_error(tmp_path, capsys, argv):

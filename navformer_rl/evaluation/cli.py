@@ -34,13 +34,15 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     parser.add_argument("--method", help=f"one of: {', '.join(METHODS)}")
     parser.add_argument(
-        "--checkpoint", help="run dir, checkpoint folder or model.safetensors (navformer, dt)"
+        "--checkpoint",
+        help="navformer, dt: a run dir, its checkpoints/ or checkpoints/latest, a checkpoint folder "
+        "(checkpoints/iter_XXXXXX) or its model.safetensors",
     )
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--episodes", type=Path, help="episode-set JSON file (from `evaluate make-episodes`)")
     source.add_argument("--protocol", help=f"generate the episodes of a protocol: {', '.join(PROTOCOLS)}")
     _add_generation_options(parser)
-    parser.add_argument("--out", type=Path, help="output folder")
+    parser.add_argument("--out", type=cli_args.output_folder, help="output folder")
     parser.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
     parser.add_argument(
         "--videos", type=int, default=1, help="episodes per setup recorded as mp4 (default 1)"

@@ -185,6 +185,14 @@ def test_bad_configs_fail_before_training(tiny_config, overrides, error, message
     assert not Path(output_dir).exists()  # nothing was written
 
 
+def test_a_file_as_output_dir_is_refused(tiny_config, tmp_path):
+    existing = tmp_path / "afile"
+    existing.write_text("keep me")
+    with pytest.raises(ValueError, match="is a file; expected a folder"):
+        build_trainer(tiny_config(f"output_dir={existing}"))
+    assert existing.read_text() == "keep me"
+
+
 @pytest.mark.parametrize(
     "overrides, fits",
     [
