@@ -14,6 +14,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from navformer_rl.durable import atomic_write_text
+
 if TYPE_CHECKING:
     from navformer_rl.demo import DemoConfig
 
@@ -110,6 +112,17 @@ def timings_markdown(timings: dict[str, tuple[float | None, float]]) -> list[str
     ]
 
 
+def nested_report(markdown: str) -> str:
+    """A ``write_report`` report as a section body: its marker line and ``# title`` dropped, every heading
+    one level deeper (to sit under the demo report's ``## Evaluation``)."""
+    from navformer_rl.evaluation.report import REPORT_MARKER
+
+    body = markdown.removeprefix(REPORT_MARKER + "\n")
+    if not body.startswith("# "):
+        raise ValueError(f"expected a report starting with its '# title', got {body[:60]!r}")
+    return re.sub(r"^(#+) ", r"#\1 ", body.split("\n", 1)[1], flags=re.MULTILINE)
+
+
 def write_demo_report(
     cfg: DemoConfig,
     data: dict[str, Path],
@@ -127,8 +140,7 @@ def write_demo_report(
 
     report_dir = cfg.out_dir
     evaluation_md = write_report(eval_dirs, report_dir / "evaluation.md", title="Evaluation", seed=cfg.seed)
-    evaluation = evaluation_md.read_text().split("\n", 1)[1]  # drop its title; ours heads the report
-    evaluation = re.sub(r"^(#+) ", r"#\1 ", evaluation, flags=re.MULTILINE)  # nest under "## Evaluation"
+    evaluation = nested_report(evaluation_md.read_text())
 
     lines = [
         "# NavFormer end-to-end demo\n",
@@ -155,7 +167,5 @@ def write_demo_report(
         "and seeds its `eval/<method>/run.json`.\n",
     ]
     report = report_dir / "report.md"
-    tmp = report.with_suffix(".md.tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, report)
+    atomic_write_text(report, "\n".join(lines) + "\n")
     return report

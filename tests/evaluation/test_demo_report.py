@@ -124,3 +124,15 @@ def test_a_rerun_of_the_demo_reports_the_first_runs_times(tmp_path, clock, monke
     assert "| stage | seconds computing the result | seconds in this invocation |" in table
     assert "| collect | 301 | 1 |" in table and "| evaluate | 100 | 1 |" in table
     assert "| train navformer | - | 2 |" in "\n".join(timings_markdown({"train navformer": (None, 2.0)}))
+
+
+def test_the_evaluation_report_is_nested_under_the_demo_reports_heading(tmp_path, vrw_run):
+    from navformer_rl.demo_report import nested_report
+    from navformer_rl.evaluation.report import REPORT_MARKER, write_report
+
+    text = write_report([vrw_run[0]], tmp_path / "evaluation.md", title="Evaluation").read_text()
+    assert text.startswith(REPORT_MARKER + "\n# Evaluation\n")
+    nested = nested_report(text)
+    assert REPORT_MARKER not in nested and "# Evaluation" not in nested.splitlines()[:3]
+    headings = [line for line in nested.splitlines() if line.startswith("#")]
+    assert headings and all(line.startswith("### ") or line.startswith("#### ") for line in headings)
