@@ -26,7 +26,8 @@ def dir_mode() -> int:
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path next to ``path`` (same suffix); on success it is renamed onto ``path``.
+    """Yield a temporary path next to ``path`` (same suffix); on success it is fsynced and renamed onto
+    ``path`` (the folder fsynced too), so the file is complete whenever it exists, even after a power loss.
 
     For writers that want a file name (matplotlib, OpenCV, ffmpeg). On error the temporary file is removed and
     ``path`` is left untouched.
@@ -38,10 +39,12 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     os.chmod(tmp, file_mode())  # mkstemp creates 0600; give the file the usual permissions
     try:
         yield Path(tmp)
+        fsync_file(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    fsync_dir(path.parent)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
@@ -49,9 +52,6 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="utf-8") as handle:
             handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-    fsync_dir(Path(path).parent)
 
 
 def fsync_file(path: str | os.PathLike) -> None:

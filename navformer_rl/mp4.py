@@ -1,14 +1,19 @@
 """H.264 mp4 writing that browsers play: frames are piped to the ffmpeg binary shipped by ``imageio-ffmpeg``.
 
 OpenCV's pip wheels carry no H.264 encoder (only MPEG-4 Part 2, ``mp4v``, which browsers and most notebook
-viewers refuse), so the evaluation videos and the world demo write through ``imageio_ffmpeg.write_frames``
-with ``libx264``, ``yuv420p`` and the index at the front of the file (``+faststart``): the files play in
-browsers, VS Code, Jupyter, VLC and QuickTime.
+viewers refuse), so the evaluation videos and the world demo pipe raw RGB frames into ffmpeg with
+``libx264``, ``yuv420p`` and the index at the front of the file (``+faststart``): the files play in
+browsers, VS Code, Jupyter, VLC and QuickTime. A file is moved into place only after ffmpeg exited with
+status 0, so a crashed or killed encoder never leaves a broken video behind.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import subprocess
+import tempfile
+from fractions import Fraction
 from pathlib import Path
 
 import imageio_ffmpeg
@@ -22,6 +27,26 @@ PRESET = "veryfast"
 """libx264's speed preset: the frames are flat drawings, so a fast preset loses little."""
 
 
+def ffmpeg_executable() -> str:
+    """Path of the ffmpeg binary of ``imageio-ffmpeg`` (RuntimeError naming the fix when it is missing)."""
+    try:
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError as error:
+        raise RuntimeError(
+            f"no ffmpeg binary for the mp4 videos ({error}); reinstall imageio-ffmpeg for this platform, or "
+            "set IMAGEIO_FFMPEG_EXE to an ffmpeg with libx264"
+        ) from None
+
+
+def video_codec(path: str | os.PathLike) -> str:
+    """The codec of the video stream of ``path`` (``"h264"``, ``"mpeg4"`` for OpenCV's ``mp4v``, ...)."""
+    reader = imageio_ffmpeg.read_frames(str(path))
+    try:
+        return str(next(reader)["codec"])
+    finally:
+        reader.close()
+
+
 class Mp4Writer:
     """Streams uint8 RGB frames ``[H, W, 3]`` into an H.264 mp4; the file appears atomically on :meth:`close`.
 
@@ -33,6 +58,10 @@ class Mp4Writer:
         path: output ``.mp4``; its folder is created.
         fps: frames per second (> 0).
         threads: encoder threads (0 = as many as ffmpeg chooses); give 1 when several processes encode.
+
+    Raises:
+        OSError: from :meth:`write` or :meth:`close` when ffmpeg fails (its message included); the partial
+            file is deleted and ``path`` left untouched.
     """
 
     def __init__(self, path: str | os.PathLike, fps: float, threads: int = 0) -> None:
@@ -43,9 +72,11 @@ class Mp4Writer:
             raise ValueError(f"{self.path}: expected a file name ending in .mp4")
         self.fps = float(fps)
         self.threads = int(threads)
+        self._executable = ffmpeg_executable()
         self._context = atomic_path(self.path)  # the temporary file keeps the .mp4 suffix ffmpeg reads
         self._tmp = self._context.__enter__()
-        self._encoder = None
+        self._process: subprocess.Popen | None = None
+        self._log = None  # ffmpeg's stderr, a temporary file (a pipe could fill up and block ffmpeg)
         self._finished = False
         self._size: tuple[int, int] | None = None  # (height, width) of the incoming frames
         self.frames = 0
@@ -69,13 +100,16 @@ class Mp4Writer:
             )
         if self._size is None:
             self._size = frame.shape[:2]
-            self._encoder = self._start_encoder()
+            self._start_encoder()
         elif frame.shape[:2] != self._size:
             raise ValueError(
                 f"{self.path}: frame {self.frames} is {frame.shape[1]}x{frame.shape[0]} px, "
                 f"the video's first frame {self._size[1]}x{self._size[0]} px"
             )
-        self._encoder.send(np.ascontiguousarray(_pad_to_even(frame)))
+        try:
+            self._process.stdin.write(np.ascontiguousarray(_pad_to_even(frame)).tobytes())
+        except BrokenPipeError:
+            self._fail(f"ffmpeg stopped after {self.frames} frames")
         self.frames += 1
 
     def close(self) -> Path:
@@ -85,15 +119,15 @@ class Mp4Writer:
         if self.frames == 0:
             self.abort()
             raise ValueError(f"no frames were written to {self.path}")
-        try:
-            self._encoder.close()
-        except BaseException as error:
-            self._encoder = None
-            self._finished = True
-            self._context.__exit__(type(error), error, None)
-            raise
-        self._encoder = None
+        with contextlib.suppress(BrokenPipeError):  # the exit status below tells
+            self._process.stdin.close()
+        status = self._process.wait()
+        if status != 0:
+            self._fail(f"ffmpeg exited with status {status}")
+        if self._tmp.stat().st_size == 0:
+            self._fail("ffmpeg wrote an empty file")
         self._finished = True
+        self._log.close()
         self._context.__exit__(None, None, None)
         return self.path
 
@@ -102,33 +136,34 @@ class Mp4Writer:
         if self._finished:
             return
         self._finished = True
-        if self._encoder is not None:
-            try:
-                self._encoder.close()
-            except Exception:  # the partial file is deleted either way
-                pass
-            self._encoder = None
+        if self._process is not None:
+            self._process.kill()
+            self._process.wait()
+            with contextlib.suppress(OSError):  # flushing into the dead encoder's pipe
+                self._process.stdin.close()
+            self._log.close()
         self._context.__exit__(RuntimeError, RuntimeError("aborted"), None)
 
-    def _start_encoder(self):
+    def _fail(self, what: str) -> None:
+        """Abort and raise ``OSError`` with ffmpeg's last messages."""
+        self._log.seek(0)
+        messages = self._log.read().decode(errors="replace").strip()[-800:]
+        self.abort()
+        raise OSError(f"{self.path}: {what}" + (f": {messages}" if messages else ""))
+
+    def _start_encoder(self) -> None:
         height, width = self._size
-        encoder = imageio_ffmpeg.write_frames(
-            str(self._tmp),
-            (width + width % 2, height + height % 2),
-            fps=self.fps,
-            codec="libx264",
-            pix_fmt_in="rgb24",
-            pix_fmt_out="yuv420p",
-            quality=None,
-            macro_block_size=1,
-            ffmpeg_log_level="error",
-            output_params=[
-                *("-crf", str(CRF), "-preset", PRESET, "-threads", str(self.threads)),
-                *("-movflags", "+faststart"),
-            ],
+        command = [
+            *(self._executable, "-y", "-loglevel", "error", "-f", "rawvideo", "-vcodec", "rawvideo"),
+            *("-s", f"{width + width % 2}x{height + height % 2}", "-pix_fmt", "rgb24"),
+            *("-r", str(Fraction(self.fps).limit_denominator()), "-i", "-", "-an"),
+            *("-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", str(CRF), "-preset", PRESET),
+            *("-threads", str(self.threads), "-movflags", "+faststart", str(self._tmp)),
+        ]
+        self._log = tempfile.TemporaryFile()
+        self._process = subprocess.Popen(
+            command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log
         )
-        encoder.send(None)  # starts ffmpeg
-        return encoder
 
 
 def _pad_to_even(frame: np.ndarray) -> np.ndarray:

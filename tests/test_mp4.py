@@ -7,7 +7,7 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from navformer_rl.mp4 import Mp4Writer
+from navformer_rl.mp4 import Mp4Writer, video_codec
 
 
 def _frames(count: int, height: int, width: int) -> list[np.ndarray]:
@@ -75,3 +75,27 @@ def test_bad_input_is_named(tmp_path):
     with pytest.raises(ValueError, match="no frames"):
         empty.close()
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("when", ["write", "close"])
+def test_a_failed_encoder_leaves_no_file(tmp_path, when):
+    path = tmp_path / "clip.mp4"
+    video = Mp4Writer(path, fps=5, threads=1)
+    frames = _frames(3, 40, 60)
+    video.write(frames[0])
+    video._process.kill()  # ffmpeg dies (disk full, OOM killer, ...)
+    video._process.wait()
+    with pytest.raises(OSError, match="ffmpeg"):
+        if when == "write":
+            for _ in range(200):  # until the pipe's buffer is full and the broken pipe shows
+                video.write(frames[1])
+        else:
+            video.close()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_video_codec_reads_the_stream(tmp_path):
+    path = tmp_path / "clip.mp4"
+    with Mp4Writer(path, fps=5) as video:
+        video.write(_frames(1, 20, 20)[0])
+    assert video_codec(path) == "h264"

@@ -35,7 +35,7 @@ from tensordict import TensorDict
 
 from navformer_rl.constants import MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.data.schema import TASK_ID, DatasetKind, ssl_rows, trajectory_rows
-from navformer_rl.data.writer import DatasetWriter, folder_lock, write_shard
+from navformer_rl.data.writer import CODE_KEY, DatasetWriter, folder_lock, write_shard
 from navformer_rl.envs.sim import COLLISION_ROBOT
 
 if TYPE_CHECKING:
@@ -453,7 +453,7 @@ def _collect_locked(
     unit_fn: Callable[[str, str, Any, int], dict[str, int]],
 ) -> Path:
     """The body of :func:`collect`, run while holding the folder lock."""
-    settings_dict = {"kind": kind.value, **dataclasses.asdict(settings), "code_sha256": code_fingerprint()}
+    settings_dict = {"kind": kind.value, **dataclasses.asdict(settings), CODE_KEY: code_fingerprint()}
     target = _target_count(kind, settings)
     writer = DatasetWriter(out, kind, settings_dict, target_count=target)
     if writer.is_complete:

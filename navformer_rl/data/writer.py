@@ -60,6 +60,22 @@ _TMP_PREFIX = ".tmp-"
 _UNIT_PREFIX = "unit-"
 
 
+CODE_KEY = "code_sha256"
+"""The settings entry holding the fingerprint of the code that makes the data (``collect.code_fingerprint``)."""
+
+
+def _only_code_differs(old: dict[str, Any], header: dict[str, Any]) -> bool:
+    """Whether a stored dataset header and a new one differ in the code fingerprint of the settings only."""
+    was, now = old.get("settings"), header["settings"]
+    if not (isinstance(was, dict) and CODE_KEY in was and CODE_KEY in now) or was[CODE_KEY] == now[CODE_KEY]:
+        return False
+    same_settings = {k: v for k, v in was.items() if k != CODE_KEY} == {
+        k: v for k, v in now.items() if k != CODE_KEY
+    }
+    same_rest = all(old.get(key) == header[key] for key in ("schema_version", "kind", "target_count"))
+    return same_settings and same_rest
+
+
 class FolderLockedError(RuntimeError):
     """Another live process is collecting into the same dataset folder."""
 
@@ -346,6 +362,22 @@ class DatasetWriter:
                 f"{METADATA_FILE} is only ever replaced atomically, so it was damaged after it was written: "
                 f"restore it from a backup, or delete {self.root} and collect again",
             )
+            if _only_code_differs(old, header):
+                if old.get("status") != "complete":
+                    raise ValueError(
+                        f"{self.root} is an unfinished collection started with other simulator / expert code "
+                        f"({CODE_KEY} {old['settings'][CODE_KEY][:12]}, now {header['settings'][CODE_KEY][:12]}):"
+                        " finishing it would mix data of two code versions; delete the folder to collect "
+                        "anew, or finish it with the code version that started it"
+                    )
+                warnings.warn(
+                    f"{self.root} was collected with other simulator / expert code ({CODE_KEY} "
+                    f"{old['settings'][CODE_KEY][:12]}, now {header['settings'][CODE_KEY][:12]}); it is "
+                    "complete, so it is used as it is (delete it to collect with the current code)",
+                    UserWarning,
+                    stacklevel=2,
+                )
+                header["settings"] = old["settings"]
             for key in ("schema_version", "kind", "settings", "target_count"):
                 if old.get(key) != header[key]:
                     was, now = old.get(key), header[key]

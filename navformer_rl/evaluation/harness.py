@@ -48,7 +48,7 @@ from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
 from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, label_ablation
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
 from navformer_rl.evaluation.video import MAP_PNG_PX, compose_frame, draw_map, save_map_png
-from navformer_rl.mp4 import Mp4Writer
+from navformer_rl.mp4 import Mp4Writer, ffmpeg_executable
 
 METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
 """Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
@@ -291,6 +291,8 @@ def evaluate(
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if maps_per_setup < 0 or videos_per_setup < 0:
         raise ValueError("maps_per_setup and videos_per_setup must be >= 0")
+    if videos_per_setup > 0:
+        ffmpeg_executable()  # a missing encoder is reported here, not by a worker at its first video
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence={confidence!r}: expected a level in (0, 1), e.g. 0.95")
     if not (isinstance(video_fps, int | float) and math.isfinite(video_fps) and video_fps > 0):
@@ -439,7 +441,7 @@ def _store_partial(task: EpisodeTask, output: dict[str, Any]) -> None:
 
 
 def _load_partial(task: EpisodeTask) -> dict[str, Any] | None:
-    """The stored output of ``task`` when its key matches and its visuals still exist, else None."""
+    """The stored output of ``task`` when its key matches and its visuals still exist (non-empty), else None."""
     path = _partial_path(task)
     try:
         document = json.loads(path.read_text())
@@ -455,8 +457,10 @@ def _load_partial(task: EpisodeTask) -> dict[str, Any] | None:
         }
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    if not all((Path(task.out_dir) / f).is_file() for f in output["maps"] + output["videos"]):
-        return None
+    for name in output["maps"] + output["videos"]:
+        visual = Path(task.out_dir) / name
+        if not visual.is_file() or visual.stat().st_size == 0:
+            return None
     return output
 
 

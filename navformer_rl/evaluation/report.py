@@ -51,6 +51,7 @@ from navformer_rl.evaluation.tables import (
     summarize_by_setup,
     table_markdown,
 )
+from navformer_rl.mp4 import video_codec
 
 PAPER_CAVEAT = (
     "Paper numbers come from {source}: other worlds, other robot models and the authors' fully trained "
@@ -207,6 +208,27 @@ def _check_replaceable(out_path: Path) -> None:
             )
 
 
+def _older_videos_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
+    """A line naming the folders whose videos are not H.264 (episodes reused from a version that wrote
+    OpenCV's ``mp4v``), probed on each folder's first video; empty when there are none."""
+    older = []
+    for folder, run in runs:
+        videos = run["files"].get("videos", [])
+        if videos and (folder / videos[0]).is_file():
+            try:
+                codec = video_codec(folder / videos[0])
+            except (OSError, RuntimeError, StopIteration, KeyError):
+                codec = "unreadable"
+            if codec != "h264":
+                older.append(f"{run['label']} ({codec})")
+    if not older:
+        return ""
+    return (
+        f"Not H.264: the videos of {', '.join(older)}, reused from an earlier version (`mpeg4` is OpenCV's "
+        "`mp4v`: VLC and mpv play it, browsers do not; rerun that evaluation with `--fresh` to re-encode).\n"
+    )
+
+
 def write_report(
     result_dirs: Sequence[str | os.PathLike],
     out_path: str | os.PathLike,
@@ -339,7 +361,7 @@ def write_report(
     parts.append("## Episodes\n")
     parts.append(
         "Videos are H.264 mp4 (browsers, VS Code and VLC play them), one frame per 0.2 s step at the run's "
-        "frame rate (10 fps by default: twice real time).\n"
+        "frame rate (10 fps by default: twice real time).\n" + _older_videos_note(runs)
     )
     for folder, run in runs:
         links = []

@@ -348,3 +348,25 @@ def test_open_damaged_dataset_names_the_file_and_the_problem(case, e_dataset, tm
     damage(root)
     with pytest.raises(ValueError, match=rf"^{re.escape(str(root))}/\S*{problem}"):
         open_dataset(root)
+
+
+def test_a_complete_dataset_from_other_code_is_reused_with_a_warning(tmp_path, monkeypatch):
+    out = tmp_path / "e"
+    _collect(out)
+    before = (out / "metadata.json").read_bytes()
+    monkeypatch.setattr(collect_module, "code_fingerprint", lambda: "edited-simulator")
+    with pytest.warns(UserWarning, match="collected with other simulator / expert code .* used as it is"):
+        assert _collect(out) == out
+    assert (out / "metadata.json").read_bytes() == before  # the record of what made it stays
+    # other settings still differ loudly
+    with pytest.raises(ValueError, match="already holds a dataset with settings"):
+        _collect(out, settings=settings_for("e", "small", seed=8, n_trajectories=5, episodes_per_unit=2))
+
+
+def test_an_unfinished_collection_from_other_code_is_refused(tmp_path, monkeypatch):
+    out = tmp_path / "e"
+    with pytest.raises(_Crash):
+        _collect(out, unit_fn=_crash_at_unit(1))
+    monkeypatch.setattr(collect_module, "code_fingerprint", lambda: "edited-simulator")
+    with pytest.raises(ValueError, match="unfinished collection started with other simulator / expert code"):
+        _collect(out)

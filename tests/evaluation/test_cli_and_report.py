@@ -286,3 +286,19 @@ def test_the_pooled_row_exists_only_with_more_than_one_setup(vrw_run):
     assert [r["setup"] for r in csv.DictReader((out / "summary.csv").open())] == ["7.5m-2r"]
     two = summarize_by_setup(_records({"vrw": [("7.5m-2r", 7.5, 2), ("12.5m-4r", 12.5, 4)]}))
     assert [s.setup for s in two] == ["7.5m-2r", "12.5m-4r", "all"]
+
+
+def test_report_names_folders_whose_videos_are_not_h264(tmp_path, vrw_run):
+    import cv2
+    import numpy as np
+
+    out_dir = Path(shutil.copytree(vrw_run[0], tmp_path / "vrw"))
+    text = write_report([out_dir], tmp_path / "report.md").read_text()
+    assert "Videos are H.264" in text and "Not H.264" not in text
+    # an episode reused from a version that wrote OpenCV's mp4v
+    video = out_dir / json.loads((out_dir / "run.json").read_text())["files"]["videos"][0]
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 5, (32, 32))
+    writer.write(np.zeros((32, 32, 3), dtype=np.uint8))
+    writer.release()
+    text = write_report([out_dir], tmp_path / "report.md").read_text()
+    assert "Not H.264: the videos of vrw (mpeg4)" in text
