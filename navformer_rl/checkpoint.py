@@ -188,7 +188,7 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
         latest = _latest_in(root)
         if latest is not None:
             return latest
-    if (path / CHECKPOINTS_DIRNAME).is_dir() or path.name == CHECKPOINTS_DIRNAME:
+    if (path / CHECKPOINTS_DIRNAME).is_dir() or (path.name == CHECKPOINTS_DIRNAME and path.is_dir()):
         raise FileNotFoundError(
             f"no complete checkpoint at {str(path)!r} yet: no {LATEST_FILENAME} pointer (the run has not "
             "finished writing its first checkpoint)"

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from navformer_rl import cli_args
+from navformer_rl.durable import atomic_write_text
 
 BASELINES = ("vrw", "fca")
 TRAINED_METHODS = ("navformer", "dt")
@@ -230,7 +231,8 @@ class StageTimes:
         """``work()``, timed as ``stage``; ``fingerprint()`` identifies the stage's result (None: none)."""
         before = fingerprint()
         entry = self.saved.get(stage, {})
-        same = before is not None and entry.get("result") == before
+        # the recorded time belongs to this result; with no result yet, to the unfinished work towards it
+        same = "result" in entry and entry["result"] == before
         carried = entry.get("seconds") if same else None
         started = time.perf_counter()
         finished = False
@@ -250,7 +252,12 @@ class StageTimes:
             else:
                 seconds = round((carried or 0.0) + elapsed, 3)
             self.saved[stage] = {"seconds": seconds, "result": after}
-            write_json(self.path, self.saved)
+            try:
+                write_json(self.path, self.saved)
+            except OSError:
+                if finished:
+                    raise
+                # the stage's own error is the one to report; its time is lost with this file
 
     def seconds(self, stage: str) -> float | None:
         """The seconds that computed ``stage``'s current result (None: not known)."""
@@ -269,7 +276,12 @@ def _collect_fingerprint(cfg: DemoConfig) -> str | None:
     texts = []
     for kind in (DatasetKind.EXPLORATION, DatasetKind.COLLISION_AVOIDANCE, DatasetKind.SSL):
         path = cfg.out_dir / "data" / kind.value / METADATA_FILE
-        texts.append(path.read_text() if path.is_file() else "-")
+        try:  # bytes: a damaged file is the collection's to report (it names the file and the fix)
+            texts.append(hashlib.sha256(path.read_bytes()).hexdigest())
+        except FileNotFoundError:
+            texts.append("-")
+        except OSError:
+            texts.append("unreadable")
     return None if set(texts) == {"-"} else _digest(texts)
 
 
@@ -423,7 +435,5 @@ def environment_summary() -> dict[str, str]:
 
 
 def write_json(path: Path, payload: dict) -> None:
-    """Atomically write ``payload`` as JSON."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=str) + "\n")
-    os.replace(tmp, path)
+    """Atomically and durably write ``payload`` as JSON."""
+    atomic_write_text(path, json.dumps(payload, indent=2, default=str) + "\n")

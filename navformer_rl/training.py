@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from navformer_rl import checkpoint as ckpt
+from navformer_rl.durable import atomic_write_text
 
 ABLATIONS: dict[str, str] = {
     "none": "NavFormer as in the paper",
@@ -927,7 +928,7 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
             f"{latest} is at iteration {trainer.iteration}, beyond optim.iterations={cfg.optim.iterations}"
         )
     run_dir.mkdir(parents=True, exist_ok=True)
-    ckpt.atomic_write_text(run_dir / "train_config.json", json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
+    atomic_write_text(run_dir / "train_config.json", json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
     if trainer.iteration > 0:
         _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
     trainer.logger = trainer.make_logger()
@@ -942,7 +943,7 @@ def _truncate_csv_scalars(folder: Path, last_step: int) -> None:
         rows = csv.read_text().splitlines()
         kept = [row for row in rows if row and int(row.split(",", 1)[0]) <= last_step]
         if len(kept) != len(rows):
-            ckpt.atomic_write_text(csv, "".join(f"{row}\n" for row in kept))
+            atomic_write_text(csv, "".join(f"{row}\n" for row in kept))
 
 
 def train(cfg: TrainConfig) -> TrainResult:

@@ -29,7 +29,7 @@ def test_an_existing_file_as_output_folder_is_a_one_line_error(tmp_path, capsys,
     assert existing.read_text() == "keep me"
 
 
-def test_run_sh_without_arguments_prints_its_usage_and_installs_nothing():
+def test_run_sh_without_arguments_prints_its_usage():
     done = subprocess.run(["bash", str(REPO / "run.sh")], capture_output=True, text=True, timeout=30)
     assert done.returncode == 0
     assert "./run.sh demo" in done.stdout and "./run.sh test" in done.stdout

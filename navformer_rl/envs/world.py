@@ -112,6 +112,13 @@ class WorldConfig:
     min_robot_gap: float = 0.2
 
     def __post_init__(self) -> None:
+        for entry in dataclasses.fields(self):  # numpy scalars as Python numbers: the config goes to JSON
+            value = getattr(self, entry.name)
+            if isinstance(value, np.generic):
+                object.__setattr__(self, entry.name, value.item())
+            elif isinstance(value, (tuple, list)):
+                items = [v.item() if isinstance(v, np.generic) else v for v in value]
+                object.__setattr__(self, entry.name, type(value)(items))
         if not is_real(self.size):
             raise ValueError(
                 f"world size must be a number of metres in [{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}], "

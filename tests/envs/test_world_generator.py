@@ -200,3 +200,15 @@ def test_episode_spec_rebuilds_the_world_with_overrides(tiny_maze):
     assert EpisodeSpec(world=tiny_maze, targets=new_targets).build().targets[0].shape == new_targets[0].shape
     with pytest.raises(ValueError, match="EpisodeSpec needs"):
         EpisodeSpec().build()
+
+
+def test_numpy_scalars_in_a_config_become_python_numbers():
+    import json
+
+    config = WorldConfig(
+        size=np.float32(12.5), n_robots=np.int64(2), arena_wall_length=(np.float64(1.0), 2.0)
+    )
+    assert type(config.size) is float and type(config.n_robots) is int
+    assert all(type(v) is float for v in config.arena_wall_length)
+    json.dumps(dataclasses.asdict(config))  # episode sets store it as JSON
+    assert config == WorldConfig(size=12.5, n_robots=2, arena_wall_length=(1.0, 2.0))

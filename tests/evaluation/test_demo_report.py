@@ -136,3 +136,37 @@ def test_the_evaluation_report_is_nested_under_the_demo_reports_heading(tmp_path
     assert REPORT_MARKER not in nested and "# Evaluation" not in nested.splitlines()[:3]
     headings = [line for line in nested.splitlines() if line.startswith("#")]
     assert headings and all(line.startswith("### ") or line.startswith("#### ") for line in headings)
+
+
+def test_time_spent_before_a_stage_had_any_result_is_kept(tmp_path, clock):
+    """Training interrupted before its first checkpoint, then finished by a rerun: both times count."""
+    state = {"result": None}
+
+    def fingerprint():
+        return state["result"]
+
+    def interrupted():
+        clock.now += 40.0
+        raise KeyboardInterrupt
+
+    def finishes():
+        clock.now += 60.0
+        state["result"] = "iter_000020"
+
+    with pytest.raises(KeyboardInterrupt):
+        StageTimes(tmp_path).run("train", fingerprint, interrupted)
+    times = StageTimes(tmp_path)
+    times.run("train", fingerprint, finishes)
+    assert times.seconds("train") == 100.0
+
+
+def test_a_failing_time_file_does_not_hide_the_stages_error(tmp_path, clock, monkeypatch):
+    def fails():
+        raise ValueError("the stage's own error")
+
+    def no_disk(path, payload):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(demo, "write_json", no_disk)
+    with pytest.raises(ValueError, match="the stage's own error"):
+        StageTimes(tmp_path).run("collect", lambda: None, fails)

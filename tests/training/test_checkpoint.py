@@ -156,7 +156,12 @@ def test_other_paths_are_refused_with_the_accepted_forms(tmp_path):
     accepted = (
         r"a run directory .* its checkpoints/ folder or the checkpoints/latest file .* a checkpoint folder"
     )
-    for wrong in (tmp_path, tmp_path / "run" / "logs", tmp_path / "nowhere"):
+    for wrong in (
+        tmp_path,
+        tmp_path / "run" / "logs",
+        tmp_path / "nowhere",
+        tmp_path / "nowhere" / "checkpoints",
+    ):
         with pytest.raises(FileNotFoundError, match=f"no checkpoint at .*: expected {accepted}"):
             ckpt.resolve_checkpoint(wrong)
     (tmp_path / "stray.txt").write_text("x")
