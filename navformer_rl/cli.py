@@ -16,6 +16,8 @@ import os
 import sys
 from collections.abc import Sequence
 
+from navformer_rl.durable import FolderLockedError
+
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.demo",
     "navformer_rl.data.cli",
@@ -23,7 +25,15 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.evaluation.cli",
 )
 
-USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, PermissionError, KeyError)
+USER_ERRORS = (
+    ValueError,
+    FileNotFoundError,
+    FileExistsError,
+    NotADirectoryError,
+    PermissionError,
+    KeyError,
+    FolderLockedError,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -430,7 +430,7 @@ def collect(
     process. Rerunning
     the same call after an interruption continues where it stopped and ends with the same bytes. The
     folder is locked meanwhile (:func:`~navformer_rl.data.writer.folder_lock`): a second collection into
-    it raises :class:`~navformer_rl.data.writer.FolderLockedError` instead of deleting the first one's
+    it raises :class:`~navformer_rl.durable.FolderLockedError` instead of deleting the first one's
     shards in progress.
     """
     kind = DatasetKind.parse(kind)

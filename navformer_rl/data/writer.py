@@ -26,13 +26,10 @@ folders (``.tmp-*``) are provably uncommitted and are deleted silently.
 from __future__ import annotations
 
 import contextlib
-import errno
-import fcntl
 import json
 import os
 import shutil
 import warnings
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +46,7 @@ from navformer_rl.data.schema import (
     fields_for,
     key_name,
 )
+from navformer_rl.durable import folder_lock as durable_folder_lock
 from navformer_rl.durable import fsync_dir, fsync_tree
 
 METADATA_FILE = "metadata.json"
@@ -76,72 +74,11 @@ def _only_code_differs(old: dict[str, Any], header: dict[str, Any]) -> bool:
     return same_settings and same_rest
 
 
-class FolderLockedError(RuntimeError):
-    """Another live process is collecting into the same dataset folder."""
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-@contextlib.contextmanager
-def folder_lock(root: str | Path) -> Iterator[Path]:
-    """Hold ``root/.collect.lock`` (created, with this process's pid) while collecting into ``root``.
-
-    The lock is an exclusive ``flock`` on that file, so the kernel releases it when its holder dies: a lock
-    file left by a killed collection (its pid no longer holds the lock) is taken over with a warning. Raises
-    :class:`FolderLockedError` naming the holder's pid when another live process holds ``root``. The file is
-    removed on exit. Yields the lock file's path.
-    """
-    root = Path(root)
-    root.mkdir(parents=True, exist_ok=True)
-    path = root / LOCK_FILE
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as err:
-            os.close(fd)
-            if err.errno not in (errno.EAGAIN, errno.EACCES):
-                raise
-            holder = _read_pid(path)
-            raise FolderLockedError(
-                f"{root} is being collected by another process (pid {holder}, lock {path}); "
-                "wait for it to finish or stop it, or collect into another folder"
-            ) from None
-        if os.path.exists(path) and os.stat(path).st_ino == os.fstat(fd).st_ino:
-            break  # locked the file that is still in place (not one its previous holder just removed)
-        os.close(fd)
-    try:
-        stale = _read_pid(path)
-        if stale is not None and stale != os.getpid():
-            alive = " (that pid is now another process)" if _pid_alive(stale) else ""
-            warnings.warn(
-                f"{root}: taking over the lock left by process {stale}, which no longer holds it{alive}",
-                stacklevel=3,
-            )
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        os.fsync(fd)
-        yield path
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(path)
-        os.close(fd)
-
-
-def _read_pid(path: Path) -> int | None:
-    """The pid written in a lock file, or ``None`` when it is missing, empty or unreadable."""
-    try:
-        return int(path.read_text().strip())
-    except (OSError, ValueError):
-        return None
+def folder_lock(root: str | Path) -> contextlib.AbstractContextManager[Path]:
+    """Hold ``root/.collect.lock`` while collecting into ``root`` (:func:`navformer_rl.durable.folder_lock`:
+    a second live collection gets :class:`~navformer_rl.durable.FolderLockedError` naming the holder's pid; a killed one's lock is
+    taken over with a warning)."""
+    return durable_folder_lock(root, LOCK_FILE, "collected")
 
 
 def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from navformer_rl import __version__
-from navformer_rl.durable import atomic_write_text
+from navformer_rl.durable import atomic_write_text, folder_lock
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
 from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, label_ablation
@@ -53,6 +53,8 @@ from navformer_rl.mp4 import Mp4Writer, ffmpeg_executable
 METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
 """Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
 CHECKPOINT_METHODS = ("navformer", "dt")
+LOCK_FILENAME = ".evaluate.lock"
+"""Held (``flock`` + pid) in the output folder while an evaluation writes there: a second one is refused."""
 PARTIAL_DIRNAME = "per_episode"
 """Sub-folder of the output folder holding one result file per finished episode (for resuming)."""
 TRAIN_CONFIG_FILENAME = "train_config.json"
@@ -305,69 +307,80 @@ def evaluate(
     label = label or method
     description = spec.validate(label)
     out_dir = Path(out_dir)
-    _refuse_other_runs_results(out_dir, label)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    save_episode_set(episode_set, out_dir / "episode_set.json")
+    with folder_lock(out_dir, LOCK_FILENAME, "evaluated"):  # one evaluation per folder at a time
+        _remove_temporaries(out_dir)
+        _refuse_other_runs_results(out_dir, label)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        save_episode_set(episode_set, out_dir / "episode_set.json")
 
-    identity = {
-        "method": method,
-        "label": label,
-        "seed": int(seed),
-        "max_steps": episode_set.max_steps,
-        "checkpoint_sha256": description.get("checkpoint_sha256"),
-        "record_fields": sorted(RobotTrial.__dataclass_fields__),
-        # results of another release (simulator or policy fixes) are recomputed, never mixed in
-        "package_version": __version__,
-    }
-    tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup, identity)
-    started = time.perf_counter()
-    outputs, computed = _run_tasks(
-        tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume
-    )
-    elapsed = time.perf_counter() - started
-
-    records = [record for output in outputs for record in output["records"]]
-    atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
-    summaries = write_summary_files(records, out_dir, confidence, seed)
-    from navformer_rl.evaluation.plots import plot_setup_bars
-
-    plot = plot_setup_bars(summaries, out_dir / "metrics.png", title=f"{label} on {episode_set.name}")
-    files = {
-        "episodes": "episodes.jsonl",
-        "summary_csv": "summary.csv",
-        "summary_md": "summary.md",
-        "plot": plot.name,
-        "maps": [m for o in outputs for m in o["maps"]],
-        "videos": [v for o in outputs for v in o["videos"]],
-    }
-    run = {
-        "method": method,
-        "label": label,
-        "checkpoint": spec.checkpoint,
-        "seed": int(seed),
-        "workers": workers,
-        "episode_set": {
-            "name": episode_set.name,
-            "content_sha256": episode_set.content_hash(),
-            "episodes": len(episode_set),
+        identity = {
+            "method": method,
+            "label": label,
+            "seed": int(seed),
             "max_steps": episode_set.max_steps,
-            "setups": episode_set.setups,
-        },
-        "confidence": confidence,
-        **_timing(outputs, computed, elapsed),
-        "package_version": __version__,
-        "files": files,
-        **description,
-    }
-    atomic_write_text(out_dir / "run.json", json.dumps(run, indent=2, sort_keys=True, default=str) + "\n")
-    return EvaluationResult(
-        out_dir=out_dir,
-        records=records,
-        summaries=summaries,
-        files=files,
-        episodes_computed=computed,
-        seconds=run["seconds"],
-    )
+            "checkpoint_sha256": description.get("checkpoint_sha256"),
+            "record_fields": sorted(RobotTrial.__dataclass_fields__),
+            # results of another release (simulator or policy fixes) are recomputed, never mixed in
+            "package_version": __version__,
+        }
+        tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup, identity)
+        started = time.perf_counter()
+        outputs, computed = _run_tasks(
+            tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume
+        )
+        elapsed = time.perf_counter() - started
+
+        records = [record for output in outputs for record in output["records"]]
+        atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
+        summaries = write_summary_files(records, out_dir, confidence, seed)
+        from navformer_rl.evaluation.plots import plot_setup_bars
+
+        plot = plot_setup_bars(summaries, out_dir / "metrics.png", title=f"{label} on {episode_set.name}")
+        files = {
+            "episodes": "episodes.jsonl",
+            "summary_csv": "summary.csv",
+            "summary_md": "summary.md",
+            "plot": plot.name,
+            "maps": [m for o in outputs for m in o["maps"]],
+            "videos": [v for o in outputs for v in o["videos"]],
+        }
+        run = {
+            "method": method,
+            "label": label,
+            "checkpoint": spec.checkpoint,
+            "seed": int(seed),
+            "workers": workers,
+            "episode_set": {
+                "name": episode_set.name,
+                "content_sha256": episode_set.content_hash(),
+                "episodes": len(episode_set),
+                "max_steps": episode_set.max_steps,
+                "setups": episode_set.setups,
+            },
+            "confidence": confidence,
+            **_timing(outputs, computed, elapsed),
+            "package_version": __version__,
+            "files": files,
+            **description,
+        }
+        atomic_write_text(out_dir / "run.json", json.dumps(run, indent=2, sort_keys=True, default=str) + "\n")
+        return EvaluationResult(
+            out_dir=out_dir,
+            records=records,
+            summaries=summaries,
+            files=files,
+            episodes_computed=computed,
+            seconds=run["seconds"],
+        )
+
+
+def _remove_temporaries(out_dir: Path) -> None:
+    """Delete the temporary files that writers killed mid-write left in ``out_dir`` (``atomic_path`` names
+    them ``.<stem>.<random>.tmp<suffix>``; only called while holding the folder's lock, so none is in use)."""
+    for folder in (out_dir, out_dir / "videos", out_dir / "maps", out_dir / PARTIAL_DIRNAME):
+        for leftover in folder.glob(".*.tmp*"):
+            if leftover.is_file():
+                leftover.unlink(missing_ok=True)
 
 
 def _timing(outputs: list[dict[str, Any]], computed: int, elapsed: float) -> dict[str, Any]:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from navformer_rl import durable
 from navformer_rl.data import open_dataset
 from navformer_rl.data import synthetic as syn
 from navformer_rl.data import writer as writer_module
@@ -220,9 +221,7 @@ def test_second_collection_into_a_locked_folder_is_refused(tmp_path):
         assert holder.stdout.readline().strip() == "locked"
         partial = tmp_path / "d" / "shards" / ".tmp-unit-000000-1"
         partial.mkdir(parents=True)
-        with pytest.raises(
-            writer_module.FolderLockedError, match=rf"pid {holder.pid}, lock .*\.collect\.lock"
-        ):
+        with pytest.raises(durable.FolderLockedError, match=rf"pid {holder.pid}, lock .*\.collect\.lock"):
             collect("e", tmp_path / "d", settings, workers=1, progress=False)
         assert partial.is_dir()  # the live collection's shard in progress was left alone
     finally:

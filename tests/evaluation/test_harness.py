@@ -191,3 +191,35 @@ def test_run_json_times_the_computation_not_the_rerun(tmp_path, tiny_episodes):
     evaluate("vrw", tiny_episodes, out, **kwargs)
     assert json.loads((out / "run.json").read_text())["seconds"] is None
     assert "| - | - | - |" in write_report([out], tmp_path / "report.md").read_text()
+
+
+def test_one_evaluation_per_folder_and_killed_writers_temporaries_are_removed(tmp_path, tiny_episodes):
+    import subprocess
+    import sys
+
+    from navformer_rl import durable
+    from navformer_rl.evaluation.harness import LOCK_FILENAME
+
+    out = tmp_path / "vrw"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\nfrom navformer_rl.durable import folder_lock\n"
+         f"with folder_lock(sys.argv[1], {LOCK_FILENAME!r}, 'evaluated'):\n"
+         "    print('locked', flush=True); time.sleep(60)", str(out)],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(
+            durable.FolderLockedError, match=rf"is being evaluated by another process \(pid {holder.pid}"
+        ):
+            evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
+    finally:
+        holder.kill()
+        holder.wait()
+    # a writer killed mid-file leaves its temporary file; the next evaluation of the folder removes it
+    (out / "videos").mkdir(parents=True)
+    leftover = out / "videos" / ".7.5m-2r_w00t00.abc123.tmp.mp4"
+    leftover.write_bytes(b"partial")
+    with pytest.warns(UserWarning, match="taking over the lock left by process"):  # the killed holder's
+        evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
+    assert not leftover.exists() and not (out / LOCK_FILENAME).exists()
