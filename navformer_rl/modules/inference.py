@@ -41,6 +41,11 @@ class NavFormerPolicy(TensorDictModuleBase):
     paper's reward (1 only on the success step, after which the robot is done) this changes nothing
     before success. A model in training mode is switched to eval mode for the call and back after it,
     so the policy can evaluate the model being trained (dropout stays on for the training loss).
+
+    Weights: the decoder's tables derived from the weights are rebuilt whenever a robot starts an episode,
+    so weight updates that no version counter shows (TorchRL's ``update_policy_weights_`` writes through
+    ``.data``; ``to_module``) act from the next episode on. Pickling / ``copy.deepcopy`` leave out the
+    decoding state: a copy starts new episodes on its own weights.
     """
 
     def __init__(
@@ -62,7 +67,9 @@ class NavFormerPolicy(TensorDictModuleBase):
         self.pixels_key, self.target_pixels_key = pixels_key, target_pixels_key
         self.step_count_key, self.reward_key, self.action_key = step_count_key, reward_key, action_key
         self.in_keys = [
-            k for k in (pixels_key, target_pixels_key, step_count_key, reward_key) if k is not None
+            k
+            for k in (pixels_key, target_pixels_key, step_count_key, reward_key, is_init_key)
+            if k is not None
         ]
         self.out_keys = [action_key]
         self._decoder: IncrementalNavFormer | None = None
@@ -75,9 +82,14 @@ class NavFormerPolicy(TensorDictModuleBase):
 
     def reset(self) -> None:
         """Forget every robot's episode (the next call starts new episodes with a new decoder, whose
-        derived weights are rebuilt from the model: call it after weight updates the decoder cannot see,
-        see ``IncrementalNavFormer``)."""
+        derived weights are rebuilt from the model)."""
         self._decoder = None
+
+    def __getstate__(self) -> dict:
+        """Pickling and ``copy.deepcopy`` leave out the decoding state (the KV cache and the tables derived
+        from the weights): a copy starts new episodes on its own weights. Collectors that spawn workers
+        (``MultiSyncCollector``) and ``torch.save(policy)`` rely on it."""
+        return {**self.__dict__, "_decoder": None, "_return_to_go": None, "_prev_action": None}
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         if not self.model.training:
@@ -88,12 +100,35 @@ class NavFormerPolicy(TensorDictModuleBase):
         finally:
             self.model.train()
 
+    def _input(self, tensordict: TensorDictBase, key: NestedKey) -> Tensor:
+        value = tensordict.get(key, None)
+        if value is None:
+            keys = sorted(map(str, tensordict.keys(True, True)))
+            raise KeyError(
+                f"NavFormerPolicy reads {key!r} (uint8 [..., 84, 84, 3]), missing from the input tensordict "
+                f"with keys {keys}; pass pixels_key= / target_pixels_key= for other names (e.g. 'pixels' "
+                "for a single-robot env)"
+            )
+        return value
+
     def _act(self, tensordict: TensorDictBase) -> TensorDictBase:
-        pixels = tensordict.get(self.pixels_key)
+        pixels = self._input(tensordict, self.pixels_key)
         lead = pixels.shape[:-3]
         robots = int(torch.Size(lead).numel())
+        side = self.model.config.image_size
+        if pixels.shape[-3:] != (side, side, 3):
+            raise ValueError(
+                f"{self.pixels_key!r}: expected frames [..., {side}, {side}, 3] (the model's image_size), got "
+                f"shape {tuple(pixels.shape)}"
+            )
+        target = self._input(tensordict, self.target_pixels_key)
+        if target.shape != pixels.shape:
+            raise ValueError(
+                f"{self.target_pixels_key!r}: expected the shape of {self.pixels_key!r} "
+                f"{tuple(pixels.shape)} (one target image per robot), got {tuple(target.shape)}"
+            )
         pixels = pixels.reshape(robots, *pixels.shape[-3:])
-        target = tensordict.get(self.target_pixels_key).reshape(robots, *pixels.shape[-3:])
+        target = target.reshape(robots, *pixels.shape[-3:])
         device = self.device  # looked up once per call: parameters() is not free at batch 1
         new_episode = self._new_episode_flags(tensordict, robots, device)
         if self._decoder is None or self._decoder.batch != robots or self._decoder.device != device:
@@ -101,6 +136,10 @@ class NavFormerPolicy(TensorDictModuleBase):
             self._return_to_go = torch.full((robots, 1), self.initial_return_to_go, device=device)
             self._prev_action = torch.zeros(robots, self.model.config.action_dim, device=device)
             new_episode = torch.ones(robots, dtype=torch.bool, device=device)
+        elif bool(new_episode.any()):
+            # a new episode reads the weights as they are now, including updates no version counter shows
+            # (TorchRL's weight sync writes through `.data`, `to_module` swaps parameters)
+            self._decoder.refresh()
         reward = self._reward(tensordict, robots, device)
         self._return_to_go = torch.where(
             new_episode[:, None],

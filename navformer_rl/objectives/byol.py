@@ -54,6 +54,9 @@ def byol_tau(step: int, total_steps: int, tau_base: float = 0.996) -> float:
 class BYOLTauSchedule:
     """Sets ``updater.eps`` (TorchRL's name for BYOL's tau) from ``byol_tau`` at every ``step()``.
 
+    The schedule owns ``updater.eps``: from construction on it is ``byol_tau(step, total_steps, tau_base)``
+    (``tau_base`` defaults to the paper's 0.996), whatever ``eps`` the ``SoftUpdate`` was created with.
+
     Call order per iteration: ``loss.backward(); optimizer.step(); updater.step(); schedule.step()``.
     ``state_dict`` / ``load_state_dict`` carry the step counter for resumption.
     """
@@ -223,7 +226,13 @@ class BYOLLoss(LossModule):
                     projection = self.online_network[name](both)
                 with self.predictor_params.to_module(self.predictor):
                     prediction = self.predictor[name](projection)
-                with torch.no_grad(), self.target_online_network_params.to_module(self.online_network):
+                # preserve_module_state=False (as TorchRL's losses do): the default would turn
+                # requires_grad back on for the target parameters, which SoftUpdate then refuses
+                target_params = self.target_online_network_params
+                with (
+                    torch.no_grad(),
+                    target_params.to_module(self.online_network, preserve_module_state=False),
+                ):
                     target = self.online_network[name](both)
                 pred_a, pred_b = prediction.chunk(2)
                 target_a, target_b = target.chunk(2)

@@ -171,3 +171,62 @@ def test_is_init_restarts_the_context_like_step_count_zero():
     fresh = NavFormerPolicy(make_model(), **keys)(td(0, True))["action"]
     torch.testing.assert_close(restarted, fresh, rtol=0, atol=1e-6)
     assert policy._decoder.steps_done.tolist() == [1]
+
+
+def test_torchrl_weight_sync_through_data_is_read_at_the_next_episode():
+    """Collectors copy new weights with ``TensorDict.from_module(policy).data.update_(...)``, which no
+    version counter sees: a new episode must still act with them (the running one keeps its KV cache)."""
+    policy = NavFormerPolicy(make_model(0))
+    target, pixels = frames(2, 0), frames(2, 1)
+    for t in range(3):
+        policy(agents_td(pixels, target, torch.full((2, 1), t)))
+    new_weights = TensorDict.from_module(make_model(1))
+    TensorDict.from_module(policy.model).data.update_(new_weights.data)
+    action = policy(agents_td(pixels, target, torch.zeros(2, 1, dtype=torch.long)))["agents", "action"]
+    expected = NavFormerPolicy(make_model(1))(agents_td(pixels, target, torch.zeros(2, 1, dtype=torch.long)))
+    torch.testing.assert_close(action, expected["agents", "action"], rtol=0, atol=1e-6)
+
+
+def test_a_used_policy_pickles_and_copies_start_new_episodes_on_their_own_weights():
+    import copy
+    import io
+    import pickle
+
+    policy = NavFormerPolicy(make_model(0))
+    target, pixels = frames(1, 0), frames(1, 1)
+    policy(agents_td(pixels, target, torch.zeros(1, 1, dtype=torch.long)))
+    restored = pickle.loads(pickle.dumps(policy))
+    buffer = io.BytesIO()
+    torch.save(policy, buffer)  # what users and spawned collector workers do
+    copied = copy.deepcopy(policy)
+    assert policy._decoder is not None and copied._decoder is None and restored._decoder is None
+    with torch.no_grad():
+        for p in copied.model.parameters():
+            p.add_(0.01)
+    start = agents_td(pixels, target, torch.zeros(1, 1, dtype=torch.long))
+    moved = NavFormerPolicy(copy.deepcopy(copied.model))
+    torch.testing.assert_close(
+        copied(start.clone())["agents", "action"], moved(start.clone())["agents", "action"]
+    )
+    torch.testing.assert_close(
+        restored(start.clone())["agents", "action"],
+        NavFormerPolicy(make_model(0))(start.clone())["agents", "action"],
+    )
+
+
+def test_policy_input_mistakes_are_named():
+    import pytest
+
+    policy = NavFormerPolicy(make_model())
+    td = agents_td(frames(2, 0), frames(2, 1), torch.zeros(2, 1, dtype=torch.long))
+    with pytest.raises(KeyError, match=r"reads .*pixels.* missing from the input tensordict"):
+        NavFormerPolicy(make_model(), pixels_key="pixels")(td.clone())
+    del td["agents", "target_pixels"]
+    with pytest.raises(KeyError, match=r"reads .*agents.*target_pixels.* missing"):
+        policy(td)
+    small = torch.zeros(2, 64, 64, 3, dtype=torch.uint8)
+    with pytest.raises(ValueError, match=r"expected frames \[\.\.\., 84, 84, 3\]"):
+        policy(agents_td(small, small, torch.zeros(2, 1, dtype=torch.long)))
+    with pytest.raises(ValueError, match="one target image per robot"):
+        policy(TensorDict({"agents": {"pixels": frames(2, 0), "target_pixels": frames(1, 1)}}, batch_size=[]))
+    assert "is_init" in policy.in_keys

@@ -208,3 +208,12 @@ def test_augmentation_writes_the_requested_dtype_and_layout():
     views = BYOLAugmentation(seed=4)(pixels, dtype=torch.bfloat16, channels_last=True)
     assert views.dtype == torch.bfloat16 and views.is_contiguous(memory_format=torch.channels_last)
     assert torch.equal(views, reference.to(torch.bfloat16))  # the same views, rounded once
+
+
+def test_soft_update_can_be_made_after_the_loss_has_run():
+    """TorchRL users often build the target updater after a first forward; the target parameters must
+    still be free of gradients then."""
+    _, loss = make_byol()
+    loss(pairs())
+    assert not any(p.requires_grad for p in loss.target_online_network_params.values(True, True))
+    SoftUpdate(loss, eps=0.99).step()

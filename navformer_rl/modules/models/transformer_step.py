@@ -58,13 +58,14 @@ class TransformerStep:
         self.transformer = transformer
         self.blocks = tuple(block_weights(block) for block in transformer.blocks)
         self.ln_final = layer_norm_weights(transformer.ln_final)
-        weights = tuple(
+        self._weights = tuple(
             linear[0] for block in self.blocks for linear in (block.qkv, block.proj, block.fc, block.out)
         )
-        self._transposed = DerivedCache(
-            weights, lambda: tuple(weight.detach().t().contiguous() for weight in weights)
-        )
+        self._transposed = DerivedCache(self._weights, self._build_transposed)
         self._buffers: dict[tuple, ProjectionBuffers] = {}
+
+    def _build_transposed(self) -> tuple[Tensor, ...]:
+        return tuple(weight.detach().t().contiguous() for weight in self._weights)
 
     def transposed_weights(self) -> tuple[Tensor, ...]:
         """Every block's ``(qkv, proj, fc, out)`` weights as contiguous ``[in, out]`` (rebuilt if changed)."""
