@@ -7,6 +7,8 @@ what was expected instead of crashing (a truncated memmap would otherwise fault 
 
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import TensorDictReplayBuffer, TensorStorage
 from torchrl.data.replay_buffers import ImmutableDatasetWriter, SamplerWithoutReplacement
+from torchrl.data.replay_buffers.checkpointers import StorageCheckpointerBase
 from torchrl.envs.transforms import Transform
 
 from navformer_rl.data.samplers import (
@@ -32,6 +35,7 @@ from navformer_rl.data.writer import (
     read_json_object,
     short_repr,
 )
+from navformer_rl.durable import atomic_write_text
 
 _DAMAGED = (
     "the dataset folder was damaged after it was written (its files are written atomically): restore it "
@@ -52,6 +56,45 @@ class AttachTargetPixels(Transform):
 
     def forward(self, tensordict: TensorDict) -> TensorDict:
         return self._call(tensordict)
+
+
+class DatasetReferenceCheckpointer(StorageCheckpointerBase):
+    """Storage checkpointer of a dataset-backed buffer: ``dumps`` writes which dataset it is, not its rows.
+
+    The storage *is* the dataset's memmap: TorchRL's default checkpointer would copy every row into each
+    dump and, on ``loads``, write the dumped rows back into the dataset's files. This one writes
+    ``reference.json`` (the dataset's folder, row count and a sha256 of its ``metadata.json``) and
+    ``loads`` checks that the buffer stands on that same dataset (ValueError naming both otherwise), so
+    ``ReplayBuffer.dumps`` / ``loads`` save and restore the sampler state over an unchanged dataset.
+    """
+
+    FILENAME = "reference.json"
+
+    def __init__(self, dataset: NavDataset) -> None:
+        super().__init__()
+        self.reference = {
+            "format": "navformer_rl.dataset_reference",
+            "dataset": str(Path(dataset.root).resolve()),
+            "rows": len(dataset),
+            "metadata_sha256": hashlib.sha256((dataset.root / METADATA_FILE).read_bytes()).hexdigest(),
+        }
+
+    def dumps(self, storage, path) -> None:
+        path = Path(path)
+        path.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path / self.FILENAME, json.dumps(self.reference, indent=2, sort_keys=True) + "\n")
+
+    def loads(self, storage, path) -> None:
+        file = Path(path) / self.FILENAME
+        saved = read_json_object(file, "dump the buffer again with a dataset-backed buffer")
+        if saved.get("format") != self.reference["format"]:
+            raise ValueError(f"{file} is not a dataset reference (format {saved.get('format')!r})")
+        differ = [k for k in ("rows", "metadata_sha256") if saved.get(k) != self.reference[k]]
+        if differ:
+            raise ValueError(
+                f"{file} was dumped over the dataset {saved.get('dataset')!r}, which differs from this buffer's "
+                f"{self.reference['dataset']!r} in {differ}: load it into a buffer over that dataset"
+            )
 
 
 class NavDataset:
@@ -84,7 +127,7 @@ class NavDataset:
         return 0 if self.episodes is None else len(self.episodes)
 
     def storage(self) -> TensorStorage:
-        """A TorchRL ``TensorStorage`` over the memmapped rows (no copy)."""
+        """A TorchRL ``TensorStorage`` over the memmapped rows (no copy; writes into it reach the files)."""
         return TensorStorage(self.rows)
 
     def replay_buffer(self, sampler=None, batch_size: int | None = None, **kwargs) -> TensorDictReplayBuffer:
@@ -92,10 +135,12 @@ class NavDataset:
 
         The buffer is read-only (``ImmutableDatasetWriter``, as TorchRL's offline-dataset buffers): the
         rows are the dataset's memmap, and a ``extend`` would write into the files on disk. To mix in new
-        data, copy the rows into a buffer of your own. Trajectory datasets get ``target_pixels`` per row
+        data, copy the rows into a buffer of your own. ``dumps`` / ``loads`` save and restore the sampler
+        state with a reference to the dataset instead of its rows (:class:`DatasetReferenceCheckpointer`). Trajectory datasets get ``target_pixels`` per row
         (``AttachTargetPixels``) unless ``transform=`` is given.
         """
         kwargs.setdefault("writer", ImmutableDatasetWriter())
+        kwargs.setdefault("checkpointer", DatasetReferenceCheckpointer(self))
         if self.targets is not None:
             kwargs.setdefault("transform", AttachTargetPixels(self.targets))
         return TensorDictReplayBuffer(

@@ -242,3 +242,26 @@ with folder_lock(sys.argv[1]):
     print("locked", flush=True)
     time.sleep(60)
 """
+
+
+def test_buffer_dumps_a_reference_and_loads_only_over_the_same_dataset(tmp_path):
+    import hashlib
+
+    from navformer_rl.data.synthetic import make_synthetic_dataset
+
+    for name, seed in (("e", 1), ("other", 2)):
+        make_synthetic_dataset(tmp_path / name, "e", 12, min_len=8, max_len=40, seed=seed)
+    pixels_file = next((tmp_path / "e" / "consolidated").rglob("pixels.memmap"))
+    before = hashlib.sha256(pixels_file.read_bytes()).hexdigest()
+    buffer = open_dataset(tmp_path / "e").trajectory_buffer(4, seed=0)
+    buffer.sample()
+    buffer.dumps(tmp_path / "dump")
+    # the dump holds the sampler state and a reference, not a copy of the rows
+    assert not list((tmp_path / "dump").rglob("*.memmap"))
+    following = buffer.sample()
+    restored = open_dataset(tmp_path / "e").trajectory_buffer(4, seed=9)
+    restored.loads(tmp_path / "dump")
+    assert torch.equal(restored.sample()["pixels"], following["pixels"])
+    assert hashlib.sha256(pixels_file.read_bytes()).hexdigest() == before  # the dataset is untouched
+    with pytest.raises(ValueError, match="was dumped over the dataset .* differs from this buffer's"):
+        open_dataset(tmp_path / "other").trajectory_buffer(4).loads(tmp_path / "dump")
