@@ -225,7 +225,7 @@ def _older_videos_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
         return ""
     return (
         f"Not H.264: the videos of {', '.join(older)}, reused from an earlier version (`mpeg4` is OpenCV's "
-        "`mp4v`: VLC and mpv play it, browsers do not; rerun that evaluation with `--fresh` to re-encode).\n"
+        "`mp4v`: VLC and mpv play it, browsers do not; to re-encode, rerun that evaluation with `--fresh` or delete its folder).\n"
     )
 
 
