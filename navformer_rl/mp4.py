@@ -107,7 +107,7 @@ class Mp4Writer:
                 f"the video's first frame {self._size[1]}x{self._size[0]} px"
             )
         try:
-            self._process.stdin.write(np.ascontiguousarray(_pad_to_even(frame)).tobytes())
+            self._process.stdin.write(np.ascontiguousarray(_pad_to_even(frame)).data)  # no copy to bytes
         except BrokenPipeError:
             self._fail(f"ffmpeg stopped after {self.frames} frames")
         self.frames += 1
