@@ -79,10 +79,13 @@ def resume_hint(
         script: the recipe's path as it is invoked.
     """
     folder = os.path.abspath(output_dir)
-    kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") != "output_dir"]
-    command = " ".join(["python", script, *map(shlex.quote, kept), shlex.quote(f"output_dir={folder}")])
+    replaced = ("output_dir", "hydra.run.dir")  # hydra's own folder too: no new timestamped one per resume
+    kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in replaced]
+    pinned = [f"output_dir={folder}", f"hydra.run.dir={folder}"]
+    command = " ".join(["python", script, *map(shlex.quote, kept + pinned)])
     return (
         f"output folder: {folder}\n"
         "to resume this evaluation (after an interruption, or to reuse its finished episodes), rerun it into "
-        f"the same folder:\n  {command}"
+        "the same folder (with any --config-name / --config-path you gave):\n"
+        f"  {command}"
     )

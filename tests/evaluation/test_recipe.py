@@ -28,7 +28,10 @@ def test_recipe_smoke(tmp_path):
     assert "| 7.5m-2r | 7.5 × 7.5 | 2 |" in done.stdout
     # it says first where it writes and how to resume there (its default folder is new on every run)
     assert done.stdout.startswith(f"output folder: {out}\n")
-    assert "method=vrw protocol=smoke" in done.stdout and f"output_dir={out}\n" in done.stdout
+    assert (
+        "method=vrw protocol=smoke" in done.stdout
+        and f"output_dir={out} hydra.run.dir={out}\n" in done.stdout
+    )
 
 
 def _recipe_utils():
@@ -65,11 +68,13 @@ def test_recipe_generation_keys_default_to_the_paper_and_are_refused_beside_a_fi
 
 def test_recipe_prints_how_to_resume_its_output_folder(tmp_path):
     utils = _recipe_utils()
-    hint = utils.resume_hint("outputs/evaluate/vrw/x", ["method=vrw", "label=my label", "output_dir=old"])
+    overrides = ["method=vrw", "label=my label", "output_dir=old", "hydra.run.dir=elsewhere"]
+    hint = utils.resume_hint("outputs/evaluate/vrw/x", overrides)
     folder = Path("outputs/evaluate/vrw/x").resolve()
     assert hint.splitlines()[0] == f"output folder: {folder}"
     assert hint.splitlines()[-1] == (
-        f"  python recipes/evaluate/evaluate.py method=vrw 'label=my label' output_dir={folder}"
+        f"  python recipes/evaluate/evaluate.py method=vrw 'label=my label' output_dir={folder} "
+        f"hydra.run.dir={folder}"
     )
 
 
