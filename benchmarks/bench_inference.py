@@ -88,15 +88,15 @@ def main() -> None:
     with torch.no_grad():
         for batch in args.batches:
             window_ms = None
-            max_t = max(args.T)
+            length = max(max(args.T) + args.steps, window)  # the window recompute reads `window` steps
             frames = random_frames(batch, 8, seed=batch).to(device)  # cycle 8 frames: content is irrelevant
             target = random_frames(batch, seed=99).to(device)
             cached = {
                 "target": model.target_token(model.encode_target(target)),
-                "obs": model.encode_observations(frames)[:, torch.arange(max_t + args.steps) % 8],
-                "rtg": torch.ones(batch, max_t + args.steps, 1, device=device),
-                "action": torch.rand(batch, max_t + args.steps, 2, device=device) * 2 - 1,
-                "step": torch.arange(max_t + args.steps, device=device).clamp(max=511).expand(batch, -1),
+                "obs": model.encode_observations(frames)[:, torch.arange(length) % 8],
+                "rtg": torch.ones(batch, length, 1, device=device),
+                "action": torch.rand(batch, length, 2, device=device) * 2 - 1,
+                "step": torch.arange(length, device=device).clamp(max=511).expand(batch, -1),
             }
             decoder = IncrementalNavFormer(model, batch, device=device)
             prev = torch.zeros(batch, 2, device=device)

@@ -17,6 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from navformer_rl.durable import FolderLockedError
+from navformer_rl.mp4 import VideoEncoderError
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.demo",
@@ -33,6 +34,7 @@ USER_ERRORS = (
     PermissionError,
     KeyError,
     FolderLockedError,
+    VideoEncoderError,
 )
 
 

@@ -13,6 +13,7 @@ import contextlib
 import os
 import subprocess
 import tempfile
+import weakref
 from fractions import Fraction
 from pathlib import Path
 
@@ -27,12 +28,17 @@ PRESET = "veryfast"
 """libx264's speed preset: the frames are flat drawings, so a fast preset loses little."""
 
 
+class VideoEncoderError(OSError):
+    """The ffmpeg encoder is missing, or failed while writing a video (its message included)."""
+
+
 def ffmpeg_executable() -> str:
-    """Path of the ffmpeg binary of ``imageio-ffmpeg`` (RuntimeError naming the fix when it is missing)."""
+    """Path of the ffmpeg binary of ``imageio-ffmpeg`` (:class:`VideoEncoderError` naming the fix when it is
+    missing)."""
     try:
         return imageio_ffmpeg.get_ffmpeg_exe()
     except RuntimeError as error:
-        raise RuntimeError(
+        raise VideoEncoderError(
             f"no ffmpeg binary for the mp4 videos ({error}); reinstall imageio-ffmpeg for this platform, or "
             "set IMAGEIO_FFMPEG_EXE to an ffmpeg with libx264"
         ) from None
@@ -60,13 +66,16 @@ class Mp4Writer:
         threads: encoder threads (0 = as many as ffmpeg chooses); give 1 when several processes encode.
 
     Raises:
-        OSError: from :meth:`write` or :meth:`close` when ffmpeg fails (its message included); the partial
-            file is deleted and ``path`` left untouched.
+        VideoEncoderError: from :meth:`write` or :meth:`close` when ffmpeg fails (its message included); the
+            partial file is deleted and ``path`` left untouched. A writer dropped without ``close`` or
+            ``abort`` has its encoder killed when it is garbage-collected.
     """
 
     def __init__(self, path: str | os.PathLike, fps: float, threads: int = 0) -> None:
         if not (isinstance(fps, int | float) and np.isfinite(fps) and fps > 0):
             raise ValueError(f"fps={fps!r}: expected a number of frames per second > 0")
+        if not (isinstance(threads, int) and threads >= 0):
+            raise ValueError(f"threads={threads!r}: expected an integer >= 0 (0: ffmpeg chooses)")
         self.path = Path(path)
         if self.path.suffix.lower() != ".mp4":
             raise ValueError(f"{self.path}: expected a file name ending in .mp4")
@@ -77,6 +86,7 @@ class Mp4Writer:
         self._tmp = self._context.__enter__()
         self._process: subprocess.Popen | None = None
         self._log = None  # ffmpeg's stderr, a temporary file (a pipe could fill up and block ffmpeg)
+        self._finalizer: weakref.finalize | None = None
         self._finished = False
         self._size: tuple[int, int] | None = None  # (height, width) of the incoming frames
         self.frames = 0
@@ -119,14 +129,19 @@ class Mp4Writer:
         if self.frames == 0:
             self.abort()
             raise ValueError(f"no frames were written to {self.path}")
-        with contextlib.suppress(BrokenPipeError):  # the exit status below tells
-            self._process.stdin.close()
-        status = self._process.wait()
-        if status != 0:
-            self._fail(f"ffmpeg exited with status {status}")
-        if self._tmp.stat().st_size == 0:
-            self._fail("ffmpeg wrote an empty file")
+        try:
+            with contextlib.suppress(BrokenPipeError):  # the exit status below tells
+                self._process.stdin.close()
+            status = self._process.wait()
+            if status != 0:
+                self._fail(f"ffmpeg exited with status {status}")
+            if self._tmp.stat().st_size == 0:
+                self._fail("ffmpeg wrote an empty file")
+        except BaseException:  # Ctrl-C while ffmpeg finishes, a vanished file, ...
+            self.abort()
+            raise
         self._finished = True
+        self._finalizer.detach()
         self._log.close()
         self._context.__exit__(None, None, None)
         return self.path
@@ -136,20 +151,18 @@ class Mp4Writer:
         if self._finished:
             return
         self._finished = True
-        if self._process is not None:
-            self._process.kill()
-            self._process.wait()
-            with contextlib.suppress(OSError):  # flushing into the dead encoder's pipe
-                self._process.stdin.close()
+        if self._finalizer is not None:
+            self._finalizer()  # kills and reaps ffmpeg, closes its log
+        elif self._log is not None:
             self._log.close()
         self._context.__exit__(RuntimeError, RuntimeError("aborted"), None)
 
     def _fail(self, what: str) -> None:
-        """Abort and raise ``OSError`` with ffmpeg's last messages."""
+        """Abort and raise :class:`VideoEncoderError` with ffmpeg's last messages."""
         self._log.seek(0)
         messages = self._log.read().decode(errors="replace").strip()[-800:]
         self.abort()
-        raise OSError(f"{self.path}: {what}" + (f": {messages}" if messages else ""))
+        raise VideoEncoderError(f"{self.path}: {what}" + (f": {messages}" if messages else ""))
 
     def _start_encoder(self) -> None:
         height, width = self._size
@@ -161,9 +174,23 @@ class Mp4Writer:
             *("-threads", str(self.threads), "-movflags", "+faststart", str(self._tmp)),
         ]
         self._log = tempfile.TemporaryFile()
-        self._process = subprocess.Popen(
-            command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log
-        )
+        try:
+            self._process = subprocess.Popen(
+                command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log
+            )
+        except OSError as error:
+            self.abort()
+            raise VideoEncoderError(f"{self.path}: cannot start ffmpeg ({error})") from None
+        self._finalizer = weakref.finalize(self, _stop_encoder, self._process, self._log)
+
+
+def _stop_encoder(process: subprocess.Popen, log) -> None:
+    """Kill and reap an unfinished ffmpeg (so it never writes its file later) and close its log."""
+    process.kill()
+    process.wait()
+    with contextlib.suppress(OSError):  # flushing into the dead encoder's pipe
+        process.stdin.close()
+    log.close()
 
 
 def _pad_to_even(frame: np.ndarray) -> np.ndarray:

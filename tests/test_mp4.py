@@ -99,3 +99,29 @@ def test_video_codec_reads_the_stream(tmp_path):
     with Mp4Writer(path, fps=5) as video:
         video.write(_frames(1, 20, 20)[0])
     assert video_codec(path) == "h264"
+
+
+def test_a_dropped_writer_stops_its_encoder_and_leaves_no_file(tmp_path):
+    import gc
+
+    video = Mp4Writer(tmp_path / "clip.mp4", fps=5, threads=1)
+    video.write(_frames(1, 20, 20)[0])
+    process = video._process
+    del video
+    gc.collect()
+    assert process.poll() is not None  # killed, not left waiting for frames (it would write later)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_missing_encoder_is_a_named_error(tmp_path, monkeypatch):
+    import imageio_ffmpeg
+
+    from navformer_rl.mp4 import VideoEncoderError
+
+    def missing():
+        raise RuntimeError("No ffmpeg exe could be found")
+
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", missing)
+    with pytest.raises(VideoEncoderError, match="no ffmpeg binary .* IMAGEIO_FFMPEG_EXE"):
+        Mp4Writer(tmp_path / "clip.mp4", fps=5)
+    assert list(tmp_path.iterdir()) == []

@@ -46,6 +46,7 @@ from navformer_rl.data.schema import (
     fields_for,
     key_name,
 )
+from navformer_rl.durable import FolderLockedError as FolderLockedError  # re-exported
 from navformer_rl.durable import folder_lock as durable_folder_lock
 from navformer_rl.durable import fsync_dir, fsync_tree
 

@@ -32,6 +32,7 @@ import json
 import math
 import multiprocessing
 import os
+import re
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -374,12 +375,16 @@ def evaluate(
         )
 
 
+_TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
+"""The names ``durable.atomic_path`` gives its temporary files: ``.<stem>.<mkstemp's 8 characters>.tmp<suffix>``."""
+
+
 def _remove_temporaries(out_dir: Path) -> None:
-    """Delete the temporary files that writers killed mid-write left in ``out_dir`` (``atomic_path`` names
-    them ``.<stem>.<random>.tmp<suffix>``; only called while holding the folder's lock, so none is in use)."""
+    """Delete the temporary files that writers killed mid-write left in ``out_dir`` (only files named as
+    ``atomic_path`` names them; called while holding the folder's lock, so none is in use)."""
     for folder in (out_dir, out_dir / "videos", out_dir / "maps", out_dir / PARTIAL_DIRNAME):
         for leftover in folder.glob(".*.tmp*"):
-            if leftover.is_file():
+            if _TEMPORARY_NAME.match(leftover.name) and leftover.is_file():
                 leftover.unlink(missing_ok=True)
 
 
@@ -547,9 +552,10 @@ def _run_tasks(
                 for future in as_completed(futures):
                     finish(futures[future], future.result())
             except BaseException:
-                # An error or Ctrl-C: drop the queued episodes instead of running them all first
-                # (finished ones are already stored for resuming).
-                pool.shutdown(wait=False, cancel_futures=True)
+                # An error or Ctrl-C: drop the queued episodes instead of running them all first (finished
+                # ones are already stored for resuming), and wait for the running ones (a Ctrl-C reaches
+                # the workers too), so that nothing writes into the folder once its lock is released.
+                pool.shutdown(wait=True, cancel_futures=True)
                 raise
             pool.shutdown()
     finally:

@@ -209,24 +209,29 @@ def _check_replaceable(out_path: Path) -> None:
 
 
 def _older_videos_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
-    """A line naming the folders whose videos are not H.264 (episodes reused from a version that wrote
-    OpenCV's ``mp4v``), probed on each folder's first video; empty when there are none."""
-    older = []
+    """Lines naming the folders whose videos are not H.264 (episodes reused from a version that wrote
+    OpenCV's ``mp4v``) or could not be probed, from each folder's first video; empty when there are none."""
+    older, unreadable = [], []
     for folder, run in runs:
         videos = run["files"].get("videos", [])
         if videos and (folder / videos[0]).is_file():
             try:
                 codec = video_codec(folder / videos[0])
-            except (OSError, RuntimeError, StopIteration, KeyError):
-                codec = "unreadable"
+            except (OSError, RuntimeError, StopIteration, KeyError) as error:
+                unreadable.append(f"{run['label']} ({type(error).__name__})")
+                continue
             if codec != "h264":
                 older.append(f"{run['label']} ({codec})")
-    if not older:
-        return ""
-    return (
-        f"Not H.264: the videos of {', '.join(older)}, reused from an earlier version (`mpeg4` is OpenCV's "
-        "`mp4v`: VLC and mpv play it, browsers do not; to re-encode, rerun that evaluation with `--fresh` or delete its folder).\n"
-    )
+    lines = []
+    if older:
+        lines.append(
+            f"Not H.264: the videos of {', '.join(older)}, reused from an earlier version (`mpeg4` is "
+            "OpenCV's `mp4v`: VLC and mpv play it, browsers do not; to re-encode, rerun that evaluation with "
+            "`--fresh` or delete its folder).\n"
+        )
+    if unreadable:
+        lines.append(f"Could not read the first video of {', '.join(unreadable)} to check its codec.\n")
+    return "".join(lines)
 
 
 def write_report(

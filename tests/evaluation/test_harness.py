@@ -218,8 +218,11 @@ def test_one_evaluation_per_folder_and_killed_writers_temporaries_are_removed(tm
         holder.wait()
     # a writer killed mid-file leaves its temporary file; the next evaluation of the folder removes it
     (out / "videos").mkdir(parents=True)
-    leftover = out / "videos" / ".7.5m-2r_w00t00.abc123.tmp.mp4"
+    leftover = out / "videos" / ".7.5m-2r_w00t00.abc12345.tmp.mp4"
     leftover.write_bytes(b"partial")
+    users_file = out / ".notes.tmpl"  # a hidden file of the user's that merely looks similar
+    users_file.write_text("keep")
     with pytest.warns(UserWarning, match="taking over the lock left by process"):  # the killed holder's
         evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
     assert not leftover.exists() and not (out / LOCK_FILENAME).exists()
+    assert users_file.read_text() == "keep"

@@ -230,3 +230,18 @@ def test_policy_input_mistakes_are_named():
     with pytest.raises(ValueError, match="one target image per robot"):
         policy(TensorDict({"agents": {"pixels": frames(2, 0), "target_pixels": frames(1, 1)}}, batch_size=[]))
     assert "is_init" in policy.in_keys
+
+
+def test_new_episodes_rebuild_the_tables_only_when_the_weights_changed(monkeypatch):
+    policy = NavFormerPolicy(make_model(0))
+    target, pixels = frames(1, 0), frames(1, 1)
+    start = torch.zeros(1, 1, dtype=torch.long)
+    policy(agents_td(pixels, target, start))
+    rebuilds = []
+    monkeypatch.setattr(policy._decoder, "refresh", lambda: rebuilds.append(1))
+    for _ in range(3):  # an env whose episodes last one step: a new episode at every call
+        policy(agents_td(pixels, target, start))
+    assert rebuilds == []
+    TensorDict.from_module(policy.model).data.update_(TensorDict.from_module(make_model(1)).data)
+    policy(agents_td(pixels, target, start))
+    assert rebuilds == [1]
