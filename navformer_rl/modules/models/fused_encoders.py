@@ -71,7 +71,7 @@ class FusedConvEncoders:
             for layer in (encoder.convs[0], encoder.convs[2], encoder.convs[4], encoder.linear)
             for tensor in (layer.weight, layer.bias)
         )
-        self._weights = DerivedCache(params, self._build_weights)
+        self._weights = DerivedCache(params)
         self._plans: dict[tuple, GemmPlan] = {}
 
     def _build_weights(self) -> FusedWeights:
@@ -96,7 +96,7 @@ class FusedConvEncoders:
         size = self.encoders[0].image_size
         check_images(pixels, size)
         pixels = pixels.reshape(-1, size, size, 3)
-        weights = self._weights.get()
+        weights = self._weights.get(self._build_weights)
         if pixels.shape[0] <= self.gemm_max_batch:
             return self._gemm_stack(pixels, weights)
         return self._conv_stack(pixels, weights)

@@ -56,11 +56,11 @@ class StepLayers:
             model.head.bias,
         )
         self._embed_norm = layer_norm_weights(model.embed_ln)
-        self._tables = DerivedCache(sources, self._build)
+        self._tables = DerivedCache(sources)
 
     def tables(self) -> StepTables:
         """The current ``StepTables`` (rebuilt if a parameter changed since the last call)."""
-        return self._tables.get()
+        return self._tables.get(self._build)
 
     def _build(self) -> StepTables:
         model = self.model

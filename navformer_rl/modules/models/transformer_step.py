@@ -61,7 +61,7 @@ class TransformerStep:
         self._weights = tuple(
             linear[0] for block in self.blocks for linear in (block.qkv, block.proj, block.fc, block.out)
         )
-        self._transposed = DerivedCache(self._weights, self._build_transposed)
+        self._transposed = DerivedCache(self._weights)
         self._buffers: dict[tuple, ProjectionBuffers] = {}
 
     def _build_transposed(self) -> tuple[Tensor, ...]:
@@ -69,7 +69,7 @@ class TransformerStep:
 
     def transposed_weights(self) -> tuple[Tensor, ...]:
         """Every block's ``(qkv, proj, fc, out)`` weights as contiguous ``[in, out]`` (rebuilt if changed)."""
-        return self._transposed.get()
+        return self._transposed.get(self._build_transposed)
 
     def __call__(self, x: Tensor, attn_mask: Tensor, cache: KVCache, write_index: Tensor | slice) -> Tensor:
         """x ``[B, L, d]`` -> hidden ``[B, L, d]``; the L new keys/values are written to ``cache``.
