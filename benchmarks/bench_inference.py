@@ -10,6 +10,11 @@ and under ``torch.no_grad``:
   i.e. 4T tokens), with the frame embeddings of past steps cached and only the new frame encoded; median
   over ``--repeats``.
 - ``window``: the recompute of a full 1024-token window (256 steps), the cost of an exact sliding window.
+- ``encoders``: the new frame through f_s and f_g alone (``decoder.encode_observations``), median over the
+  same number of calls, and ``rest`` = kv - encoders: the token embeddings, the transformer on the 4 new
+  tokens and the THSC head. ``rest`` is what the prototype of ``performance.md`` section 4 timed (its
+  0.4-0.64 ms at batch 1 leave the encoders out). The encoders are timed back to back, with their weights
+  in cache, so ``rest`` also carries the cache misses the step pays for them.
 
 Usage: ``OMP_NUM_THREADS=1 python benchmarks/bench_inference.py [--threads 1] [--batches 1 6] [--T 50 200 500]``
 """
@@ -82,9 +87,10 @@ def main() -> None:
     print(f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, "
           f"load average {os.getloadavg()[0]:.2f}")  # fmt: skip
     print(
-        "| robots | T | tokens | KV step ms | ms / robot-step | recompute ms | speed-up | window recompute ms | window / KV |"
+        "| robots | T | tokens | KV step ms | ms / robot-step | of which encoders ms | rest ms | recompute ms "
+        "| speed-up | window recompute ms | window / KV |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     with torch.no_grad():
         for batch in args.batches:
             window_ms = None
@@ -111,6 +117,9 @@ def main() -> None:
                     prev = decoder.step(target, pixels, rtg, prev)
                     samples.append((time.perf_counter() - start) * 1e3)
                 kv_ms = statistics.median(samples)
+                encoder_ms = timed(
+                    lambda pixels=pixels, decoder=decoder: decoder.encode_observations(pixels), args.steps
+                )
                 pixels = frames[:, (t - 1) % 8]
                 recompute_ms = timed(
                     lambda t=t, pixels=pixels, cached=cached, decoder=decoder: recompute_step(
@@ -127,7 +136,8 @@ def main() -> None:
                     )
                 tps = model.config.tokens_per_step
                 print(
-                    f"| {batch} | {t} | {tps * t} | {kv_ms:.3f} | {kv_ms / batch:.3f} | {recompute_ms:.1f} | "
+                    f"| {batch} | {t} | {tps * t} | {kv_ms:.3f} | {kv_ms / batch:.3f} | {encoder_ms:.3f} | "
+                    f"{kv_ms - encoder_ms:.3f} | {recompute_ms:.1f} | "
                     f"{recompute_ms / kv_ms:.0f}x | {window_ms:.1f} | {window_ms / kv_ms:.0f}x |"
                 )
 
