@@ -5,16 +5,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from navformer_rl.checks import check_seed
+
 
 def seed(text: str) -> int:
-    """A seed: an integer >= 0 (numpy's generators refuse negative ones)."""
+    """A seed: an integer >= 0 (:func:`navformer_rl.checks.check_seed`; numpy's generators refuse negative
+    ones)."""
     try:
-        value = int(text)
+        value: int | str = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, got {value}")
-    return value
+        value = text  # not an integer: check_seed quotes the text
+    try:
+        return check_seed(value)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def output_folder(text: str) -> Path:

@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import glob
+import json
 import os
 import tempfile
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import Any
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -28,17 +31,28 @@ def dir_mode() -> int:
     return 0o777 & ~_UMASK
 
 
+_MKSTEMP_RANDOM_CHARS = 8
+"""Length of the random part of ``tempfile.mkstemp``'s names."""
+
+
+def _temporary_affixes(path: Path) -> tuple[str, str]:
+    """Prefix and suffix of the names :func:`atomic_path` gives its temporary files for ``path``:
+    ``.<stem>.<mkstemp's random characters>.tmp<suffix>``."""
+    return f".{path.stem}.", f".tmp{path.suffix}"
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` (same suffix); on success it is fsynced and renamed onto
     ``path`` (the folder fsynced too), so the file is complete whenever it exists, even after a power loss.
 
     For writers that want a file name (matplotlib, OpenCV, ffmpeg). On error the temporary file is removed and
-    ``path`` is left untouched.
+    ``path`` is left untouched; a process killed meanwhile leaves it (see :func:`atomic_leftovers`).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    prefix, suffix = _temporary_affixes(path)
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
     os.close(fd)
     os.chmod(tmp, file_mode())  # mkstemp creates 0600; give the file the usual permissions
     try:
@@ -56,6 +70,27 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="utf-8") as handle:
             handle.write(text)
+
+
+def atomic_write_json(path: str | os.PathLike, payload: Any) -> None:
+    """Write ``payload`` to ``path`` as JSON (sorted keys, 2-space indent, final newline), atomically and
+    durably (:func:`atomic_write_text`). Keep this format: dataset ``metadata.json`` and ``stats.json`` files
+    have always been written in it, and the same content must give the same bytes."""
+    atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=True) + "\n")
+
+
+def atomic_leftovers(path: str | os.PathLike) -> list[Path]:
+    """The temporary files next to ``path`` that :func:`atomic_path` calls for ``path`` left when their
+    process was killed before the rename (never committed data). Delete them only while no other process
+    writes ``path``, e.g. under :func:`folder_lock`."""
+    path = Path(path)
+    prefix, suffix = _temporary_affixes(path)
+    pattern = f"{glob.escape(prefix)}*{glob.escape(suffix)}"
+    return sorted(
+        candidate
+        for candidate in path.parent.glob(pattern)
+        if len(candidate.name) == len(prefix) + _MKSTEMP_RANDOM_CHARS + len(suffix) and candidate.is_file()
+    )
 
 
 def fsync_file(path: str | os.PathLike) -> None:

@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from navformer_rl import checkpoint as ckpt
+from navformer_rl.checks import check_int, check_number
 from navformer_rl.durable import atomic_write_text
 
 ABLATIONS: dict[str, str] = {
@@ -393,11 +394,6 @@ def load_train_config(
     return config_from_dict(container)
 
 
-def _positive_int(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ValueError(f"{name}={value!r}: expected a positive integer")
-
-
 def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
     """Static checks of ``cfg`` (no file is opened); :func:`build_trainer` also checks the datasets.
 
@@ -422,15 +418,15 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
     if cfg.device == "cuda" and not torch.cuda.is_available():
         raise ValueError("device=cuda but torch sees no CUDA device; use device=auto or device=cpu")
     for name in ("exploration_batch_trajs", "collision_batch_trajs", "ssl_batch_pairs"):
-        _positive_int(f"data.{name}", getattr(cfg.data, name))
+        check_int(getattr(cfg.data, name), f"data.{name}")
     if cfg.data.ssl_batch_pairs < 2 and cfg.uses_ssl:
         raise ValueError(
             f"data.ssl_batch_pairs={cfg.data.ssl_batch_pairs}: BYOL's BatchNorm needs at least 2 pairs"
         )
     if cfg.data.context_steps is not None:
-        _positive_int("data.context_steps", cfg.data.context_steps)
+        check_int(cfg.data.context_steps, "data.context_steps")
     for name in ("iterations", "trajectory_chunks"):
-        _positive_int(f"optim.{name}", getattr(cfg.optim, name))
+        check_int(getattr(cfg.optim, name), f"optim.{name}")
     for name in ("exploration_batch_trajs", "collision_batch_trajs"):
         size = getattr(cfg.data, name)
         if size % cfg.optim.trajectory_chunks:
@@ -438,21 +434,18 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
                 f"data.{name}={size} is not divisible by optim.trajectory_chunks={cfg.optim.trajectory_chunks}"
             )
     for name in ("lr", "weight_decay", "dve_lr", "dve_weight_decay"):
-        value = getattr(cfg.optim, name)
-        if not isinstance(value, (int, float)) or value < 0 or not math.isfinite(value):
-            raise ValueError(f"optim.{name}={value!r}: expected a finite number >= 0")
+        check_number(getattr(cfg.optim, name), f"optim.{name}", at_least=0)
     if cfg.optim.lr == 0 or (cfg.uses_ssl and cfg.optim.dve_lr == 0):
         raise ValueError("optim.lr / optim.dve_lr must be > 0")
     if cfg.optim.clip_grad_norm is not None and not cfg.optim.clip_grad_norm > 0:
         raise ValueError(f"optim.clip_grad_norm={cfg.optim.clip_grad_norm!r}: expected None or a number > 0")
-    _positive_int("logger.log_interval", cfg.logger.log_interval)
-    _positive_int("checkpoint.interval", cfg.checkpoint.interval)
+    check_int(cfg.logger.log_interval, "logger.log_interval")
+    check_int(cfg.checkpoint.interval, "checkpoint.interval")
     if cfg.checkpoint.keep_last < 0:
         raise ValueError(f"checkpoint.keep_last={cfg.checkpoint.keep_last}: expected >= 0 (0 keeps all)")
-    if not 0.5 <= cfg.ssl.tau_base <= 1.0:
-        raise ValueError(f"ssl.tau_base={cfg.ssl.tau_base!r}: expected a value in [0.5, 1]")
-    _positive_int("ssl.projection_dim", cfg.ssl.projection_dim)
-    _positive_int("ssl.hidden_dim", cfg.ssl.hidden_dim)
+    check_number(cfg.ssl.tau_base, "ssl.tau_base", at_least=0.5, at_most=1)
+    check_int(cfg.ssl.projection_dim, "ssl.projection_dim")
+    check_int(cfg.ssl.hidden_dim, "ssl.hidden_dim")
     for key, instead in MODEL_KEYS_SET_ELSEWHERE.items():
         if key in cfg.model:
             raise ValueError(f"model.{key} is set by the training config; use {instead}")

@@ -8,7 +8,6 @@ what was expected instead of crashing (a truncated memmap would otherwise fault 
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +18,7 @@ from torchrl.data.replay_buffers import ImmutableDatasetWriter, SamplerWithoutRe
 from torchrl.data.replay_buffers.checkpointers import StorageCheckpointerBase
 from torchrl.envs.transforms import Transform
 
+from navformer_rl.checks import is_count
 from navformer_rl.data.samplers import (
     DEFAULT_CONTEXT_STEPS,
     EpisodeTable,
@@ -30,12 +30,11 @@ from navformer_rl.data.schema import SCHEMA_VERSION, TARGET_FIELDS, DatasetKind,
 from navformer_rl.data.writer import (
     CONSOLIDATED_DIR,
     METADATA_FILE,
-    is_count,
     load_checked,
     read_json_object,
     short_repr,
 )
-from navformer_rl.durable import atomic_write_text
+from navformer_rl.durable import atomic_write_json
 
 _DAMAGED = (
     "the dataset folder was damaged after it was written (its files are written atomically): restore it "
@@ -82,7 +81,7 @@ class DatasetReferenceCheckpointer(StorageCheckpointerBase):
     def dumps(self, storage, path) -> None:
         path = Path(path)
         path.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path / self.FILENAME, json.dumps(self.reference, indent=2, sort_keys=True) + "\n")
+        atomic_write_json(path / self.FILENAME, self.reference)
 
     def loads(self, storage, path) -> None:
         file = Path(path) / self.FILENAME

@@ -19,8 +19,9 @@ interruptions: rerunning the same command after a crash yields the same bytes.
 A unit's folder is renamed into place only after all its files are written and fsynced, so a committed
 shard is complete: one whose ``stats.json`` or memmaps cannot be read was damaged afterwards (disk error,
 partial copy, manual edit). Reading it raises ``ValueError`` naming the file and the problem, and saying to
-delete that unit's folder so that the next run collects it again (same seed, same data). Temp files and
-folders (``.tmp-*``) are provably uncommitted and are deleted silently.
+delete that unit's folder so that the next run collects it again (same seed, same data). Temp folders
+(``shards/.tmp-*``) and temp files of interrupted ``metadata.json`` rewrites (``.metadata.*.tmp.json``,
+see :func:`navformer_rl.durable.atomic_leftovers`) are provably uncommitted and are deleted silently.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
+from navformer_rl.checks import check_int, is_count
 from navformer_rl.data.schema import (
     SCHEMA_VERSION,
     TARGET_FIELDS,
@@ -47,8 +49,8 @@ from navformer_rl.data.schema import (
     key_name,
 )
 from navformer_rl.durable import FolderLockedError as FolderLockedError  # re-exported
+from navformer_rl.durable import atomic_leftovers, atomic_write_json, fsync_dir, fsync_tree
 from navformer_rl.durable import folder_lock as durable_folder_lock
-from navformer_rl.durable import fsync_dir, fsync_tree
 
 METADATA_FILE = "metadata.json"
 SHARDS_DIR = "shards"
@@ -82,23 +84,6 @@ def folder_lock(root: str | Path) -> contextlib.AbstractContextManager[Path]:
     return durable_folder_lock(root, LOCK_FILE, "collected")
 
 
-def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
-    """Write ``payload`` as sorted, indented JSON to ``path`` through a temp file + ``os.replace``."""
-    path = Path(path)
-    tmp = path.with_name(f"{_TMP_PREFIX}{path.name}.{os.getpid()}")
-    try:
-        with open(tmp, "w") as f:
-            json.dump(payload, f, indent=2, sort_keys=True)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)  # a process killed here leaves it: DatasetWriter deletes it on reopening
-        raise
-    fsync_dir(path.parent)
-
-
 _JSON_TYPES = {list: "an array", str: "a string", int: "a number", float: "a number", bool: "a boolean"}
 
 
@@ -106,11 +91,6 @@ def short_repr(value: Any, limit: int = 80) -> str:
     """``repr(value)`` cut to ``limit`` characters (for error messages about values read from files)."""
     text = repr(value)
     return text if len(text) <= limit else f"{text[: limit - 3]}..."
-
-
-def is_count(value: Any) -> bool:
-    """Whether ``value`` (read from JSON) is a non-negative integer (``bool`` is not)."""
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
 def read_json_object(path: str | Path, remedy: str) -> dict[str, Any]:
@@ -208,7 +188,7 @@ def write_shard(
         if kind.is_trajectory:
             TensorDict({"target_pixels": targets.contiguous()}, batch_size=[n_items]).memmap_(tmp / "targets")
     stats = {"items": n_items, "rows": n_rows, "counters": {k: int(v) for k, v in counters.items()}}
-    write_json_atomic(tmp / STATS_FILE, stats)
+    atomic_write_json(tmp / STATS_FILE, stats)
     fsync_tree(tmp)
     try:
         os.rename(tmp, final)
@@ -277,11 +257,9 @@ class DatasetWriter:
     ):
         from navformer_rl import __version__
 
-        if target_count < 1:
-            raise ValueError(f"target_count must be >= 1, got {target_count}")
+        self.target_count = check_int(target_count, "target_count")
         self.root = Path(root)
         self.kind = DatasetKind.parse(kind)
-        self.target_count = int(target_count)
         header = {
             "schema_version": SCHEMA_VERSION,
             "kind": self.kind.value,
@@ -290,10 +268,10 @@ class DatasetWriter:
             "package_version": __version__,
         }
         meta_path = self.root / METADATA_FILE
-        for leftover in self.root.glob(f"{_TMP_PREFIX}{METADATA_FILE}.*"):
-            # a metadata rewrite interrupted before its os.replace: never committed
-            with contextlib.suppress(FileNotFoundError):
-                leftover.unlink()
+        # metadata rewrites interrupted before their rename were never committed (the second pattern is
+        # how versions before atomic_write_json named them)
+        for leftover in (*atomic_leftovers(meta_path), *self.root.glob(f"{_TMP_PREFIX}{METADATA_FILE}.*")):
+            leftover.unlink(missing_ok=True)
         if meta_path.exists():
             old = read_json_object(
                 meta_path,
@@ -331,7 +309,7 @@ class DatasetWriter:
         else:
             self.root.mkdir(parents=True, exist_ok=True)
             self.metadata = {**header, "status": "collecting"}
-            write_json_atomic(meta_path, self.metadata)
+            atomic_write_json(meta_path, self.metadata)
         (self.root / SHARDS_DIR).mkdir(exist_ok=True)
         for leftover in (self.root / SHARDS_DIR).glob(f"{_TMP_PREFIX}*"):
             shutil.rmtree(leftover, ignore_errors=True)
@@ -489,7 +467,7 @@ class DatasetWriter:
             "counts": counts,
             "statistics": dataset_statistics(TensorDict.load_memmap(final / "rows"), self.kind),
         }
-        write_json_atomic(self.root / METADATA_FILE, self.metadata)
+        atomic_write_json(self.root / METADATA_FILE, self.metadata)
         self._remove_shards()
         return self.root
 

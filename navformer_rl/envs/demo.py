@@ -13,9 +13,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from navformer_rl.checks import check_int
 from navformer_rl.constants import CONTROL_DT, SUCCESS_RADIUS
 from navformer_rl.durable import atomic_path
-from navformer_rl.envs.checks import check_int
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy
 from navformer_rl.envs.robots import JACKAL
 from navformer_rl.envs.sim import Simulator

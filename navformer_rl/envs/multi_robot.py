@@ -37,8 +37,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from navformer_rl.checks import check_int, check_seed
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
-from navformer_rl.envs.checks import check_int, check_seed
 from navformer_rl.envs.robots import get_robot_spec
 from navformer_rl.envs.sim import Simulator, simulator_for_world, validate_actions
 from navformer_rl.envs.target_image import render_target_image

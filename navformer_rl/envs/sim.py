@@ -14,8 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from navformer_rl.checks import check_number
 from navformer_rl.constants import CONTROL_DT, IMAGE_SIZE
-from navformer_rl.envs.checks import check_number
 from navformer_rl.envs.robots import RobotSpec
 from navformer_rl.envs.scene import WALL_PALETTE, add_box, add_floor, add_robot, add_target
 from navformer_rl.envs.world import WorldSpec

@@ -15,8 +15,8 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
+from navformer_rl.checks import check_int, check_seed
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
-from navformer_rl.envs.checks import check_int, check_seed
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy, ObstaclePolicy
 from navformer_rl.envs.robots import RobotSpec, get_robot_spec
 from navformer_rl.envs.sim import Simulator, simulator_for_world, validate_actions

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from navformer_rl.checks import check_int, check_number
 from navformer_rl.constants import SUCCESS_RADIUS
-from navformer_rl.envs.checks import check_int, check_number
 from navformer_rl.envs.robots import JACKAL, RobotSpec
 from navformer_rl.envs.world import WorldSpec
 

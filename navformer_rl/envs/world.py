@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from navformer_rl.checks import check_int, check_number, check_seed, is_integer, is_real
 from navformer_rl.constants import (
     MAX_WORLD_SIZE,
     MIN_WORLD_SIZE,
@@ -22,7 +23,6 @@ from navformer_rl.constants import (
     TARGET_COLORS,
     TARGET_SHAPES,
 )
-from navformer_rl.envs.checks import check_int, check_number, check_seed, is_integer, is_real
 from navformer_rl.envs.occupancy import OccupancyMap
 from navformer_rl.envs.robots import JACKAL, RobotSpec
 

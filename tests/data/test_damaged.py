@@ -224,7 +224,9 @@ def test_resume_with_damaged_metadata_names_the_file_and_the_fix(content, proble
 
 
 def test_uncommitted_metadata_temp_files_are_deleted(resumable, reference, folder_bytes, monkeypatch):
-    # a process killed while rewriting metadata.json leaves its temp file: deleted on reopening
+    # a process killed while rewriting metadata.json leaves its temp file (named by durable.atomic_path, or
+    # as earlier versions named it): deleted on reopening
+    (resumable / ".metadata.k1ll3d_x.tmp.json").write_text('{"status": "comp')
     (resumable / ".tmp-metadata.json.4242").write_text('{"status": "comp')
     # an error while rewriting it removes the temp file at once
     real_replace = writer_module.os.replace
@@ -237,7 +239,7 @@ def test_uncommitted_metadata_temp_files_are_deleted(resumable, reference, folde
     monkeypatch.setattr(writer_module.os, "replace", failing_replace)
     with pytest.raises(_Crash):
         _collect(resumable)
-    assert not list(resumable.glob(".tmp-*"))
+    assert not [*resumable.glob(".tmp-*"), *resumable.glob(".metadata.*")]
     monkeypatch.setattr(writer_module.os, "replace", real_replace)
     _collect(resumable)
     assert folder_bytes(resumable) == folder_bytes(reference)

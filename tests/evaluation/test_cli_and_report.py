@@ -52,7 +52,7 @@ def test_negative_seeds_are_refused_by_every_command(capsys):
         with pytest.raises(SystemExit) as exit_info:
             cli.main(argv)
         assert exit_info.value.code == 2
-        assert "expected a non-negative integer seed, got -1" in capsys.readouterr().err
+        assert "seed must be a non-negative integer, got -1" in capsys.readouterr().err
 
 
 def test_cli_errors(tmp_path):

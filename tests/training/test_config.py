@@ -131,8 +131,12 @@ def _corrupt_schema(src: Path, dst: Path) -> Path:
 
 BAD_CONFIGS = [
     (["ablation=no_attention"], ValueError, "unknown ablation 'no_attention'"),
-    (["data.exploration_batch_trajs=0"], ValueError, "data.exploration_batch_trajs=0"),
-    (["data.ssl_batch_pairs=-4"], ValueError, "data.ssl_batch_pairs=-4"),
+    (
+        ["data.exploration_batch_trajs=0"],
+        ValueError,
+        "data.exploration_batch_trajs must be an integer >= 1, got 0",
+    ),
+    (["data.ssl_batch_pairs=-4"], ValueError, "data.ssl_batch_pairs must be an integer >= 1, got -4"),
     (["optim.trajectory_chunks=3"], ValueError, "not divisible by optim.trajectory_chunks=3"),
     (["data.collision_path=null"], ValueError, "data.collision_path is not set"),
     (["ablation=no_de", "data.collision_path=null"], ValueError, "data.collision_path is not set"),
@@ -153,7 +157,13 @@ BAD_CONFIGS = [
     (["model.d_head=5"], ValueError, "n_heads \\* d_head"),
     (["data.context_steps=300"], ValueError, "at most 256 steps"),
     (["model.detach_encoders=true"], ValueError, "use encoder_training=frozen"),
-    (["optim.iterations=0"], ValueError, "optim.iterations=0"),
+    (["optim.iterations=0"], ValueError, "optim.iterations must be an integer >= 1, got 0"),
+    (
+        ["optim.weight_decay=-1e-4"],
+        ValueError,
+        "optim.weight_decay must be a finite number >= 0, got -0.0001",
+    ),
+    (["ssl.tau_base=1.5"], ValueError, r"ssl.tau_base must be a finite number >= 0.5 and <= 1, got 1\.5"),
     # values of the wrong type are named, not left to fail deep inside numpy / torch
     (["seed=abc"], ValueError, "seed='abc': expected int"),
     (["resume=maybe"], ValueError, "resume='maybe': expected bool"),

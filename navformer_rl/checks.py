@@ -1,8 +1,10 @@
-"""Argument checks shared by the world generator, the simulator and the envs (pure Python + numpy).
+"""Checks of argument and setting values, shared by the whole package (pure Python + numpy).
 
-Each returns the value converted to a plain Python ``int`` / ``float`` or raises ``ValueError`` naming the
+The ``is_*`` predicates answer whether a value has the expected type and range; the ``check_*`` functions
+return the value converted to a plain Python ``int`` / ``float`` or raise ``ValueError`` naming the
 argument, the bad value and what was expected, so that a wrong setting never surfaces as a traceback from
-deep inside numpy, torch or pybullet.
+deep inside numpy, torch or pybullet. ``bool`` is never accepted as a number (``True`` is no count or seed);
+numpy integer and float scalars are.
 """
 
 from __future__ import annotations
@@ -14,8 +16,13 @@ import numpy as np
 
 
 def is_integer(value: Any) -> bool:
-    """True for Python and numpy integers (``bool`` excluded: ``True`` is no count or seed)."""
+    """True for Python and numpy integers (``bool`` excluded)."""
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def is_count(value: Any) -> bool:
+    """True for an integer >= 0 (``bool`` excluded), e.g. a count or a seed."""
+    return is_integer(value) and value >= 0
 
 
 def is_real(value: Any) -> bool:
@@ -26,7 +33,7 @@ def is_real(value: Any) -> bool:
 def check_seed(seed: Any, name: str = "seed") -> int:
     """``seed`` as an ``int``; ValueError unless it is an integer >= 0 (numpy's ``SeedSequence`` and
     gymnasium refuse negative and non-integer seeds)."""
-    if not is_integer(seed) or seed < 0:
+    if not is_count(seed):
         raise ValueError(f"{name} must be a non-negative integer, got {seed!r}")
     return int(seed)
 
