@@ -3,9 +3,13 @@
 Cell ``(row, col)`` covers ``x in [ox + col*res, ox + (col+1)*res)`` and ``y in [oy + row*res, oy + (row+1)*res)``
 with ``(ox, oy) = origin``: rows follow +y, columns follow +x (flip rows to draw it as an image).
 
-Shortest paths use the 8-connected grid of free cells of the map inflated by a clearance (a disc robot
-of that radius fits at every free cell centre); a diagonal move is allowed only when both cells it cuts
-past are free (no corner cutting). Lengths are exact for that graph (Dijkstra), in metres.
+Shortest paths use the grid of free cells of the map inflated by a clearance (a disc robot of that radius
+fits at every free cell centre). ``reach=1`` (the default) is the 8-connected grid: a diagonal move is allowed
+only when both cells it cuts past are free (no corner cutting). ``reach=k`` adds every straight move to a
+cell up to ``k`` rows and ``k`` columns away (:func:`grid_moves`), allowed when every cell whose closed square
+the move's segment touches is free - the same rule, generalised. Lengths are exact for the graph (Dijkstra),
+in metres; against the any-angle (Euclidean) geodesic between the same cell centres they are never shorter
+and at most :func:`reach_overestimate` longer: 8.2 % for ``reach=1``, 0.49 % for ``reach=5``.
 """
 
 from __future__ import annotations
@@ -21,6 +25,54 @@ from scipy.sparse.csgraph import dijkstra
 from navformer_rl.checks import check_number
 
 _FIELD_CACHE_SIZE = 16
+
+
+def grid_moves(reach: int) -> list[tuple[int, int, tuple[tuple[int, int], ...]]]:
+    """The moves of the ``reach`` grid graph, one per undirected direction.
+
+    Returns ``[(d_row, d_col, cells)]`` for every primitive offset (``gcd = 1``) with
+    ``max(|d_row|, |d_col|) <= reach`` in one half-plane; ``cells`` are the offsets, relative to the start
+    cell, of every cell whose closed square the segment between the two cell centres touches (start and end
+    included). ``reach=1`` gives the 4 moves of the 8-connected grid; the diagonal's cells are the 2 x 2
+    block, i.e. no corner cutting.
+    """
+    moves = []
+    for d_row in range(0, reach + 1):
+        for d_col in range(-reach, reach + 1):
+            if (d_row == 0 and d_col <= 0) or math.gcd(d_row, abs(d_col)) != 1:
+                continue
+            moves.append((d_row, d_col, _touched_cells(d_row, d_col)))
+    return moves
+
+
+def _touched_cells(d_row: int, d_col: int) -> tuple[tuple[int, int], ...]:
+    """Offsets of the cells whose closed unit square meets the segment from the centre of cell (0, 0) to
+    the centre of cell ``(d_row, d_col)`` (Liang-Barsky clipping; touching a corner counts)."""
+    cells = []
+    for row in range(min(0, d_row), max(0, d_row) + 1):
+        for col in range(min(0, d_col), max(0, d_col) + 1):
+            lo, hi = 0.0, 1.0
+            # the segment is (0.5, 0.5) + t * (d_col, d_row) in (x = col, y = row) cell units
+            for start, delta, low, high in ((0.5, d_col, col, col + 1), (0.5, d_row, row, row + 1)):
+                if delta == 0:
+                    if not low <= start <= high:
+                        lo, hi = 1.0, 0.0
+                    continue
+                t0, t1 = (low - start) / delta, (high - start) / delta
+                lo, hi = max(lo, min(t0, t1)), min(hi, max(t0, t1))
+            if lo <= hi + 1e-12:
+                cells.append((row, col))
+    return tuple(cells)
+
+
+def reach_overestimate(reach: int) -> float:
+    """Largest relative excess of a ``reach`` grid path over the any-angle path between the same cell
+    centres (free space): ``1 / cos(gap / 2) - 1`` for the widest angle ``gap`` between two move
+    directions."""
+    angles = sorted(math.atan2(d_row, abs(d_col)) for d_row, d_col, _ in grid_moves(reach) if d_row >= 0)
+    angles = sorted({a for a in angles if 0 <= a <= math.pi / 2 + 1e-12})
+    gap = max(b - a for a, b in zip(angles, angles[1:]))
+    return 1.0 / math.cos(gap / 2) - 1.0
 
 
 class OccupancyMap:
@@ -42,7 +94,7 @@ class OccupancyMap:
         self.resolution = float(resolution)
         self.origin = (float(origin[0]), float(origin[1]))
         self._inflated: dict[float, np.ndarray] = {}
-        self._graphs: dict[float, tuple[csr_matrix, np.ndarray, np.ndarray]] = {}
+        self._graphs: dict[tuple[float, int], tuple[csr_matrix, np.ndarray, np.ndarray]] = {}
         self._nearest_free: dict[float, np.ndarray] = {}
         self._fields: OrderedDict[tuple, np.ndarray] = OrderedDict()
 
@@ -171,9 +223,11 @@ class OccupancyMap:
         return labels == int(np.argmax(counts))
 
     # ------------------------------------------------------------------ shortest paths
-    def _graph(self, clearance: float) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
+    def _graph(self, clearance: float, reach: int = 1) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
         """(adjacency csr ``[n, n]``, node index int64 ``[H, W]`` (-1 blocked), nearest-free indices ``[2, H, W]``)."""
-        key = round(float(clearance), 9)
+        if isinstance(reach, bool) or not isinstance(reach, int) or reach < 1:
+            raise ValueError(f"reach must be an integer >= 1 (1 = the 8-connected grid), got {reach!r}")
+        key = (round(float(clearance), 9), reach)
         if key in self._graphs:
             return self._graphs[key]
         blocked = self.inflate(clearance)
@@ -181,25 +235,19 @@ class OccupancyMap:
         h, w = self.shape
         node = np.full((h, w), -1, dtype=np.int64)
         node[free] = np.arange(int(free.sum()))
-        res = self.resolution
         rows, cols, weights = [], [], []
-
-        def add(a_free: np.ndarray, a_node: np.ndarray, b_node: np.ndarray, length: float) -> None:
-            rows.append(a_node[a_free])
-            cols.append(b_node[a_free])
-            weights.append(np.full(int(a_free.sum()), length))
-
-        # right and up neighbours
-        ok = free[:, :-1] & free[:, 1:]
-        add(ok, node[:, :-1], node[:, 1:], res)
-        ok = free[:-1, :] & free[1:, :]
-        add(ok, node[:-1, :], node[1:, :], res)
-        # diagonals, allowed only when both orthogonal cells are free (no corner cutting)
-        diag = res * math.sqrt(2.0)
-        ok = free[:-1, :-1] & free[1:, 1:] & free[1:, :-1] & free[:-1, 1:]
-        add(ok, node[:-1, :-1], node[1:, 1:], diag)
-        ok = free[:-1, 1:] & free[1:, :-1] & free[:-1, :-1] & free[1:, 1:]
-        add(ok, node[:-1, 1:], node[1:, :-1], diag)
+        for d_row, d_col, cells in grid_moves(reach):
+            # source cells (r, c) whose every touched cell (r + dr, c + dc) lies on the map
+            r0, r1 = -min(dr for dr, _ in cells), h - max(dr for dr, _ in cells)
+            c0, c1 = -min(dc for _, dc in cells), w - max(dc for _, dc in cells)
+            if r0 >= r1 or c0 >= c1:
+                continue
+            ok = np.ones((r1 - r0, c1 - c0), dtype=bool)
+            for dr, dc in cells:
+                ok &= free[r0 + dr : r1 + dr, c0 + dc : c1 + dc]
+            rows.append(node[r0:r1, c0:c1][ok])
+            cols.append(node[r0 + d_row : r1 + d_row, c0 + d_col : c1 + d_col][ok])
+            weights.append(np.full(len(rows[-1]), self.resolution * math.hypot(d_row, d_col)))
         n_nodes = int(free.sum())
         adjacency = coo_matrix(
             (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n_nodes, n_nodes)
@@ -214,22 +262,26 @@ class OccupancyMap:
     def snap_to_free(self, xy, clearance: float) -> tuple[int, int]:
         """Cell ``(row, col)`` nearest (Euclidean, in cells) to the point ``xy`` that is free in
         ``inflate(clearance)``. ValueError when the point is outside the map or nothing is free."""
-        _, node, nearest = self._graph(clearance)
+        _, node, nearest = self._graph(clearance)  # reach does not change which cells are free
         if node.max() < 0:
             raise ValueError(f"no free cell at clearance {clearance} m: the inflated map is fully blocked")
         row, col = self._checked_cell(xy, "point")
         return int(nearest[0, row, col]), int(nearest[1, row, col])
 
-    def distance_field(self, goal_xy, clearance: float, goal_radius: float = 0.0) -> np.ndarray:
+    def distance_field(
+        self, goal_xy, clearance: float, goal_radius: float = 0.0, reach: int = 1
+    ) -> np.ndarray:
         """Geodesic distance in metres from every cell to the goal: float64 ``[H, W]`` (read-only).
 
         The goal is the free cell nearest to ``goal_xy`` on ``inflate(clearance)``; with ``goal_radius > 0``
         it is every free cell whose centre lies within ``goal_radius`` of ``goal_xy`` (plus the snapped cell).
-        Blocked and unreachable cells hold ``inf``.
+        Blocked and unreachable cells hold ``inf``. ``reach``: the grid graph (module docstring); 1 is the
+        8-connected grid, larger values approach the any-angle geodesic at a higher cost (``reach=5``:
+        40 moves per cell instead of 4, ~10x the time).
         """
-        adjacency, node, _ = self._graph(clearance)
+        adjacency, node, _ = self._graph(clearance, reach)
         goal_cell = self.snap_to_free(goal_xy, clearance)
-        key = (goal_cell, round(float(clearance), 9), round(float(goal_radius), 9))
+        key = (goal_cell, round(float(clearance), 9), round(float(goal_radius), 9), reach)
         if key in self._fields:
             self._fields.move_to_end(key)
             return self._fields[key]
@@ -248,12 +300,15 @@ class OccupancyMap:
             self._fields.popitem(last=False)
         return field
 
-    def shortest_path_length(self, start_xy, goal_xy, clearance: float, goal_radius: float = 0.0) -> float:
-        """Length in metres of the shortest 8-connected, corner-cut-free path on ``inflate(clearance)``.
+    def shortest_path_length(
+        self, start_xy, goal_xy, clearance: float, goal_radius: float = 0.0, reach: int = 1
+    ) -> float:
+        """Length in metres of the shortest corner-cut-free path on ``inflate(clearance)`` (8-connected for
+        ``reach=1``; see the module docstring for larger ``reach``).
 
         Start and goal are snapped to their nearest free cells (the snap offsets are not added). With
         ``goal_radius > 0`` the path ends at the first free cell within ``goal_radius`` of the goal.
         Returns ``inf`` when the goal cannot be reached; ValueError for points outside the map.
         """
-        field = self.distance_field(goal_xy, clearance, goal_radius)
+        field = self.distance_field(goal_xy, clearance, goal_radius, reach)
         return float(field[self.snap_to_free(start_xy, clearance)])

@@ -8,7 +8,7 @@ locations were randomly chosen").
 
 File format (``FORMAT`` / ``FORMAT_VERSION``)::
 
-    {"format": "navformer_rl.episode_set", "version": 1, "name": ..., "max_steps": 500,
+    {"format": "navformer_rl.episode_set", "version": 2, "name": ..., "max_steps": 500,
      "generation": {protocol, seed, trials_per_setup, trials_per_world, package_version},
      "content_sha256": sha256 of the canonical JSON of every other field,
      "episodes": [{"episode_id", "setup", "size", "n_robots", "world_index", "trial",
@@ -17,6 +17,7 @@ File format (``FORMAT`` / ``FORMAT_VERSION``)::
                    "starts": [[x, y, yaw] per robot],
                    "targets": [{"position": [x, y], "shape", "color"} per robot],
                    "shortest_paths": [l_i per robot],            # SPL's l: start -> target, metres
+                                                                 # (reach-5 grid, SHORTEST_PATH_REACH)
                    "shortest_paths_to_disc": [per robot],        # start -> 1.5 m success disc (reference)
                    "seed": per-episode seed for stochastic policies}, ...]}
 
@@ -43,7 +44,12 @@ from navformer_rl.constants import EVAL_ROBOT_COUNTS, EVAL_SIZES, MAX_EPISODE_ST
 from navformer_rl.durable import atomic_write_text
 
 FORMAT = "navformer_rl.episode_set"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: ``shortest_paths`` on the reach-5 grid (version 1 used the 8-connected grid, ~5 % longer)."""
+SHORTEST_PATH_REACH = 5
+"""The grid graph of SPL's l (``OccupancyMap`` module docstring): straight moves of up to 5 cells in 40
+directions, at most 0.49 % longer than the any-angle path between the same cells (8.2 % for the
+8-connected grid)."""
 PROTOCOLS = ("table1", "table3", "table4", "smoke")
 PAPER_TRIALS_PER_SETUP = 60
 PAPER_TRIALS_PER_WORLD = 10
@@ -346,7 +352,8 @@ def load_episode_set(path: str | os.PathLike) -> EpisodeSet:
     if document.get("version") != FORMAT_VERSION:
         raise ValueError(
             f"{path} has episode-set version {document.get('version')!r}; this navformer_rl reads version "
-            f"{FORMAT_VERSION} only - regenerate it with `navformer evaluate make-episodes`"
+            f"{FORMAT_VERSION} only (version 1 measured SPL's l on the 8-connected grid, ~5 % too long) - "
+            "regenerate it with `navformer evaluate make-episodes`"
         )
     stored_hash = document.get("content_sha256")
     try:
@@ -471,10 +478,10 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
 
 def _shortest_paths(occupancy, start_xy, target_xy, clearance: float) -> tuple[float, float]:
     """``(l, l_disc)`` in metres from one Dijkstra rooted at the start, on ``occupancy`` inflated by
-    ``clearance``: ``l`` to the free cell nearest the target (= ``OccupancyMap.shortest_path_length``, the
-    graph is undirected) and ``l_disc`` to the nearest free cell whose centre is within the success radius
-    of the target (or that cell)."""
-    field = occupancy.distance_field(start_xy, clearance)
+    ``clearance`` with moves of up to :data:`SHORTEST_PATH_REACH` cells: ``l`` to the free cell nearest the
+    target (= ``OccupancyMap.shortest_path_length``, the graph is undirected) and ``l_disc`` to the nearest
+    free cell whose centre is within the success radius of the target (or that cell)."""
+    field = occupancy.distance_field(start_xy, clearance, reach=SHORTEST_PATH_REACH)
     row, col = occupancy.snap_to_free(target_xy, clearance)
     l_target = float(field[row, col])
     free = np.argwhere(np.isfinite(field))

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from navformer_rl.envs.occupancy import OccupancyMap
+from navformer_rl.envs.occupancy import OccupancyMap, grid_moves, reach_overestimate
 
 
 def bordered(rows: int, cols: int) -> np.ndarray:
@@ -117,3 +117,50 @@ def test_bad_inputs_raise_value_error():
         OccupancyMap.from_shapes(math.nan, 0.05, np.zeros((0, 4)))
     with pytest.raises(ValueError, match="resolution .*got inf"):
         OccupancyMap(np.zeros((3, 3), dtype=bool), math.inf)
+
+
+def cell_centre(occ: OccupancyMap, row: int, col: int) -> np.ndarray:
+    return occ.cell_to_world(np.array([row, col]))
+
+
+def test_reach_one_is_the_eight_connected_grid_without_corner_cutting():
+    moves = {(dr, dc): set(cells) for dr, dc, cells in grid_moves(1)}
+    assert moves == {
+        (0, 1): {(0, 0), (0, 1)},
+        (1, 0): {(0, 0), (1, 0)},
+        (1, 1): {(0, 0), (0, 1), (1, 0), (1, 1)},  # a diagonal needs both side cells free
+        (1, -1): {(0, -1), (0, 0), (1, -1), (1, 0)},
+    }
+    # (2, 1) from the centre of (0, 0) to that of (2, 1) crosses row 1 at x = 1.0: it touches (1, 0) and (1, 1)
+    assert set(dict((m[:2], m[2]) for m in grid_moves(2))[(2, 1)]) == {(0, 0), (1, 0), (1, 1), (2, 1)}
+    assert reach_overestimate(1) == pytest.approx(1 / math.cos(math.pi / 8) - 1)  # 8.24 %
+    assert reach_overestimate(5) == pytest.approx(1 / math.cos(math.atan(1 / 5) / 2) - 1)  # 0.49 %
+
+
+def test_open_floor_reach_gives_the_straight_line_when_the_direction_is_a_move():
+    occ = OccupancyMap(np.zeros((12, 12), dtype=bool), 0.1)
+    start, goal = cell_centre(occ, 0, 0), cell_centre(occ, 3, 9)  # 3 rows up, 9 columns right
+    octile = 0.1 * (6 + 3 * math.sqrt(2))
+    assert occ.shortest_path_length(start, goal, 0.0) == pytest.approx(octile)
+    assert occ.shortest_path_length(start, goal, 0.0, reach=3) == pytest.approx(0.1 * 3 * math.sqrt(10))
+    # (3, 9) = 3 x (1, 3); with reach 2 the best is (1, 2) moves plus straight ones, between the two
+    assert 0.1 * 3 * math.sqrt(10) < occ.shortest_path_length(start, goal, 0.0, reach=2) < octile
+
+
+def test_reach_paths_go_round_a_wall_end_through_cell_centres():
+    """A wall in column 5, rows 0-7, on an 11 x 11 grid; from (0, 0) to (0, 10). With every direction
+    (reach 10) the shortest polyline through free cell centres that touches no wall square is
+    (0, 0) -> (7, 3) -> (8, 5) -> (7, 7) -> (0, 10): 2 sqrt(7^2 + 3^2) + 2 sqrt(1^2 + 2^2) cells (the
+    segment (7, 3) -> (8, 5) is at y = 8.25 > 8 where it passes x = 5, the wall's top-left corner); the
+    8-connected grid pays 8 sqrt(2) + 10 cells; reach 5 lies between, within its bound."""
+    grid = np.zeros((11, 11), dtype=bool)
+    grid[0:8, 5] = True
+    occ = OccupancyMap(grid, 1.0)
+    start, goal = cell_centre(occ, 0, 0), cell_centre(occ, 0, 10)
+    exact = 2 * math.sqrt(58) + 2 * math.sqrt(5)
+    assert occ.shortest_path_length(start, goal, 0.0, reach=10) == pytest.approx(exact)
+    assert occ.shortest_path_length(start, goal, 0.0) == pytest.approx(8 * math.sqrt(2) + 10)
+    reach5 = occ.shortest_path_length(start, goal, 0.0, reach=5)
+    assert exact <= reach5 <= exact * (1 + reach_overestimate(5))
+    with pytest.raises(ValueError, match="reach must be an integer >= 1"):
+        occ.shortest_path_length(start, goal, 0.0, reach=0)
