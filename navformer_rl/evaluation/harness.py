@@ -271,7 +271,8 @@ def evaluate(
         episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
         out_dir: output folder (created; this run's files in it are overwritten, but a folder holding
             another label's finished results is refused with ``FileExistsError``).
-        checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``.
+        checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``; resolved
+            once, at the start, to one checkpoint folder (a run dir: its latest), which ``run.json`` names.
         workers: processes (>= 1; 1 runs in this process).
         label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation). A
             label naming a training ablation must match the checkpoint's (ValueError before any episode
@@ -304,6 +305,12 @@ def evaluate(
         factory, method = method, getattr(method, "__name__", "custom")
     else:
         factory = None
+    if checkpoint is not None and factory is None and method in CHECKPOINT_METHODS:
+        from navformer_rl.checkpoint import resolve_checkpoint
+
+        # one concrete checkpoint folder for the checks, run.json and every worker, even while the run
+        # directory is still training and a newer checkpoint appears mid-evaluation
+        checkpoint = resolve_checkpoint(checkpoint)
     spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory)
     label = label or method
     description = spec.validate(label)

@@ -25,6 +25,37 @@ def test_checkpoint_methods_run_every_robot(tmp_path, tiny_episodes, checkpoints
     assert run["ablation"] is None  # the fixture's checkpoints record no training configuration
 
 
+def test_a_run_directory_is_resolved_once(tmp_path, tiny_episodes, checkpoint_factory, monkeypatch):
+    """A run that is still training saves a newer checkpoint after the evaluation checked the one it named:
+    the evaluation keeps driving (and reporting) the checkpoint it checked."""
+    from navformer_rl.checkpoint import save_checkpoint
+    from navformer_rl.modules import NavFormerModel
+
+    run_dir = checkpoint_factory(tmp_path / "run", NavFormerConfig())
+    validate = PolicySpec.validate
+
+    def validate_then_train_on(self, label=None):
+        description = validate(self, label)
+        model = NavFormerModel(NavFormerConfig())  # other weights (not seeded like the first)
+        save_checkpoint(
+            run_dir, 2, model_state=model.state_dict(), model_config=dataclasses.asdict(NavFormerConfig()),
+            train_config={}, resume_state=None,
+        )  # fmt: skip
+        return description
+
+    kwargs = dict(maps_per_setup=0, videos_per_setup=0, progress=False)
+    monkeypatch.setattr(PolicySpec, "validate", validate_then_train_on)
+    raced = evaluate("navformer", tiny_episodes, tmp_path / "raced", checkpoint=run_dir, **kwargs)
+    monkeypatch.undo()
+    first = evaluate(
+        "navformer", tiny_episodes, tmp_path / "first",
+        checkpoint=run_dir / "checkpoints" / "iter_000001", **kwargs,
+    )  # fmt: skip
+    run = json.loads((tmp_path / "raced" / "run.json").read_text())
+    assert run["checkpoint"].endswith("iter_000001")
+    assert [r.to_dict() for r in raced.records] == [r.to_dict() for r in first.records]
+
+
 def test_a_label_naming_an_ablation_must_be_the_checkpoints(tmp_path, tiny_episodes, checkpoint_factory):
     """`--label navformer-no_thsc` on a full model would be compared with Table IV's w/o THSC row."""
     make_checkpoint = checkpoint_factory
