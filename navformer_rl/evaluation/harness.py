@@ -291,6 +291,7 @@ def evaluate(
         episode_set = load_episode_set(episode_set)
     if not isinstance(episode_set, EpisodeSet) or len(episode_set) == 0:
         raise ValueError("episode_set must be a non-empty EpisodeSet or the path of an episode-set file")
+    _check_episode_ids(episode_set)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if maps_per_setup < 0 or videos_per_setup < 0:
@@ -340,7 +341,8 @@ def evaluate(
 
         records = [record for output in outputs for record in output["records"]]
         atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
-        summaries = write_summary_files(records, out_dir, confidence, seed)
+        # the bootstrap seed is not the policy seed: the same rows get the same intervals here and in reports
+        summaries = write_summary_files(records, out_dir, confidence)
         from navformer_rl.evaluation.plots import plot_setup_bars
 
         plot = plot_setup_bars(summaries, out_dir / "metrics.png", title=f"{label} on {episode_set.name}")
@@ -427,6 +429,18 @@ def _refuse_other_runs_results(out_dir: Path, label: str) -> None:
             f"{out_dir} holds the results of {previous!r}; evaluating {label!r} there would replace them. "
             "Use another output folder (one per method or label), or delete that one"
         )
+
+
+def _check_episode_ids(episode_set: EpisodeSet) -> None:
+    """Every episode gets its own result file: refuse ids that repeat or map to the same file name."""
+    stems: dict[str, str] = {}
+    for episode in episode_set.episodes:
+        episode_id = episode.episode_id
+        other = stems.get(_file_stem(episode_id))
+        if other is not None:
+            problem = "appears twice" if other == episode_id else f"and {other!r} share a result file name"
+            raise ValueError(f"episode id {episode_id!r} {problem} in episode set {episode_set.name!r}")
+        stems[_file_stem(episode_id)] = episode_id
 
 
 def _make_tasks(

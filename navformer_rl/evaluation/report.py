@@ -234,6 +234,48 @@ def _older_videos_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
     return "".join(lines)
 
 
+def _setup_digests(folder: Path) -> dict[str, str] | None:
+    """``{setup: sha256 of its episodes}`` from an evaluation folder's ``episode_set.json`` (read as plain
+    JSON, whatever its format version), or None when the file is missing or unreadable. Two sets with other
+    names, protocols or package versions can hold the very same episodes of a setup (Table I's 12.5 m /
+    4-robot episodes are Table IV's): those are paired comparisons."""
+    try:
+        document = json.loads((folder / "episode_set.json").read_text())
+        by_setup: dict[str, list] = {}
+        for episode in document["episodes"]:
+            by_setup.setdefault(str(episode["setup"]), []).append(episode)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return {
+        setup: hashlib.sha256(json.dumps(episodes, sort_keys=True).encode()).hexdigest()
+        for setup, episodes in by_setup.items()
+    }
+
+
+def _unpaired_warning(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str | None:
+    """A warning naming the setups whose episodes differ between the methods that ran them (None if none
+    do); without every folder's episode file, the whole episode sets' hashes are compared."""
+    digests = {run["label"]: _setup_digests(folder) for folder, run in runs}
+    if any(d is None for d in digests.values()):
+        hashes = {run["episode_set"]["content_sha256"] for _, run in runs}
+        if len(hashes) == 1:
+            return None
+        return (
+            "**Warning: these methods ran on different episode sets** (hashes "
+            + ", ".join(sorted(h[:12] for h in hashes))
+            + "), so their rows are not paired comparisons.\n"
+        )
+    setups = dict.fromkeys(setup for d in digests.values() for setup in d)
+    differ = [s for s in setups if len({d[s] for d in digests.values() if s in d}) > 1]
+    if not differ:
+        return None
+    return (
+        "**Warning: the methods ran on different episodes** in "
+        + ", ".join(differ)
+        + " (other worlds, starts, targets or shortest paths), so those rows are not paired comparisons.\n"
+    )
+
+
 def write_report(
     result_dirs: Sequence[str | os.PathLike],
     out_path: str | os.PathLike,
@@ -274,7 +316,6 @@ def write_report(
     plot_path = report_dir / f"{out_path.stem}_metrics.png"  # not metrics.png: an evaluation folder's own
     plot = plot_setup_bars(summaries, plot_path, methods=labels, title=title)
 
-    hashes = {run["episode_set"]["content_sha256"] for _, run in runs}
     parts = [REPORT_MARKER, f"# {title}\n"]
     parts.append(
         f"{_MEASURES_SENTENCE} (success: within "
@@ -282,12 +323,9 @@ def write_report(
         "shortest collision-free path from start to target on the true map; CR = mean over robot-trials of "
         "collision steps / active steps. See `docs/evaluation.md`.\n"
     )
-    if len(hashes) > 1:
-        parts.append(
-            "**Warning: these methods ran on different episode sets** (hashes "
-            + ", ".join(sorted(h[:12] for h in hashes))
-            + "), so their rows are not paired comparisons.\n"
-        )
+    unpaired = _unpaired_warning(runs)
+    if unpaired is not None:
+        parts.append(unpaired)
     columns, ablations = {}, {}
     for folder, run in runs:
         ablations[run["label"]] = ablation = _recorded_ablation(run)

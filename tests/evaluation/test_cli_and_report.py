@@ -98,6 +98,27 @@ def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes, vrw_run)
         write_report([tmp_path], tmp_path / "none.md")
 
 
+def test_report_warns_only_when_the_episodes_of_a_setup_differ(tmp_path, tiny_episodes, vrw_run):
+    """The same episodes under another set name (Table I's 12.5 m / 4-robot episodes are Table IV's) are
+    paired; other episodes of the same setup are not, and the warning names that setup."""
+    import dataclasses
+
+    from navformer_rl.evaluation.episodes import make_episode_set
+
+    from .conftest import TINY_SETUP
+
+    kwargs = dict(maps_per_setup=0, videos_per_setup=0, progress=False, seed=3)
+    renamed = dataclasses.replace(tiny_episodes, name="renamed", generation={"protocol": "other"})
+    assert renamed.content_hash() != tiny_episodes.content_hash()
+    same = evaluate("vrw", renamed, tmp_path / "same", label="vrw-renamed", **kwargs)
+    text = write_report([vrw_run[0], same.out_dir], tmp_path / "paired.md").read_text()
+    assert "Warning" not in text
+    other_set = make_episode_set([TINY_SETUP], trials_per_setup=2, trials_per_world=2, seed=2, max_steps=12)
+    other = evaluate("vrw", other_set, tmp_path / "other", label="vrw-other", **kwargs)
+    text = write_report([vrw_run[0], other.out_dir], tmp_path / "unpaired.md").read_text()
+    assert "**Warning: the methods ran on different episodes** in 7.5m-2r" in text
+
+
 def test_report_never_replaces_other_files(tmp_path, vrw_run):
     out_dir = Path(shutil.copytree(vrw_run[0], tmp_path / "vrw"))  # the fixture's folder stays as it is
     own_plot = (out_dir / "metrics.png").read_bytes()

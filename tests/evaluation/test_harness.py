@@ -226,3 +226,22 @@ def test_one_evaluation_per_folder_and_killed_writers_temporaries_are_removed(tm
         evaluate("vrw", tiny_episodes, out, maps_per_setup=0, videos_per_setup=0, progress=False)
     assert not leftover.exists() and not (out / LOCK_FILENAME).exists()
     assert users_file.read_text() == "keep"
+
+
+def test_summary_intervals_do_not_depend_on_the_policy_seed(tmp_path, tiny_episodes, monkeypatch):
+    """summary.csv's bootstrap is seeded like the report's (0), not with the policy seed, so the same rows
+    get the same intervals in both."""
+    from navformer_rl.evaluation import tables
+
+    seeds = []
+    summarize = tables.summarize_by_setup
+
+    def recording(records, confidence=0.95, seed=0):
+        seeds.append(seed)
+        return summarize(records, confidence, seed)
+
+    monkeypatch.setattr(tables, "summarize_by_setup", recording)
+    evaluate(
+        "vrw", tiny_episodes, tmp_path / "vrw", seed=3, maps_per_setup=0, videos_per_setup=0, progress=False
+    )
+    assert seeds == [0]

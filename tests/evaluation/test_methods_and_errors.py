@@ -204,3 +204,14 @@ def test_an_error_raised_while_handling_ctrl_c_still_reports_an_interrupt():
     except RuntimeError as error:
         assert _interrupted(error)
     assert not _interrupted(RuntimeError("a real error"))
+
+
+def test_episode_ids_that_would_share_a_result_file_are_refused(tmp_path, tiny_episodes):
+    first, second = tiny_episodes.episodes
+    twice = dataclasses.replace(tiny_episodes, episodes=(first, first))
+    with pytest.raises(ValueError, match="episode id '7.5m-2r/w00t00' appears twice"):
+        evaluate("vrw", twice, tmp_path / "twice", progress=False)
+    clash = dataclasses.replace(second, episode_id=first.episode_id.replace("/", " "))
+    with pytest.raises(ValueError, match="share a result file name"):
+        evaluate("vrw", dataclasses.replace(tiny_episodes, episodes=(first, clash)), tmp_path / "clash")
+    assert not (tmp_path / "twice").exists() and not (tmp_path / "clash").exists()  # refused before writing
