@@ -71,6 +71,20 @@ class NavigatorConfig:
     target_approach: float = 1.1
     """In target mode the A* goal is the free cell nearest to the target within this radius (if that cell is
     cut off, the reachable cell within it nearest to the robot by path); inside the 1.2 m stop radius."""
+    fallback_inflation: tuple[float, ...] = ()
+    """Target mode only: inflation radii in metres (decreasing, each below the full robot radius + margin +
+    half a cell) to retry A* with when the full inflation leaves no path to the target - e.g. a parked
+    robot's disc narrowing a gap that the local collision avoidance still lets the robot through. Empty (the
+    default, the exploration expert's): no retry."""
+
+    def __post_init__(self) -> None:
+        full = self.robot_radius + self.inflation_margin + 0.5 * self.resolution
+        radii = (full, *self.fallback_inflation)
+        if any(not (0 <= b < a) for a, b in zip(radii, radii[1:])):
+            raise ValueError(
+                f"fallback_inflation={self.fallback_inflation!r}: expected decreasing radii >= 0 m, each below "
+                f"the full inflation {full:.3f} m (robot_radius + inflation_margin + resolution / 2)"
+            )
 
 
 class FrontierNavigator:
@@ -113,6 +127,9 @@ class FrontierNavigator:
         self.blacklist: list[tuple[int, int]] = []
         self.exhausted = False
         self.stuck_events = 0
+        self.no_path_plans = 0
+        """Plans in target mode that found no path to the target at any inflation (the robot then explores,
+        or waits when nothing is left to explore)."""
         self.steps_since_plan = 0
         self.best_remaining = math.inf
         self.last_progress_step = 0
@@ -171,7 +188,9 @@ class FrontierNavigator:
             if gap.min() < self.config.robot_radius + self.config.inflation_margin:
                 self.steps_since_plan = self.config.replan_every
 
-    def _blocked(self) -> np.ndarray:
+    def _blocked(self, radius: float | None = None) -> np.ndarray:
+        """bool map grid: cells within ``radius`` (default robot radius + margin + half a cell) of an occupied
+        cell or a static disc."""
         c = self.config
         occupied = self.map.occupied()
         if len(self.discs):
@@ -179,7 +198,9 @@ class FrontierNavigator:
             centres = self.map.cell_to_world(np.stack(np.mgrid[0:h, 0:w], axis=-1))
             for x, y, r in self.discs:
                 occupied |= (centres[..., 0] - x) ** 2 + (centres[..., 1] - y) ** 2 <= r * r
-        return inflate(occupied, c.robot_radius + c.inflation_margin + 0.5 * c.resolution, c.resolution)
+        if radius is None:
+            radius = c.robot_radius + c.inflation_margin + 0.5 * c.resolution
+        return inflate(occupied, radius, c.resolution)
 
     def _start_cell(self, pose: np.ndarray, traversable: np.ndarray) -> tuple[int, int] | None:
         r, c = (int(v) for v in self.map.world_to_cell(pose[:2]))
@@ -197,18 +218,23 @@ class FrontierNavigator:
         self.steps_since_plan = 0
         if self.target_mode:
             # Optimistic about unknown cells: the target was seen, the way to it is mostly mapped.
-            passable = ~blocked
-            start = self._start_cell(pose, passable)
             tcell = tuple(int(v) for v in self.map.world_to_cell(self.target))
             approach = int(round(c.target_approach / c.resolution))
-            goal = nearest_true_cell(passable, tcell, max_radius=approach)
-            path = None if start is None or goal is None else astar(~passable, start, goal)
-            if path is None and start is not None:  # the cell nearest the target is cut off: try the others
-                goal = self._approach_goal(passable, start)
-                path = None if goal is None else astar(~passable, start, goal)
-            if path is not None:
-                self._set_path(pose, path, goal)
-                return
+            for radius in (None, *c.fallback_inflation):
+                passable = ~(blocked if radius is None else self._blocked(radius))
+                start = self._start_cell(pose, passable)
+                goal = nearest_true_cell(passable, tcell, max_radius=approach)
+                path = None if start is None or goal is None else astar(~passable, start, goal)
+                if (
+                    path is None and start is not None
+                ):  # the cell nearest the target is cut off: try the others
+                    goal = self._approach_goal(passable, start)
+                    path = None if goal is None else astar(~passable, start, goal)
+                if path is not None:
+                    self.planning_blocked = ~passable  # the pursuit point keeps line of sight on this map
+                    self._set_path(pose, path, goal)
+                    return
+            self.no_path_plans += 1
             # fall through: explore until the target can be reached
         traversable = self.map.free() & ~blocked
         start = self._start_cell(pose, traversable)

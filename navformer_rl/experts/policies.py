@@ -404,22 +404,32 @@ class FCAController(_ExpertBase):
         self.planner = NHORCA(self.orca_configs)
         self.planner.reset(sim.poses, sim.velocities)
         # Plan with at least NH-ORCA's inflation (E + safety): a gap A* uses must be one ORCA lets through.
+        # When parked robots (static discs) and the half-cell rounding close every way to the target at
+        # that inflation, retry at NH-ORCA's own radius, then at the robot radius + 5 cm: otherwise the
+        # robot would wait for the rest of the trial beside a gap it can pass.
         base = self.config.navigator
-        self.navigators = [
-            FrontierNavigator(
-                world.size,
-                navigator_config(base, spec, max(base.inflation_margin, orca.tracking_error + orca.safety)),
-                self.targets[i],
-                True,
-                self.frontier_bias,
+        self.navigators = []
+        for i, (spec, orca) in enumerate(zip(self.specs, self.orca_configs)):
+            config = navigator_config(
+                base, spec, max(base.inflation_margin, orca.tracking_error + orca.safety)
             )
-            for i, (spec, orca) in enumerate(zip(self.specs, self.orca_configs))
-        ]
+            full = config.robot_radius + config.inflation_margin + 0.5 * config.resolution
+            radii = {spec.radius + orca.tracking_error + orca.safety, spec.radius + 0.05}
+            fallback = tuple(sorted((r for r in radii if r < full), reverse=True))
+            config = dataclasses.replace(config, fallback_inflation=fallback)
+            self.navigators.append(
+                FrontierNavigator(world.size, config, self.targets[i], True, self.frontier_bias)
+            )
 
     @property
     def stuck_events(self) -> np.ndarray:
         """int64 ``[R]`` re-plans after no progress."""
         return np.array([n.stuck_events for n in self.navigators], dtype=np.int64)
+
+    @property
+    def no_path_plans(self) -> np.ndarray:
+        """int64 ``[R]`` plans that found no way to the (known) target at any inflation."""
+        return np.array([n.no_path_plans for n in self.navigators], dtype=np.int64)
 
     def act(self, sim, active=None) -> np.ndarray:
         """float32 ``[R, 2]`` normalised actions for every robot of ``sim`` (zeros where inactive/arrived)."""

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from navformer_rl.experts.frontier import select_frontier
 from navformer_rl.experts.mapping import FREE, UNKNOWN
@@ -63,3 +64,31 @@ def test_pursuit_point_keeps_line_of_sight_around_a_corner():
     free_nav.path = nav.path
     far = free_nav._pursuit_point(np.array([0.55, 0.55, 0.0]))
     assert far[1] > 1.35  # without the block the pursuit point is farther up the northern leg
+
+
+def gap_with_a_parked_robot(fallback: tuple[float, ...]) -> FrontierNavigator:
+    """A wall at y = 2.0-2.1 m with a 1.2 m gap (x 1.4-2.6 m); a parked robot's disc (r 0.33 m at x 2.5)
+    narrows it to 0.9 m between occupied cell centres. Target beyond the wall, known and seen."""
+    config = NavigatorConfig(inflation_margin=0.10, fallback_inflation=fallback)  # full inflation 0.45 m
+    nav = FrontierNavigator(4.0, config, np.array([2.0, 3.3]), target_known=True)
+    nav.map.logodds[:] = nav.map.l_min  # mapped free
+    nav.map.logodds[20, :] = nav.map.l_max  # the wall
+    nav.map.logodds[20, 14:26] = nav.map.l_min  # the gap
+    nav.target_mode = True
+    nav.set_static_discs(np.array([[2.5, 2.05, 0.33]]))
+    return nav
+
+
+def test_target_mode_retries_at_smaller_inflation_when_a_parked_robot_closes_the_gap():
+    """At 0.45 m no cell centre of the 0.9 m gap is clear on both sides: without a fallback the robot has
+    no path and nothing to do (it would wait out the trial); with FCA's fallback radii it goes through."""
+    pose = np.array([2.0, 1.0, 0.0])
+    stuck = gap_with_a_parked_robot(())
+    assert stuck.carrot(pose) is None and stuck.no_path_plans == 1
+    nav = gap_with_a_parked_robot((0.40, 0.35))
+    assert nav.carrot(pose) is not None and nav.no_path_plans == 0
+    in_gap = nav.path[(nav.path[:, 1] > 1.95) & (nav.path[:, 1] < 2.15)]
+    assert len(in_gap) and np.all((in_gap[:, 0] > 1.4) & (in_gap[:, 0] < 2.2))  # between wall end and disc
+    assert nav.path[-1, 1] > 2.5  # and on to the target's side
+    with pytest.raises(ValueError, match="fallback_inflation"):
+        NavigatorConfig(fallback_inflation=(0.30, 0.40))  # must decrease
