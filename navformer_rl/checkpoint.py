@@ -284,18 +284,30 @@ def load_policy_model(path: str | os.PathLike, expected_config: Any | None = Non
             f"checkpoint {path} was trained with another model config; (checkpoint, expected): {diff}"
         )
     model = NavFormerModel(config)
+    load_model_weights(model, state, path)
+    model.eval()
+    return config, model
+
+
+def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str | os.PathLike) -> None:
+    """``model.load_state_dict(state)`` after checking that the keys and shapes match exactly.
+
+    Raises:
+        ValueError: naming the first missing, unexpected and wrongly shaped entries - e.g. for weights written
+            by another version of the model code (a ResNet18 checkpoint from before its BatchNorm became
+            GroupNorm carries running statistics the model no longer has).
+    """
     expected = model.state_dict()
     missing = sorted(set(expected) - set(state))
     unexpected = sorted(set(state) - set(expected))
     wrong_shape = sorted(k for k in set(state) & set(expected) if state[k].shape != expected[k].shape)
     if missing or unexpected or wrong_shape:
         raise ValueError(
-            f"checkpoint {path} does not match NavFormerModel({config}): missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}, wrong shapes {wrong_shape[:5]}"
+            f"checkpoint {path} does not match NavFormerModel({model.config}): missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}, wrong shapes {wrong_shape[:5]} (written by another version of "
+            "the model code?)"
         )
     model.load_state_dict(state)
-    model.eval()
-    return config, model
 
 
 def load_resume_state(path: str | os.PathLike) -> dict[str, Any]:

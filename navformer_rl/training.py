@@ -64,7 +64,6 @@ _MODEL_ABLATION = {
     "resnet18": "resnet18",
     "dt": "dt",
 }
-_MODEL_EXTRA_SWITCHES: dict[str, dict[str, Any]] = {"resnet18": {"use_static_encoder": False}}
 _NO_SSL = frozenset({"no_ssl", "dt"})
 _NO_EXPLORATION = frozenset({"no_de"})
 _NO_COLLISION = frozenset({"no_dca"})
@@ -458,12 +457,6 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
         if require_data and used and not path:
             raise ValueError(f"{key} is not set, but ablation={cfg.ablation!r} trains on {name}")
     model = model_config(cfg)  # NavFormerConfig validates its own fields
-    if model.encoder == "resnet18" and (cfg.optim.trajectory_chunks > 1 or model.encoder_micro_batch):
-        raise ValueError(
-            "ablation=resnet18 with optim.trajectory_chunks > 1 or model.encoder_micro_batch: ResNet18's "
-            "BatchNorm takes its statistics per chunk, so these levers would change the gradient (they are "
-            "the same maths only for the paper CNN); leave them at 1 / null"
-        )
     if cfg.data.context_steps is not None and cfg.data.context_steps > model.window_steps:
         raise ValueError(
             f"data.context_steps={cfg.data.context_steps} needs {cfg.data.context_steps * model.tokens_per_step} "
@@ -481,7 +474,7 @@ def model_config(cfg: TrainConfig):
         raise ValueError(
             f"unknown model keys {[f'model.{k}' for k in unknown]}; NavFormerConfig has {sorted(known)}"
         )
-    changes = {**_MODEL_EXTRA_SWITCHES.get(cfg.ablation, {}), **cfg.model}
+    changes = dict(cfg.model)
     changes["detach_encoders"] = cfg.encoder_training == "frozen"
     return NavFormerConfig.ablation(_MODEL_ABLATION[cfg.ablation], **changes)
 
@@ -771,7 +764,7 @@ class Trainer:
                 f"(checkpoint: {[before.get(k) for k in changed]}, now: {[now.get(k) for k in changed]})"
             )
         _, weights = ckpt.load_model_state(folder)
-        self.model.load_state_dict(weights)
+        ckpt.load_model_weights(self.model, weights, folder)
         state = ckpt.load_resume_state(folder)
         for name, optimizer in self.optimizers.items():
             optimizer.load_state_dict(state["optimizers"][name])

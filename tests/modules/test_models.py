@@ -58,6 +58,10 @@ def test_config_defaults_are_the_papers():
     )
     with pytest.raises(ValueError, match="unknown model ablation"):
         NavFormerConfig.ablation("no_ssl")
+    # §VII.D (7): "a single pre-trained ResNet18" replaces the DVE (f_s and f_g)
+    resnet = NavFormerConfig.ablation("resnet18")
+    assert resnet.encoder == "resnet18" and not resnet.use_static_encoder and resnet.use_general_encoder
+    assert resnet.tokens_per_step == 3 and resnet.thsc
 
 
 # ----------------------------------------------------------------------------------------- encoders
@@ -138,8 +142,83 @@ def test_resnet18_encoder_forward_shape_and_size():
     enc = ResNet18Encoder().eval()
     out = enc(torch.randint(0, 256, (3, 84, 84, 3), dtype=torch.uint8))
     assert out.shape == (3, 128) and torch.isfinite(out).all()
-    # ResNet-18 body: 11.18M parameters (torchvision's resnet18 without its fc layer) + Linear 512 -> 128
+    # ResNet-18 body: 11.18M parameters (torchvision's resnet18 without its fc layer; GroupNorm has the
+    # affine parameters of its BatchNorm) + Linear 512 -> 128, and no buffers (no running statistics)
     assert sum(p.numel() for p in enc.parameters()) == 11_176_512 + 512 * 128 + 128
+    norms = [m for m in enc.modules() if isinstance(m, torch.nn.GroupNorm)]
+    assert len(norms) == 20 and all(m.num_groups == 32 and m.affine for m in norms)
+    assert not any(isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in enc.modules())
+    assert not list(enc.buffers())
+
+
+def test_resnet18_encoder_is_per_image_in_both_modes_and_any_micro_batch():
+    """GroupNorm normalises each image on its own: train and eval modes compute the same function, and an
+    image's embedding does not depend on the other images of the batch nor on the micro-batch size."""
+    torch.manual_seed(0)
+    enc = ResNet18Encoder(d_out=16)
+    pixels = torch.randint(0, 256, (2, 5, 84, 84, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        out = enc.train()(pixels)
+        assert out.shape == (2, 5, 16)
+        assert torch.equal(enc.eval()(pixels), out)
+        for mode in (True, False):
+            enc.train(mode)
+            for micro_batch in (1, 3, 4):
+                enc.micro_batch = micro_batch
+                torch.testing.assert_close(enc(pixels), out, rtol=1e-5, atol=1e-5)
+            enc.micro_batch = None
+            torch.testing.assert_close(enc(pixels[1, 2:3]), out[1, 2:3], rtol=1e-5, atol=1e-5)
+
+
+def test_resnet18_model_is_causal_in_training_mode(batch_factory):
+    """Batch statistics (BatchNorm) let frames t+1.. change the train-mode prediction at t (by 0.12 here);
+    per-image GroupNorm keeps the training forward causal, as the eval one."""
+    torch.manual_seed(0)
+    config = NavFormerConfig.ablation("resnet18", dropout=0.0, d_embed=16, d_head=8, n_blocks=1)
+    model = NavFormerModel(config).train()
+    batch = batch_factory(2, 6)
+    perturbed = {k: v.clone() for k, v in batch.items()}
+    gen = torch.Generator().manual_seed(1)
+    perturbed["pixels"][:, 3:] = torch.randint(
+        0, 256, perturbed["pixels"][:, 3:].shape, dtype=torch.uint8, generator=gen
+    )
+    with torch.no_grad():
+        base, out = run(model, batch), run(model, perturbed)
+        torch.testing.assert_close(run(model.eval(), batch), base, rtol=0, atol=1e-6)
+    torch.testing.assert_close(out[:, :3], base[:, :3], rtol=0, atol=1e-6)
+    assert (out[:, 3] - base[:, 3]).abs().max() > 1e-4
+
+
+def test_resnet18_micro_batches_and_chunks_give_the_whole_batch_gradient(batch_factory):
+    """The memory levers on ResNet18 (``encoder_micro_batch``, ``optim.trajectory_chunks``: chunk losses weighted
+    by their share of valid steps) reproduce the whole-batch loss and gradient to float32 rounding. Noise images:
+    flat-colour images make MaxPool's float32 tie-breaking pick other (equally valid) subgradients."""
+    config = NavFormerConfig.ablation("resnet18", dropout=0.0, d_embed=16, d_head=8, n_blocks=1)
+    batch = batch_factory(4, 3)
+    batch["mask"][1, 1:] = False  # chunks of unequal valid length
+    total = batch["mask"].sum()
+
+    def loss_and_grads(chunks, micro_batch):
+        torch.manual_seed(0)
+        model = NavFormerModel(config.replace(encoder_micro_batch=micro_batch)).train()
+        loss = 0.0
+        for i in range(chunks):
+            part = {k: v.chunk(chunks)[i] for k, v in batch.items()}
+            share = part["mask"].sum() / total
+            chunk_loss = masked_action_mse(run(model, part), part["action"], part["mask"]) * share
+            chunk_loss.backward()
+            loss += float(chunk_loss.detach())
+        return loss, {n: p.grad for n, p in model.named_parameters() if p.grad is not None}
+
+    loss, grads = loss_and_grads(1, None)
+    assert any(n.startswith("general_encoder.") for n in grads)
+    for chunks, micro_batch in [(2, None), (1, 3), (2, 2)]:
+        other_loss, other = loss_and_grads(chunks, micro_batch)
+        assert other_loss == pytest.approx(loss, rel=1e-5)
+        assert other.keys() == grads.keys()
+        for name, grad in grads.items():
+            scale = grad.abs().max().item()
+            torch.testing.assert_close(other[name], grad, rtol=0, atol=1e-4 * scale + 1e-9, msg=name)
 
 
 # ---------------------------------------------------------------------------------------- causality

@@ -168,28 +168,34 @@ def test_augmentation_draws_parameters_per_sample_and_is_seeded():
     assert (BYOLAugmentation(seed=4)(batch) - views).abs().max() > 1e-3
 
 
-def test_resnet18_byol_step_with_batchnorm_buffers():
+def test_resnet18_byol_step_keeps_batch_statistics_in_the_heads_only():
     torch.manual_seed(0)
-    model = NavFormerModel(NavFormerConfig.ablation("resnet18", use_static_encoder=False))
+    model = NavFormerModel(NavFormerConfig.ablation("resnet18"))  # a single (general) ResNet18 encoder
+    assert model.static_encoder is None
     loss = BYOLLoss(None, model.general_encoder)
     updater = SoftUpdate(loss, eps=0.996)
     optimizer = torch.optim.AdamW(loss.parameters(), lr=1e-3)
     batch = TensorDict({"pixels_dynamic": pairs(4)["pixels_dynamic"]}, batch_size=[4])
-    stats = model.general_encoder.stem[1].running_mean
-    assert torch.count_nonzero(stats) == 0
+    # the encoder's GroupNorm keeps no running statistics; BYOL's projector/predictor BatchNorm1d do
+    assert not list(model.general_encoder.buffers())
+    head_stats = "online_network_params.general.projector.1.running_mean"
+    assert torch.count_nonzero(loss.state_dict()[head_stats]) == 0
+    norm = model.general_encoder.stem[1]
+    assert isinstance(norm, torch.nn.GroupNorm)
+    norm_weight = norm.weight.detach().clone()
     first = loss(batch)["loss_byol"]
     first.backward()
     optimizer.step()
     updater.step()
     assert torch.isfinite(first) and torch.isfinite(loss(batch)["loss_byol"])
-    # training-mode BatchNorm updated the model's own statistics (the loss's functional copy aliases them),
-    # and the EMA target keeps statistics of its own, which the resume state carries
-    assert torch.count_nonzero(stats) == stats.numel()
+    assert not torch.equal(norm.weight.detach(), norm_weight)  # the GroupNorm affine parameters train
     state = loss.state_dict()
-    online = state["online_network_params.general.encoder.stem.1.running_mean"]
-    target = state["target_online_network_params.general.encoder.stem.1.running_mean"]
-    assert online.data_ptr() == stats.data_ptr()
-    assert target.data_ptr() != stats.data_ptr() and torch.count_nonzero(target) == target.numel()
+    assert not any("encoder" in key and "running" in key for key in state)
+    # training-mode BatchNorm1d updated the heads' statistics, and the EMA target keeps its own copy
+    online = state[head_stats]
+    target = state["target_" + head_stats]
+    assert torch.count_nonzero(online) == online.numel()
+    assert target.data_ptr() != online.data_ptr() and torch.count_nonzero(target) == target.numel()
 
 
 def test_augmentation_does_not_depend_on_the_chunk_size():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
 import stat
 
 import numpy as np
@@ -110,6 +111,40 @@ def test_weights_that_do_not_fit_the_config_are_refused(trained):
     save_file(state, str(weights_path), metadata=metadata)
     with pytest.raises(ValueError, match=r"does not match NavFormerModel.*missing \['head.weight'\]"):
         ckpt.load_policy_model(trained.checkpoint)
+
+
+def _as_batchnorm_resnet18(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The state dict the ResNet18 encoder had before GroupNorm: ``bn1``/``bn2`` names and running statistics."""
+    old = {}
+    for key, value in state.items():
+        key = key.replace(".norm1.", ".bn1.").replace(".norm2.", ".bn2.")
+        old[key] = value
+        layer, _, name = key.rpartition(".")
+        if name == "bias" and re.search(r"(stem\.1|\.bn[12]|shortcut\.1)$", layer):
+            old[f"{layer}.running_mean"] = torch.zeros_like(value)
+            old[f"{layer}.running_var"] = torch.ones_like(value)
+            old[f"{layer}.num_batches_tracked"] = torch.zeros((), dtype=torch.long)
+    return old
+
+
+def test_a_batchnorm_resnet18_checkpoint_is_refused_clearly(tiny_config):
+    """ResNet18 checkpoints written before BatchNorm became GroupNorm neither load nor resume (ValueError)."""
+    small = ["ablation=resnet18", "data.collision_batch_trajs=2", "data.ssl_batch_pairs=2"]
+    result = train(tiny_config(*small, "optim.iterations=1"))
+    weights_path = result.checkpoint / ckpt.WEIGHTS_FILENAME
+    from safetensors import safe_open
+
+    with safe_open(str(weights_path), framework="pt") as handle:
+        metadata = handle.metadata()
+        state = {k: handle.get_tensor(k) for k in handle.keys()}
+    old = _as_batchnorm_resnet18(state)
+    assert "general_encoder.stem.1.running_mean" in old and "general_encoder.stages.0.bn1.weight" in old
+    save_file(old, str(weights_path), metadata=metadata)
+    match = r"does not match NavFormerModel.*missing \['general_encoder.stages.0.norm1.bias'.*running_mean"
+    with pytest.raises(ValueError, match=match):
+        ckpt.load_policy_model(result.run_dir)
+    with pytest.raises(ValueError, match=match):
+        train(tiny_config(*small, "optim.iterations=2", "resume=true"))
 
 
 @pytest.mark.parametrize("crash_in", ["weights", "resume", "latest"])

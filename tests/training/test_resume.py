@@ -66,7 +66,7 @@ def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_tra
     for key in wa:
         assert torch.equal(wa[key], wb[key]), key
     ra, rb = load_resume_state(straight.checkpoint), load_resume_state(resumed.checkpoint)
-    for key, value in ra["byol"].items():  # EMA target params, BatchNorm statistics
+    for key, value in ra["byol"].items():  # EMA target params, BYOL heads' BatchNorm statistics
         assert torch.equal(value, rb["byol"][key]), key
     # float16 autocast trains with loss scaling, whose state is part of the resume part
     assert ("grad_scaler" in ra) == bool(extra)

@@ -26,7 +26,8 @@ class NavFormerConfig:
         image_size: side of the square uint8 images (84).
 
     Ablation switches (Table IV):
-        encoder: ``"cnn"`` (the paper's 3-conv encoder) or ``"resnet18"`` (randomly initialised, plain torch).
+        encoder: ``"cnn"`` (the paper's 3-conv encoder) or ``"resnet18"`` (randomly initialised, plain torch,
+            GroupNorm). ``ablation("resnet18")`` also drops f_s: the paper's single ResNet18 replaces the DVE.
         use_static_encoder / use_general_encoder: drop f_s or f_g (and its token). Without f_g the target
         image goes through f_s.
         thsc: target hidden-state concatenation - the head reads ``[h_g ; h^ca_{o,t}]``; when False it reads
@@ -138,7 +139,8 @@ class NavFormerConfig:
             "no_thsc": {"thsc": False},
             "no_static_encoder": {"use_static_encoder": False},
             "no_general_encoder": {"use_general_encoder": False},
-            "resnet18": {"encoder": "resnet18"},
+            # §VII.D (7): "a single pre-trained ResNet18" replaces the dual visual encoder
+            "resnet18": {"encoder": "resnet18", "use_static_encoder": False},
         }
         if name == "dt":
             return cls.dt_baseline(**changes)
