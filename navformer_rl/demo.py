@@ -182,7 +182,12 @@ def evaluate_stage(cfg: DemoConfig, train_dirs: dict[str, Path], progress: bool 
 
     eval_dir = cfg.out_dir / "eval"
     episodes = make_protocol_episodes(
-        cfg.setups, cfg.trials_per_setup, cfg.trials_per_world, seed=cfg.seed, max_steps=cfg.max_steps
+        cfg.setups,
+        cfg.trials_per_setup,
+        cfg.trials_per_world,
+        seed=cfg.seed,
+        max_steps=cfg.max_steps,
+        workers=cfg.workers,
     )
     save_episode_set(episodes, eval_dir / "episode_set.json")
     folders = []

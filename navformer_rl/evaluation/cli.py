@@ -74,6 +74,10 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     make.add_argument(
         "--out", dest="make_out", type=Path, required=True, help="episode-set JSON file to write"
     )
+    make.add_argument(
+        "--workers", dest="make_workers", type=int, default=1,
+        help="parallel processes (default 1); the episodes do not depend on it",
+    )  # fmt: skip
     _add_generation_options(make)
     make.set_defaults(run=_run_make_episodes)
 
@@ -152,7 +156,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
             )
         episode_set = load_episode_set(args.episodes)
     else:
-        episode_set = make_protocol_episodes(args.protocol, *_generation(args))
+        episode_set = make_protocol_episodes(args.protocol, *_generation(args), workers=args.workers)
     result = evaluate(
         args.method,
         episode_set,
@@ -182,7 +186,7 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes, save_episode_set
 
     out = _output_file(args.make_out, "--out")
-    episode_set = make_protocol_episodes(args.make_protocol, *_generation(args))
+    episode_set = make_protocol_episodes(args.make_protocol, *_generation(args), workers=args.make_workers)
     if out.exists():  # the same episodes again is fine; anything else would be lost
         try:
             same = load_episode_set(out).content_hash() == episode_set.content_hash()

@@ -45,7 +45,7 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
             )
         return load_episode_set(cfg.episodes)
     values = [int(GENERATION_DEFAULTS[n] if v is None else v) for n, v in generation.items()]
-    return make_protocol_episodes(cfg.protocol, *values)
+    return make_protocol_episodes(cfg.protocol, *values, workers=int(cfg.workers))
 
 
 def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult:

@@ -39,6 +39,16 @@ def test_generation_is_deterministic_and_groups_trials_by_world(small_set):
     assert other.episodes[0].world_seed != a.world_seed
 
 
+def test_worker_processes_make_the_same_set(small_set):
+    """Two spawned workers build the two mazes; the set is the one made in this process."""
+    parallel = make_episode_set(
+        [SETUP], trials_per_setup=3, trials_per_world=2, seed=5, name="t", max_steps=30, workers=2
+    )
+    assert parallel == small_set and parallel.content_hash() == small_set.content_hash()
+    with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
+        make_episode_set([SETUP], trials_per_setup=1, workers=0)
+
+
 def test_episode_content_is_consistent_with_the_world(small_set):
     for episode in small_set.episodes:
         world = episode.world_spec().build()
