@@ -259,8 +259,8 @@ class WorldSpec:
         """Shortest collision-free path in metres from ``start_xy`` to ``targets[target_index]`` on the true map
         inflated by ``clearance`` (see :meth:`OccupancyMap.shortest_path_length`); the goal is the free cell
         nearest to the (solid) target, or with ``goal_radius`` the first cell within that radius of it.
-        ``reach``: 1 = the 8-connected grid (up to 8.2 % longer than the any-angle path), 5 = what the
-        evaluation's SPL uses (within 0.49 %)."""
+        ``reach``: 1 = the 8-connected grid (up to 8.2 % longer than the straight line in free space), 5 =
+        what the evaluation's SPL uses (0.49 %)."""
         if not 0 <= target_index < len(self.targets):
             raise ValueError(f"target_index {target_index} is out of range [0, {len(self.targets)})")
         goal = self.targets[target_index].position

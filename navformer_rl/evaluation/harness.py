@@ -272,7 +272,9 @@ def evaluate(
         out_dir: output folder (created; this run's files in it are overwritten, but a folder holding
             another label's finished results is refused with ``FileExistsError``).
         checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``; resolved
-            once, at the start, to one checkpoint folder (a run dir: its latest), which ``run.json`` names.
+            once, at the start, to one checkpoint folder (a run dir: its latest), which ``run.json`` names
+            (a run still training with ``checkpoint.keep_last`` may delete that folder before the workers
+            load it: they then fail; evaluate a finished run or a copied checkpoint).
         workers: processes (>= 1; 1 runs in this process).
         label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation). A
             label naming a training ablation must match the checkpoint's (ValueError before any episode

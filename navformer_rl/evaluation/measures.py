@@ -9,7 +9,7 @@ Definitions (``i`` runs over the ``N_tau`` robot-trials):
   :data:`~navformer_rl.constants.SUCCESS_RADIUS` (1.5 m) of its target before the trial ended.
 - **SPL** (eq. 12, Anderson et al. 2018) = ``(1 / N_tau) * sum_i S_i * l_i / max(p_i, l_i)`` with
   ``l_i`` the shortest collision-free path length on the true map from the robot's start to its target
-  position (a grid path with straight moves of up to 5 cells, within 0.49 % of the any-angle path, on the
+  position (a grid path with straight moves of up to 5 cells, within 0.49 % of the straight line in free space, on the
   map inflated by the robot radius: :data:`navformer_rl.evaluation.episodes.SHORTEST_PATH_REACH`,
   :meth:`navformer_rl.envs.occupancy.OccupancyMap.shortest_path_length`) and ``p_i`` the path the robot
   actually drove over the steps it was active: the harness sums the arc length ``|v_t| * dt`` of each

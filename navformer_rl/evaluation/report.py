@@ -235,19 +235,20 @@ def _older_videos_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
 
 
 def _setup_digests(folder: Path) -> dict[str, str] | None:
-    """``{setup: sha256 of its episodes}`` from an evaluation folder's ``episode_set.json`` (read as plain
-    JSON, whatever its format version), or None when the file is missing or unreadable. Two sets with other
-    names, protocols or package versions can hold the very same episodes of a setup (Table I's 12.5 m /
-    4-robot episodes are Table IV's): those are paired comparisons."""
+    """``{setup: sha256 of its episodes and the trial length}`` from an evaluation folder's
+    ``episode_set.json`` (read as plain JSON, whatever its format version), or None when the file is missing
+    or unreadable. Two sets with other names, protocols or package versions can hold the very same episodes
+    of a setup (Table I's 12.5 m / 4-robot episodes are Table IV's): those are paired comparisons."""
     try:
         document = json.loads((folder / "episode_set.json").read_text())
         by_setup: dict[str, list] = {}
         for episode in document["episodes"]:
             by_setup.setdefault(str(episode["setup"]), []).append(episode)
+        max_steps = document["max_steps"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
     return {
-        setup: hashlib.sha256(json.dumps(episodes, sort_keys=True).encode()).hexdigest()
+        setup: hashlib.sha256(json.dumps([max_steps, episodes], sort_keys=True).encode()).hexdigest()
         for setup, episodes in by_setup.items()
     }
 
@@ -272,7 +273,8 @@ def _unpaired_warning(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str | None
     return (
         "**Warning: the methods ran on different episodes** in "
         + ", ".join(differ)
-        + " (other worlds, starts, targets or shortest paths), so those rows are not paired comparisons.\n"
+        + " (other worlds, starts, targets, shortest paths or trial lengths), so those rows are not paired "
+        "comparisons.\n"
     )
 
 

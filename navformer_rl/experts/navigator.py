@@ -225,9 +225,8 @@ class FrontierNavigator:
                 start = self._start_cell(pose, passable)
                 goal = nearest_true_cell(passable, tcell, max_radius=approach)
                 path = None if start is None or goal is None else astar(~passable, start, goal)
-                if (
-                    path is None and start is not None
-                ):  # the cell nearest the target is cut off: try the others
+                # the cell nearest the target is cut off: try the others
+                if path is None and start is not None:
                     goal = self._approach_goal(passable, start)
                     path = None if goal is None else astar(~passable, start, goal)
                 if path is not None:

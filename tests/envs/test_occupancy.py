@@ -164,3 +164,14 @@ def test_reach_paths_go_round_a_wall_end_through_cell_centres():
     assert exact <= reach5 <= exact * (1 + reach_overestimate(5))
     with pytest.raises(ValueError, match="reach must be an integer >= 1"):
         occ.shortest_path_length(start, goal, 0.0, reach=0)
+
+
+def test_reach_edge_cases():
+    single = OccupancyMap(np.zeros((1, 1), dtype=bool), 0.1)  # no move fits: the path is the cell itself
+    assert single.shortest_path_length((0.05, 0.05), (0.05, 0.05), 0.0, reach=5) == 0.0
+    occ = OccupancyMap(np.zeros((6, 6), dtype=bool), 0.1)
+    assert occ.shortest_path_length((0.05, 0.05), (0.55, 0.15), 0.0, reach=np.int64(5)) == pytest.approx(
+        0.1 * math.hypot(5, 1)
+    )  # numpy integers are integers
+    with pytest.raises(ValueError, match="reach must be an integer >= 1, got 0"):
+        reach_overestimate(0)

@@ -117,6 +117,10 @@ def test_report_warns_only_when_the_episodes_of_a_setup_differ(tmp_path, tiny_ep
     other = evaluate("vrw", other_set, tmp_path / "other", label="vrw-other", **kwargs)
     text = write_report([vrw_run[0], other.out_dir], tmp_path / "unpaired.md").read_text()
     assert "**Warning: the methods ran on different episodes** in 7.5m-2r" in text
+    shorter = dataclasses.replace(tiny_episodes, max_steps=4)  # same episodes, shorter trials
+    short = evaluate("vrw", shorter, tmp_path / "short", label="vrw-short", **kwargs)
+    text = write_report([vrw_run[0], short.out_dir], tmp_path / "short.md").read_text()
+    assert "**Warning: the methods ran on different episodes** in 7.5m-2r" in text
 
 
 def test_report_never_replaces_other_files(tmp_path, vrw_run):
