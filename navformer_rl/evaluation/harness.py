@@ -34,6 +34,7 @@ import multiprocessing
 import os
 import re
 import time
+import warnings
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -43,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from navformer_rl import __version__
+from navformer_rl.checks import check_int
 from navformer_rl.durable import atomic_write_text, folder_lock
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
@@ -179,8 +181,16 @@ def label_ablation_problem(
     ``navformer`` / ``dt`` checkpoint trained with that ablation: ``ablation`` (the checkpoint's
     ``TrainConfig.ablation``) must be the named one; when the checkpoint does not record it, its
     ``model_config`` must at least have that ablation's architecture (:data:`ARCHITECTURE_FIELDS`). Labels
-    that name no ablation (``navformer-seed1``) are free.
+    that name no ablation (``navformer-seed1``) are free. A label that starts with another method's name
+    (``--method vrw --label navformer``) is refused too: reports take the paper column from that name.
     """
+    prefix = label.lower().split("-")[0].split("_")[0]
+    if prefix in METHODS and prefix != method:
+        return (
+            f"the label {label!r} names the method {prefix!r} (reports compare it with that method's paper "
+            f"numbers), but the evaluated method is {method!r}; choose a label that starts with {method!r} "
+            "or names no method"
+        )
     named = label_ablation(label)
     if named is None:
         return None
@@ -190,8 +200,6 @@ def label_ablation_problem(
         f"evaluate the checkpoint trained with ablation={named}, or choose a label that names no ablation "
         "(e.g. navformer-seed1)"
     )
-    if method not in CHECKPOINT_METHODS:
-        return f"{claim}, but method {method!r} is not a trained model; {fix}"
     where = f"checkpoint {checkpoint}" if checkpoint is not None else "the checkpoint"
     if ablation is not None:
         if ablation != named:
@@ -289,15 +297,15 @@ def evaluate(
             the same method, label, checkpoint weights, seed, trial length and package version (an
             interrupted run picks up where it stopped); False recomputes everything.
     """
+    invoked = time.perf_counter()
     if isinstance(episode_set, str | os.PathLike):
         episode_set = load_episode_set(episode_set)
     if not isinstance(episode_set, EpisodeSet) or len(episode_set) == 0:
         raise ValueError("episode_set must be a non-empty EpisodeSet or the path of an episode-set file")
     _check_episode_ids(episode_set)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
-    if maps_per_setup < 0 or videos_per_setup < 0:
-        raise ValueError("maps_per_setup and videos_per_setup must be >= 0")
+    workers = check_int(workers, "workers")
+    check_int(maps_per_setup, "maps_per_setup (--maps)", minimum=0)
+    check_int(videos_per_setup, "videos_per_setup (--videos)", minimum=0)
     if videos_per_setup > 0:
         ffmpeg_executable()  # a missing encoder is reported here, not by a worker at its first video
     if not 0.0 < confidence < 1.0:
@@ -335,12 +343,11 @@ def evaluate(
             "package_version": __version__,
         }
         tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup, identity)
-        started = time.perf_counter()
         outputs, computed = _run_tasks(
             tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume
         )
-        elapsed = time.perf_counter() - started
 
+        _remove_stale_outputs(out_dir, tasks, outputs)
         records = [record for output in outputs for record in output["records"]]
         atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
         # the bootstrap seed is not the policy seed: the same rows get the same intervals here and in reports
@@ -370,7 +377,7 @@ def evaluate(
                 "setups": episode_set.setups,
             },
             "confidence": confidence,
-            **_timing(outputs, computed, elapsed),
+            **_timing(outputs, computed, time.perf_counter() - invoked),
             "package_version": __version__,
             "files": files,
             **description,
@@ -430,6 +437,28 @@ def _refuse_other_runs_results(out_dir: Path, label: str) -> None:
         raise FileExistsError(
             f"{out_dir} holds the results of {previous!r}; evaluating {label!r} there would replace them. "
             "Use another output folder (one per method or label), or delete that one"
+        )
+
+
+def _remove_stale_outputs(out_dir: Path, tasks: list[EpisodeTask], outputs: list[dict[str, Any]]) -> None:
+    """Delete the maps, videos and per-episode results of episodes this run does not hold - left by an
+    earlier evaluation of other episodes (or with more ``--maps`` / ``--videos``) under the same label - so
+    that the folder shows only what its ``run.json`` and tables describe; warns with the count."""
+    keep = {out_dir / name for output in outputs for name in output["maps"] + output["videos"]}
+    keep |= {_partial_path(task) for task in tasks}
+    stale = [
+        path
+        for folder, pattern in (("maps", "*.png"), ("videos", "*.mp4"), (PARTIAL_DIRNAME, "*.json"))
+        for path in sorted((out_dir / folder).glob(pattern))
+        if path not in keep
+    ]
+    for path in stale:
+        path.unlink(missing_ok=True)
+    if stale:
+        warnings.warn(
+            f"{out_dir}: removed {len(stale)} maps / videos / per-episode results of episodes this evaluation "
+            "does not hold (an earlier evaluation of other episodes in this folder)",
+            stacklevel=3,
         )
 
 

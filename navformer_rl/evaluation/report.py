@@ -310,7 +310,11 @@ def write_report(
             ) from None
         mine = read_records(folder / "episodes.jsonl")
         if run["label"] in labels:
-            raise ValueError(f"two evaluation folders use the same method label {run['label']!r}")
+            first = runs[labels.index(run["label"])][0]
+            raise ValueError(
+                f"{first} and {folder} both hold results labelled {run['label']!r}; a report needs one label "
+                "per column: evaluate one of them again with another --label, into another folder"
+            )
         labels.append(run["label"])
         records += mine
         runs.append((folder, run))

@@ -92,7 +92,7 @@ def test_report_puts_paper_numbers_beside_ours(tmp_path, tiny_episodes, vrw_run)
     assert "/ 39.17%" in text and "not directly comparable" in text and "Gazebo" in text
     assert "| Setup | vrw SPL-disc | vrw-seed1 SPL-disc |" in text
     assert paper_table1_markdown() in text
-    with pytest.raises(ValueError, match="same method label"):
+    with pytest.raises(ValueError, match="both hold results labelled 'vrw'.*another --label"):
         write_report([a.out_dir, a.out_dir], tmp_path / "dup.md")
     with pytest.raises(FileNotFoundError, match="not an evaluation folder"):
         write_report([tmp_path], tmp_path / "none.md")

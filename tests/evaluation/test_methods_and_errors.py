@@ -80,9 +80,9 @@ def test_a_label_naming_an_ablation_must_be_the_checkpoints(tmp_path, tiny_episo
     assert PolicySpec("navformer", str(no_thsc)).validate("navformer-no_thsc")["ablation"] == "no_thsc"
     # a DT checkpoint, or a method without a checkpoint, is no NavFormer ablation either
     dt = make_checkpoint(tmp_path / "dt", NavFormerConfig.dt_baseline(), {"ablation": "dt"})
-    with pytest.raises(ValueError, match="trained with ablation=dt"):
+    with pytest.raises(ValueError, match="names the method 'navformer'.*evaluated method is 'dt'"):
         evaluate("dt", tiny_episodes, out, checkpoint=dt, label="navformer-no_thsc", progress=False)
-    with pytest.raises(ValueError, match="method 'vrw' is not a trained model"):
+    with pytest.raises(ValueError, match="names the method 'navformer'.*evaluated method is 'vrw'"):
         evaluate("vrw", tiny_episodes, out, label="navformer-no_thsc", progress=False)
     assert not out.exists()
 
@@ -215,3 +215,42 @@ def test_episode_ids_that_would_share_a_result_file_are_refused(tmp_path, tiny_e
     with pytest.raises(ValueError, match="share a result file name"):
         evaluate("vrw", dataclasses.replace(tiny_episodes, episodes=(first, clash)), tmp_path / "clash")
     assert not (tmp_path / "twice").exists() and not (tmp_path / "clash").exists()  # refused before writing
+
+
+def test_a_label_naming_another_method_is_refused(tmp_path, tiny_episodes):
+    """Reports take the paper column from the label's method name: VRW labelled `navformer` would be shown
+    beside NavFormer's paper numbers."""
+    for label in ("navformer", "dt-seed1", "FCA_v2"):
+        with pytest.raises(
+            ValueError, match=f"the label '{label}' names the method .* evaluated method is 'vrw'"
+        ):
+            evaluate("vrw", tiny_episodes, tmp_path / label, label=label, progress=False)
+        assert not (tmp_path / label).exists()
+    kwargs = dict(maps_per_setup=0, videos_per_setup=0, progress=False)
+    assert evaluate("vrw", tiny_episodes, tmp_path / "ok", label="vrw-seed1", **kwargs).records
+    assert evaluate("vrw", tiny_episodes, tmp_path / "free", label="random-walk", **kwargs).records
+
+
+def test_a_folder_reused_for_other_episodes_keeps_only_this_runs_files(tmp_path, tiny_episodes):
+    """Maps, videos and per-episode results of episodes the new run does not hold are removed (with a
+    warning), so the folder shows what its run.json and tables describe."""
+    from navformer_rl.evaluation.episodes import make_episode_set
+
+    from .conftest import TINY_SETUP
+
+    out = tmp_path / "vrw"
+    evaluate("vrw", tiny_episodes, out, maps_per_setup=2, videos_per_setup=1, progress=False)
+    assert len(list((out / "maps").glob("*.png"))) == 2 and len(list((out / "videos").glob("*.mp4"))) == 1
+    other = make_episode_set(
+        [TINY_SETUP], trials_per_setup=1, trials_per_world=1, seed=9, name="o", max_steps=6
+    )
+    other = dataclasses.replace(
+        other,
+        episodes=tuple(dataclasses.replace(e, episode_id="other/" + e.episode_id) for e in other.episodes),
+    )
+    with pytest.warns(UserWarning, match="removed 5 maps / videos / per-episode results"):
+        result = evaluate("vrw", other, out, maps_per_setup=1, videos_per_setup=0, progress=False)
+    assert sorted(p.name for p in (out / "maps").glob("*")) == ["other_7.5m-2r_w00t00.png"]
+    assert not list((out / "videos").glob("*.mp4"))
+    assert sorted(p.name for p in (out / "per_episode").glob("*.json")) == ["other_7.5m-2r_w00t00.json"]
+    assert result.files["maps"] == ["maps/other_7.5m-2r_w00t00.png"]
