@@ -2,6 +2,9 @@
 
 Thin layer over :func:`navformer_rl.data.collect.collect`: build each kind's settings from the config, then
 collect (resumable: rerun the same command after an interruption). Prints each dataset's counts.
+
+A mistake the user can fix is printed as one line, ``collect.py: error: <message>``, with exit status 2, like
+``navformer collect`` (``NAVFORMER_DEBUG=1`` shows the traceback); a refused run leaves no hydra folder behind.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from omegaconf import OmegaConf
 from navformer_rl.data.collect import collect, default_workers, settings_for
 from navformer_rl.data.dataset import open_dataset
 from navformer_rl.data.schema import DatasetKind
+from navformer_rl.recipe_errors import user_errors
 
 
 def make_jobs(cfg) -> list[tuple[DatasetKind, Path, object]]:
@@ -33,11 +37,14 @@ def make_jobs(cfg) -> list[tuple[DatasetKind, Path, object]]:
 
 @hydra.main(config_path="", config_name="config", version_base="1.3")
 def main(cfg) -> None:
-    workers = default_workers() if cfg.workers is None else int(cfg.workers)
-    for kind, out, settings in make_jobs(cfg):
-        path = collect(kind, out, settings, workers=workers, progress=cfg.progress)
-        meta = open_dataset(path, kind).metadata
-        print(f"{kind.value}: {path}  counts={meta['counts']}")
+    # A mistake (unknown kind or scale, bad worker count, a foreign folder as `out`, ...) ends in one line
+    # and exit status 2 (NAVFORMER_DEBUG=1: the traceback)
+    with user_errors("collect.py"):
+        workers = default_workers() if cfg.workers is None else int(cfg.workers)
+        for kind, out, settings in make_jobs(cfg):
+            path = collect(kind, out, settings, workers=workers, progress=cfg.progress)
+            meta = open_dataset(path, kind).metadata
+            print(f"{kind.value}: {path}  counts={meta['counts']}")
 
 
 if __name__ == "__main__":

@@ -28,13 +28,15 @@ GENERATION_DEFAULTS = {
 null gets."""
 
 
-def make_episode_set(cfg: DictConfig) -> EpisodeSet:
-    """The episode set: ``cfg.episodes`` (a file) if given, else the episodes of ``cfg.protocol``.
-
-    The method, checkpoint and label are validated first, so a bad one (or a label naming a training ablation
-    the checkpoint was not trained with) fails before episode generation.
-    """
+def check_policy(cfg: DictConfig) -> None:
+    """Refuse (ValueError) an unknown method, a missing or unreadable checkpoint, or a label naming a training
+    ablation the checkpoint was not trained with; the recipe calls it first, before it prints the output folder
+    and generates episodes (``PolicySpec.validate`` loads the checkpoint)."""
     PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed)).validate(cfg.label)
+
+
+def make_episode_set(cfg: DictConfig) -> EpisodeSet:
+    """The episode set: ``cfg.episodes`` (a file) if given, else the episodes of ``cfg.protocol``."""
     generation = {name: cfg[name] for name in GENERATION_DEFAULTS}
     if cfg.episodes:
         given = [name for name, value in generation.items() if value is not None]

@@ -92,4 +92,51 @@ def test_recipe_refuses_a_label_naming_another_ablation_before_generating_episod
     cfg.checkpoint = str(checkpoint_factory(tmp_path / "full", NavFormerConfig(), {"ablation": "none"}))
     cfg.label = "navformer-no_fg"
     with pytest.raises(ValueError, match="names the training ablation 'no_fg'.*trained with ablation=none"):
-        utils.make_episode_set(cfg)
+        utils.check_policy(cfg)  # what the recipe's main calls first
+
+
+def _run_recipe(cwd: Path, *overrides: str, **env: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(RECIPE), *overrides],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "1", **env},
+        timeout=300,
+    )
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["method=navformr"], "unknown method 'navformr'; expected one of navformer, dt, vrw, fca"),
+        (["method=dt"], "method 'dt' needs a checkpoint"),
+        (["method=vrw", "protocol=tabl1"], "unknown protocol 'tabl1'"),
+    ],
+)
+def test_recipe_reports_a_mistake_in_one_line_and_leaves_no_folder(tmp_path, overrides, message):
+    """Like `navformer evaluate`: one line, exit status 2, no traceback; the folder hydra made for the run
+    (outputs/evaluate/<method>/<time>/, with its .hydra/ records) is removed again."""
+    done = _run_recipe(tmp_path, *overrides, "progress=false")
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr
+    assert len(done.stderr.splitlines()) == 1
+    assert done.stderr.startswith(f"evaluate.py: error: {message}")
+    assert list(tmp_path.iterdir()) == []  # not even an empty outputs/
+    if not overrides[0].startswith("method=vrw"):  # a bad policy is refused before the resume hint
+        assert done.stdout == ""
+
+
+def test_recipe_keeps_a_refused_runs_folder_that_holds_anything_else(tmp_path):
+    run_dir = tmp_path / "earlier"
+    run_dir.mkdir()
+    (run_dir / "run.json").write_text("{}")
+    done = _run_recipe(tmp_path, "method=navformr", f"output_dir={run_dir}", f"hydra.run.dir={run_dir}")
+    assert done.returncode == 2 and done.stderr.startswith("evaluate.py: error: unknown method 'navformr'")
+    assert (run_dir / "run.json").read_text() == "{}" and (run_dir / ".hydra").is_dir()
+
+
+def test_recipe_shows_the_traceback_with_navformer_debug(tmp_path):
+    done = _run_recipe(tmp_path, "method=navformr", NAVFORMER_DEBUG="1")
+    assert done.returncode not in (0, 2)
+    assert "Traceback" in done.stderr and "ValueError: unknown method 'navformr'" in done.stderr

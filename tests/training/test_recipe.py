@@ -60,6 +60,37 @@ def test_recipe_script_smoke_run(base_overrides, tmp_path):
     assert (tmp_path / "hydra" / ".hydra" / "config.yaml").is_file()  # hydra's own record of the run
 
 
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        (["ablation=no_thcs"], "unknown ablation 'no_thcs'"),
+        (
+            ["data.collision_batch_trajs=9"],
+            "holds 8 trajectories, fewer than one batch of data.collision_batch_trajs=9",
+        ),
+    ],
+)
+def test_recipe_reports_a_mistake_in_one_line_and_leaves_no_folder(base_overrides, tmp_path, bad, message):
+    """Like `navformer train`: one line, exit status 2, no traceback; hydra's run folder
+    (outputs/navformer/<date>/<time>/, made before the script runs) is removed again."""
+    work = tmp_path / "work"
+    work.mkdir()
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "RL_WARNINGS": "0", "RL_LOGGING_LEVEL": "WARNING"}
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "recipes/navformer/navformer.py"), *base_overrides, *bad],
+        cwd=work,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr
+    assert len(proc.stderr.splitlines()) == 1 and proc.stderr.startswith("navformer.py: error: ")
+    assert message in proc.stderr
+    assert list(work.iterdir()) == []
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="navformer")
     training_cli.register(parser.add_subparsers(dest="command"))
