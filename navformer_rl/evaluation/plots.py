@@ -23,6 +23,11 @@ def plot_setup_bars(
     """Write a PNG with one panel per metric (SR, SPL, CR stacked); per setup (x axis) one bar per method,
     with its confidence interval as an error bar and its value written above.
 
+    The legend sits above the panels, outside them, so it never covers a bar or a value; the figure is
+    about 0.45 inch per bar wide so the values stay legible. A bar without an interval (NaN: too few trials,
+    :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`) has no error bar, and a line under the
+    panels says so.
+
     Args:
         summaries: per-(method, setup) summaries (the pooled ``"all"`` rows are skipped).
         path: output ``.png`` (written atomically).
@@ -46,7 +51,12 @@ def plot_setup_bars(
     width = 0.8 / len(methods)
     colors = plt.get_cmap("tab10").colors
     fig_width = max(7.0, 0.45 * len(setups) * max(2, len(methods)) + 2.0)
-    fig, axes = plt.subplots(3, 1, figsize=(fig_width, 8.5), sharex=True, constrained_layout=True)
+    legend_columns = max(1, min(len(methods), int(fig_width // 1.6)))
+    legend_rows = -(-len(methods) // legend_columns)
+    fig, axes = plt.subplots(
+        3, 1, figsize=(fig_width, 8.5 + 0.25 * legend_rows), sharex=True, layout="constrained"
+    )
+    missing_interval = False
     for ax, (attr, name, ci_attr) in zip(axes, _METRICS):
         for k, method in enumerate(methods):
             values, low, high = [], [], []
@@ -55,6 +65,11 @@ def plot_setup_bars(
                 value = np.nan if m is None else getattr(m, attr)
                 ci = (np.nan, np.nan) if m is None else getattr(m, ci_attr)
                 values.append(value)
+                if m is not None and not np.all(np.isfinite(ci)):
+                    missing_interval = True  # too few trials for one: no error bar (NaN draws none)
+                    low.append(np.nan)
+                    high.append(np.nan)
+                    continue
                 # an interval end ~1e-16 on the wrong side of the estimate (rounding) is a zero-length bar
                 low.append(max(value - ci[0], 0.0))
                 high.append(max(ci[1] - value, 0.0))
@@ -69,7 +84,7 @@ def plot_setup_bars(
                 label=method,
                 color=colors[k % len(colors)],
             )
-            for position, value, up in zip(positions, values, high):
+            for position, value, up in zip(positions, values, np.nan_to_num(high)):
                 if np.isfinite(value):
                     text = f"{100 * value:.0f}%" if attr == "sr" else f"{value:.2f}"
                     ax.text(position, value + up + 0.02, text, ha="center", va="bottom", fontsize=7)
@@ -78,8 +93,13 @@ def plot_setup_bars(
         ax.set_yticks(np.linspace(0, 1, 6))
         ax.grid(axis="y", alpha=0.3)
     axes[-1].set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
-    axes[0].legend(fontsize=8, ncol=min(len(methods), 6), loc="upper right")
     fig.suptitle(title or "SR / SPL / CR per setup", fontsize=11)
+    # above the SR panel, outside it (the layout makes room below the title): it cannot cover a bar or a value
+    axes[0].legend(
+        loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=legend_columns, fontsize=8, frameon=False
+    )
+    if missing_interval:
+        fig.supxlabel("no error bar: too few trials for a confidence interval", fontsize=8, color="0.35")
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")

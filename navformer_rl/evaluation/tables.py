@@ -5,13 +5,14 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from navformer_rl.durable import atomic_write_text
-from navformer_rl.evaluation.measures import MetricSummary, RobotTrial, summarize
+from navformer_rl.evaluation.measures import MetricSummary, RobotTrial, min_trials_for_interval, summarize
 
 ALL_SETUPS = "all"
 """Setup name of the row that pools every setup of a method."""
@@ -73,8 +74,9 @@ def ordered_setups(summaries: Sequence[SetupSummary]) -> list[tuple[float | None
 
 INTERVAL_METHOD = (
     "(Wilson on the trial-clustered effective sample size for SR - robots of one trial are not independent, "
-    "and when every outcome is equal the number of trials is the sample size; trial-level bootstrap for SPL "
-    "and CR)"
+    "and when every outcome is equal or a setup has fewer than "
+    f"{min_trials_for_interval()} trials (at 95 %) the number of trials is the sample size; trial-level "
+    "bootstrap for SPL and CR, n/a with fewer trials than that)"
 )
 """How the tables' intervals are computed, for the notes beside them."""
 
@@ -103,7 +105,8 @@ def summarize_by_setup(
 
 
 def summaries_to_csv(summaries: Sequence[SetupSummary]) -> str:
-    """CSV text with :data:`CSV_COLUMNS` (SR as a fraction)."""
+    """CSV text with :data:`CSV_COLUMNS` (SR as a fraction; an interval end that is NaN, no interval, is
+    an empty cell)."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
@@ -112,24 +115,36 @@ def summaries_to_csv(summaries: Sequence[SetupSummary]) -> str:
         writer.writerow(
             [s.method, s.setup, "" if s.size is None else s.size, "" if s.n_robots is None else s.n_robots,
              m.n_trials, m.n_robot_trials,
-             f"{m.sr:.6f}", f"{m.sr_ci[0]:.6f}", f"{m.sr_ci[1]:.6f}",
-             f"{m.spl:.6f}", f"{m.spl_ci[0]:.6f}", f"{m.spl_ci[1]:.6f}",
-             f"{m.cr:.6f}", f"{m.cr_ci[0]:.6f}", f"{m.cr_ci[1]:.6f}",
-             f"{m.spl_disc:.6f}", f"{m.spl_disc_ci[0]:.6f}", f"{m.spl_disc_ci[1]:.6f}"]
+             _cell(m.sr), _cell(m.sr_ci[0]), _cell(m.sr_ci[1]),
+             _cell(m.spl), _cell(m.spl_ci[0]), _cell(m.spl_ci[1]),
+             _cell(m.cr), _cell(m.cr_ci[0]), _cell(m.cr_ci[1]),
+             _cell(m.spl_disc), _cell(m.spl_disc_ci[0]), _cell(m.spl_disc_ci[1])]
         )  # fmt: skip
     return buffer.getvalue()
 
 
+def _cell(x: float) -> str:
+    return "" if math.isnan(x) else f"{x:.6f}"
+
+
+def _has_interval(ci: tuple[float, float] | None) -> bool:
+    return ci is not None and not (math.isnan(ci[0]) or math.isnan(ci[1]))
+
+
 def format_sr(value: float, ci: tuple[float, float] | None = None) -> str:
-    """``39.17%`` or ``39.17% [30.9, 48.1]`` (percent)."""
+    """``39.17%``, ``39.17% [30.9, 48.1]`` (percent) or ``39.17% [n/a]`` (``ci`` NaN: no interval)."""
     text = f"{100 * value:.2f}%"
-    return text if ci is None else f"{text} [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+    if ci is None:
+        return text
+    return f"{text} [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]" if _has_interval(ci) else f"{text} [n/a]"
 
 
 def format_ratio(value: float, ci: tuple[float, float] | None = None) -> str:
-    """``0.287`` or ``0.287 [0.25, 0.32]``."""
+    """``0.287``, ``0.287 [0.25, 0.32]`` or ``0.287 [n/a]`` (``ci`` NaN: too few trials for an interval)."""
     text = f"{value:.3f}"
-    return text if ci is None else f"{text} [{ci[0]:.2f}, {ci[1]:.2f}]"
+    if ci is None:
+        return text
+    return f"{text} [{ci[0]:.2f}, {ci[1]:.2f}]" if _has_interval(ci) else f"{text} [n/a]"
 
 
 def table_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str] | None = None) -> str:

@@ -12,6 +12,7 @@ from navformer_rl.evaluation.measures import (
     clustered_wilson_interval,
     collision_rate,
     collision_rate_terms,
+    min_trials_for_interval,
     spl,
     spl_terms,
     success_rate,
@@ -72,14 +73,39 @@ def test_wilson_known_values():
 
 
 def test_bootstrap_is_seeded_and_brackets_the_mean():
-    values = np.array([0.0, 0.2, 0.4, 1.0, 0.9, 0.1])
-    groups = np.array([0, 0, 1, 1, 2, 2])
+    # six trials: the fewest a 95 % trial-level bootstrap accepts (three used to be enough)
+    values = np.array([0.0, 0.2, 0.4, 1.0, 0.9, 0.1, 0.5, 0.5, 0.3, 0.7, 0.8, 0.6])
+    groups = np.repeat(np.arange(6), 2)
     a = bootstrap_mean_interval(values, groups, seed=3)
     b = bootstrap_mean_interval(values, groups, seed=3)
     assert a == b
     assert a[0] <= values.mean() <= a[1]
     # Constant values: a degenerate interval.
-    assert bootstrap_mean_interval(np.full(5, 0.25)) == (0.25, 0.25)
+    assert bootstrap_mean_interval(np.full(6, 0.25)) == (0.25, 0.25)
+
+
+def test_min_trials_for_interval():
+    # smallest G with 1 - 2^(1 - G) >= confidence: the range of G trial means misses the true mean with
+    # probability >= 2^(1 - G), and a percentile bootstrap never leaves that range
+    assert min_trials_for_interval() == min_trials_for_interval(0.95) == 6  # 1 - 1/32 = 0.969; 5: 0.9375
+    assert min_trials_for_interval(0.90) == 5  # 1 - 1/16 = 0.9375; 4: 0.875
+    assert min_trials_for_interval(0.99) == 8  # 1 - 1/128 = 0.992; 7: 0.984
+    assert min_trials_for_interval(0.75) == 3  # exactly 1 - 1/4
+    with pytest.raises(ValueError, match="confidence"):
+        min_trials_for_interval(1.0)
+
+
+def test_bootstrap_with_too_few_trials_gives_no_interval():
+    # one trial: nothing to resample, the interval used to be (0.5, 0.5); two identical trials likewise;
+    # five trials: a 95 % percentile interval could cover at most 1 - 2^-4 = 93.75 % of the time
+    values = np.array([0.0, 1.0, 0.5, 0.5])
+    for groups in (np.zeros(4, int), np.array([0, 0, 1, 1])):
+        low, high = bootstrap_mean_interval(values, groups)
+        assert np.isnan(low) and np.isnan(high)
+    assert np.isnan(bootstrap_mean_interval(np.arange(5.0), np.arange(5))).all()
+    assert np.isfinite(bootstrap_mean_interval(np.arange(6.0), np.arange(6))).all()
+    # at 90 % five trials are enough (1 - 2^-4 = 93.75 % >= 90 %)
+    assert np.isfinite(bootstrap_mean_interval(np.arange(5.0), np.arange(5), confidence=0.9)).all()
 
 
 def _trial(episode, robot, success, steps, collisions, p, shortest):
@@ -109,6 +135,8 @@ def test_clustered_wilson_known_cases():
     # one robot per trial: the plain Wilson interval
     success = np.array([1, 0, 1, 1, 0, 1, 1, 0], dtype=bool)
     assert clustered_wilson_interval(success, np.arange(8)) == pytest.approx(wilson_interval(5, 8))
+    # ... with fewer trials than an estimate of deff needs too (n_eff = trials = robots)
+    assert clustered_wilson_interval(success[:3], np.arange(3)) == pytest.approx(wilson_interval(2, 3))
     # robots of a trial always agree: the Wilson interval over trials (5 of 8 trials, 3 robots each)
     assert clustered_wilson_interval(np.repeat(success, 3), np.repeat(np.arange(8), 3)) == pytest.approx(
         wilson_interval(5, 8)
@@ -117,20 +145,60 @@ def test_clustered_wilson_known_cases():
     assert clustered_wilson_interval(np.zeros(6, dtype=bool), np.repeat([0, 1, 2], 2)) == pytest.approx(
         wilson_interval(0, 3)
     )
-    # hand-computed design effect: trials {1,1,0,0} and {1,0,0,0}; p = 3/8, N = 8
-    # var_c = ((2 - 1.5)^2 + (1 - 1.5)^2) / 64 = 0.5 / 64; binomial p(1-p)/N = 0.234375 / 8 -> deff = 0.2667,
-    # clamped to 1 (never narrower than independent robots)
-    mixed = np.array([1, 1, 0, 0, 1, 0, 0, 0], dtype=bool)
-    assert clustered_wilson_interval(mixed, np.repeat([0, 1], 4)) == pytest.approx(wilson_interval(3, 8))
-    # trials {1,1}, {1,1}, {0,0}, {1,0}: p = 5/8, var_c = (0.75^2 * 2 + 1.25^2 + 0.25^2) / 64 = 2.75 / 64,
-    # deff = (2.75 / 64) / (0.234375 / 8) = 1.4667 -> n_eff = 8 / 1.4667 = 5.4545
-    grouped = np.array([1, 1, 1, 1, 0, 0, 1, 0], dtype=bool)
-    n_eff = 8 / ((2.75 / 64) / (0.234375 / 8))
-    assert clustered_wilson_interval(grouped, np.repeat([0, 1, 2, 3], 2)) == pytest.approx(
-        wilson_interval(0.625 * n_eff, n_eff)
+    # hand-computed design effect below 1, clamped (never narrower than independent robots): five trials of
+    # four with {2, 1, 2, 1, 2} successes; p = 8/20, p m = 1.6, var_c = (3 * 0.4^2 + 2 * 0.6^2) / 400 =
+    # 1.2 / 400 = 0.003; binomial p(1-p)/N = 0.24 / 20 = 0.012 -> deff = 0.25 -> n_eff = N = 20.
+    # Six trials: the fewest from which deff is estimated at 95 %; the sixth trial also has 2 of 4.
+    counts = [2, 1, 2, 1, 2, 2]
+    mixed = np.concatenate([np.arange(4) < k for k in counts])
+    assert clustered_wilson_interval(mixed, np.repeat(np.arange(6), 4)) == pytest.approx(
+        wilson_interval(10, 24)
+    )
+    # six trials of two {1,1}, {1,1}, {0,0}, {1,0}, {0,0}, {1,1}: p = 7/12, p m = 7/6; deviations
+    # 5/6, 5/6, -7/6, -1/6, -7/6, 5/6 -> sum of squares (3 * 25 + 2 * 49 + 1) / 36 = 174 / 36;
+    # var_c = (174 / 36) / 144; binomial (7/12)(5/12) / 12 = (35 / 144) / 12 -> deff = (174 / 36) * 12 / 35
+    # = 1.6571 -> n_eff = 12 / 1.6571 = 7.2414
+    grouped = np.array([1, 1, 1, 1, 0, 0, 1, 0, 0, 0, 1, 1], dtype=bool)
+    n_eff = 12 / ((174 / 36) * 12 / 35)
+    assert n_eff == pytest.approx(7.2414, abs=1e-4)
+    assert clustered_wilson_interval(grouped, np.repeat(np.arange(6), 2)) == pytest.approx(
+        wilson_interval(7 / 12 * n_eff, n_eff)
     )
     with pytest.raises(ValueError, match="matching"):
         clustered_wilson_interval(success, np.arange(3))
+
+
+def test_clustered_wilson_with_too_few_trials_counts_trials():
+    # One trial, 3 of 6 robots: the between-trial variance computes as 0 whatever the outcomes, so deff used
+    # to be clamped to 1 and the 6 robots counted as independent: wilson_interval(3, 6) = [18.8, 81.2] %,
+    # while 0 of 6 in the same trial gave n_eff = 1 trial. Now both use n_eff = 1 trial.
+    # Wilson at n = 1, p = 0.5, z = 1.959964: centre 0.5, half = z sqrt(0.25 + z^2 / 4) / (1 + z^2)
+    # = 1.959964 * 1.100166 / 4.841459 = 0.445379 -> [0.054621, 0.945379].
+    half = 1.959964 * np.sqrt(0.25 + 1.959964**2 / 4) / (1 + 1.959964**2)
+    one = np.array([1, 1, 1, 0, 0, 0], dtype=bool)
+    assert clustered_wilson_interval(one, np.zeros(6, int)) == pytest.approx(
+        (0.5 - half, 0.5 + half), abs=1e-6
+    )
+    assert clustered_wilson_interval(one, np.zeros(6, int)) == pytest.approx((0.054621, 0.945379), abs=1e-6)
+    assert wilson_interval(3, 6) == pytest.approx((0.187616, 0.812384), abs=1e-6)  # the old, too narrow
+    assert clustered_wilson_interval(np.zeros(6, bool), np.zeros(6, int)) == pytest.approx(
+        wilson_interval(0, 1)
+    )
+    # Two identical trials {1,1,0,0}: var_c = 0 again (by chance, from one degree of freedom) -> used to be
+    # wilson_interval(4, 8) = [21.5, 78.5] %; now n_eff = 2 trials: n = 2, p = 0.5, centre 0.5,
+    # half = z sqrt(0.125 + z^2 / 16) / (1 + z^2 / 2) = 1.959964 * 0.604228 / 2.920729 = 0.405469.
+    two = np.array([1, 1, 0, 0, 1, 1, 0, 0], dtype=bool)
+    groups = np.repeat([0, 1], 4)
+    half = 1.959964 * np.sqrt(0.125 + 1.959964**2 / 16) / (1 + 1.959964**2 / 2)
+    assert clustered_wilson_interval(two, groups) == pytest.approx((0.5 - half, 0.5 + half), abs=1e-6)
+    assert clustered_wilson_interval(two, groups) == pytest.approx((0.094531, 0.905469), abs=1e-6)
+    # five trials (below 6 at 95 %): still the number of trials, whatever their spread
+    five = np.concatenate([np.arange(4) < k for k in [2, 1, 2, 1, 2]])
+    assert clustered_wilson_interval(five, np.repeat(np.arange(5), 4)) == pytest.approx(wilson_interval(2, 5))
+    # at 90 % five trials are enough to estimate deff (here clamped to 1: n_eff = 20 robots)
+    assert clustered_wilson_interval(five, np.repeat(np.arange(5), 4), 0.9) == pytest.approx(
+        wilson_interval(8, 20, 0.9)
+    )
 
 
 def test_summarize_and_record_round_trip():
@@ -145,7 +213,11 @@ def test_summarize_and_record_round_trip():
     assert s.sr == pytest.approx(0.75)
     assert s.spl == pytest.approx((0.8 + 0 + 1 + 0.5) / 4)
     assert s.cr == pytest.approx((0.1 + 0.1 + 0 + 0.4) / 4)
-    assert s.sr_ci == wilson_interval(3, 4)
+    # two trials, too few to estimate the design effect (it used to be clamped to 1: wilson_interval(3, 4)):
+    # n_eff = 2 trials, and too few for a trial-level bootstrap of SPL / CR
+    assert s.sr_ci == pytest.approx(wilson_interval(1.5, 2))
+    for ci in (s.spl_ci, s.cr_ci, s.spl_disc_ci):
+        assert np.isnan(ci).all()
     # SPL-disc uses l - 1.5 here: 2.5/5, 0, 1.5/max(2, 1.5), 3.5/10.
     assert s.spl_disc == pytest.approx((0.5 + 0 + 0.75 + 0.35) / 4)
     row = records[0].to_dict()
