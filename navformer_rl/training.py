@@ -389,8 +389,30 @@ def load_train_config(
         key = getattr(err, "full_key", None)
         reason = str(err).splitlines()[0]
         where = f" {key!r}" if key else ""
-        raise ValueError(f"bad training config override{where}: {reason} (keys: docs/training.md)") from None
+        if key and key.startswith("+"):  # hydra's "add a key": this config's keys are fixed
+            hint, reason = None, "keys cannot be added with '+'; set one of the config's keys"
+        else:
+            hint = _closest_key(base, key) if key else None
+        suggestion = f"; did you mean {hint!r}?" if hint else ""
+        raise ValueError(
+            f"bad training config override{where}: {reason}{suggestion} (keys: docs/training.md)"
+        ) from None
     return config_from_dict(container)
+
+
+def _closest_key(config: Any, key: str) -> str | None:
+    """The dotted key of ``config`` (an OmegaConf mapping) most like the unknown ``key``, or None."""
+    import difflib
+
+    from omegaconf import OmegaConf
+
+    def dotted(node: Any, prefix: str = "") -> list[str]:
+        if not OmegaConf.is_dict(node):
+            return [prefix[:-1]]
+        return [k for name, child in node.items() for k in dotted(child, f"{prefix}{name}.")]
+
+    matches = difflib.get_close_matches(key, dotted(config), n=1, cutoff=0.75)
+    return matches[0] if matches else None
 
 
 def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:

@@ -67,7 +67,10 @@ def test_overrides_reach_the_dataclasses():
     "overrides, message",
     [
         (["optim.lrr=1"], "optim.lrr"),
-        (["nonsense=1"], "nonsense"),
+        (["optim.iteration=2"], "'optim.iteration'.*did you mean 'optim.iterations'\\?"),
+        (["data.colision_path=x"], "did you mean 'data.collision_path'\\?"),
+        (["+optim.foo=1"], "keys cannot be added with '\\+'"),
+        (["nonsense=1"], "'nonsense': Key 'nonsense' is not in struct \\(keys"),  # nothing close: no guess
         (["optim.lr"], "key=value"),
         (["model.not_a_field=3"], "model.not_a_field"),
     ],
