@@ -98,7 +98,10 @@ class PolicySpec:
         description: dict[str, Any] = {}
         if self.method in CHECKPOINT_METHODS:
             if self.checkpoint is None:
-                raise ValueError(f"method {self.method!r} needs a checkpoint (--checkpoint PATH)")
+                raise ValueError(
+                    f"method {self.method!r} needs a checkpoint: a run directory or checkpoint folder "
+                    "(CLI --checkpoint PATH, recipe checkpoint=PATH)"
+                )
             from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
 
             _, config = self.build_with_config()
