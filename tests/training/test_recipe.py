@@ -19,6 +19,19 @@ from navformer_rl import training_cli
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def run_recipe(cwd: Path, *overrides: str) -> subprocess.CompletedProcess:
+    """``recipes/navformer/navformer.py`` with ``overrides`` in a subprocess (one thread, TorchRL quiet)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "RL_WARNINGS": "0", "RL_LOGGING_LEVEL": "WARNING"}
+    return subprocess.run(
+        [sys.executable, str(ROOT / "recipes/navformer/navformer.py"), *overrides],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
 def check_run_files(run_dir: Path, iterations: int) -> None:
     """The files a finished run must have written (known iteration count)."""
     config = json.loads((run_dir / "train_config.json").read_text())
@@ -45,15 +58,7 @@ def test_recipe_script_smoke_run(base_overrides, tmp_path):
     run_dir = tmp_path / "recipe_run"
     overrides = [*base_overrides, "optim.iterations=3", f"output_dir={run_dir}"]
     overrides.append(f"hydra.run.dir={tmp_path / 'hydra'}")
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "RL_WARNINGS": "0", "RL_LOGGING_LEVEL": "WARNING"}
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "recipes/navformer/navformer.py"), *overrides],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    proc = run_recipe(tmp_path, *overrides)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert f"run directory: {run_dir}" in proc.stdout
     check_run_files(run_dir, 3)
@@ -75,15 +80,7 @@ def test_recipe_reports_a_mistake_in_one_line_and_leaves_no_folder(base_override
     (outputs/navformer/<date>/<time>/, made before the script runs) is removed again."""
     work = tmp_path / "work"
     work.mkdir()
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "RL_WARNINGS": "0", "RL_LOGGING_LEVEL": "WARNING"}
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "recipes/navformer/navformer.py"), *base_overrides, *bad],
-        cwd=work,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    proc = run_recipe(work, *base_overrides, *bad)
     assert proc.returncode == 2, proc.stderr[-3000:]
     assert "Traceback" not in proc.stderr
     assert len(proc.stderr.splitlines()) == 1 and proc.stderr.startswith("navformer.py: error: ")
