@@ -58,6 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument(
         "--seed", type=cli_args.seed, default=0, help="seed of stochastic policies (default 0)"
     )
+    _add_cluster_option(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--fresh", action="store_true", help="recompute every episode (default: reuse finished ones in --out)"
@@ -92,8 +93,21 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     report.add_argument("--out", dest="report_out", type=Path, required=True, help="report .md file to write")
     report.add_argument("--title", default="NavFormer evaluation")
+    _add_cluster_option(report)
     report.set_defaults(run=_run_report)
     return parser
+
+
+def _add_cluster_option(parser: argparse.ArgumentParser) -> None:
+    from navformer_rl.evaluation.measures import CLUSTER_LEVELS
+
+    parser.add_argument(
+        "--cluster-by",
+        choices=CLUSTER_LEVELS,
+        default="trial",
+        help="what the confidence intervals resample: trials (default; intervals for these mazes) or "
+        "worlds (also the variation between mazes; needs 6 mazes per setup)",
+    )
 
 
 def _add_generation_options(parser: argparse.ArgumentParser) -> None:
@@ -167,6 +181,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         seed=args.seed,
         maps_per_setup=args.maps,
         videos_per_setup=args.videos,
+        cluster=args.cluster_by,
         progress=not args.no_progress,
         resume=not args.fresh,
     )
@@ -204,6 +219,8 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
 def _run_report(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.report import write_report
 
-    path = write_report(args.folders, _output_file(args.report_out, "--out"), title=args.title)
+    path = write_report(
+        args.folders, _output_file(args.report_out, "--out"), title=args.title, cluster=args.cluster_by
+    )
     print(f"wrote {path}")
     return 0

@@ -47,7 +47,7 @@ from navformer_rl import __version__
 from navformer_rl.checks import check_int
 from navformer_rl.durable import atomic_write_text, folder_lock
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
-from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
+from navformer_rl.evaluation.measures import RobotTrial, TrialTracker, check_cluster
 from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, label_ablation
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
 from navformer_rl.evaluation.video import MAP_PNG_PX, compose_frame, draw_map, save_map_png
@@ -269,6 +269,7 @@ def evaluate(
     videos_per_setup: int = 1,
     video_fps: float = 10.0,
     confidence: float = 0.95,
+    cluster: str = "trial",
     progress: bool = True,
     resume: bool = True,
 ) -> EvaluationResult:
@@ -295,6 +296,9 @@ def evaluate(
             PNG / an mp4 video.
         video_fps: frames per second of the videos (one frame per 0.2 s step).
         confidence: level of the intervals.
+        cluster: what the intervals resample: whole trials (``"trial"``, intervals for these mazes) or whole
+            mazes (``"world"``, also the variation between mazes; needs 6 mazes per setup at 95 %), see
+            :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`.
         progress: show a tqdm progress bar.
         resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
             the same method, label, checkpoint weights, seed, trial length and package version (an
@@ -313,6 +317,7 @@ def evaluate(
         ffmpeg_executable()  # a missing encoder is reported here, not by a worker at its first video
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence={confidence!r}: expected a level in (0, 1), e.g. 0.95")
+    check_cluster(cluster)
     if not (isinstance(video_fps, int | float) and math.isfinite(video_fps) and video_fps > 0):
         raise ValueError(f"video_fps={video_fps!r}: expected a number of frames per second > 0")
     if callable(method):
@@ -354,7 +359,7 @@ def evaluate(
         records = [record for output in outputs for record in output["records"]]
         atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
         # the bootstrap seed is not the policy seed: the same rows get the same intervals here and in reports
-        summaries = write_summary_files(records, out_dir, confidence)
+        summaries = write_summary_files(records, out_dir, confidence, cluster=cluster)
         from navformer_rl.evaluation.plots import plot_setup_bars
 
         plot = plot_setup_bars(summaries, out_dir / "metrics.png", title=f"{label} on {episode_set.name}")
@@ -380,6 +385,7 @@ def evaluate(
                 "setups": episode_set.setups,
             },
             "confidence": confidence,
+            "cluster": cluster,
             **_timing(outputs, computed, time.perf_counter() - invoked),
             "package_version": __version__,
             "files": files,

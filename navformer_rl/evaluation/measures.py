@@ -37,6 +37,13 @@ whole trials, seeded so that the same records always give the same interval. Bot
 trials, which a few trials cannot show: below :func:`min_trials_for_interval` trials (6 at 95 %) SR's
 effective sample size is the number of trials (each trial one observation of the proportion, the
 conservative end) and SPL / CR get no interval (``(nan, nan)``, written ``n/a`` in the tables).
+
+What counts as a cluster (:data:`CLUSTER_LEVELS`, ``summarize(..., cluster=...)``): ``"trial"`` (the
+default) treats the trials as the independent units, so the intervals describe the method on the mazes
+that were drawn (every method of a comparison faces the same ones); ``"world"`` treats the mazes as the
+units (the paper's protocol draws a new maze every 10 trials, and trials in one maze share its
+difficulty), so the intervals also cover the variation from maze to maze - wider, and they need
+:func:`min_trials_for_interval` mazes per row (the paper's 60 trials per setup hold 6).
 """
 
 from __future__ import annotations
@@ -123,8 +130,9 @@ def wilson_interval(successes: float, n: float, confidence: float = 0.95) -> tup
 
 
 def min_trials_for_interval(confidence: float = 0.95) -> int:
-    """The fewest trials (groups) from which an interval is read off the spread between trials: the
-    smallest ``G`` with ``1 - 2^(1 - G) >= confidence`` (6 at 95 %, 5 at 90 %, 8 at 99 %).
+    """The fewest trials (groups; mazes when the intervals cluster by world) from which an interval is read
+    off the spread between them: the smallest ``G`` with ``1 - 2^(1 - G) >= confidence`` (6 at 95 %, 5 at
+    90 %, 8 at 99 %).
 
     Why: a percentile bootstrap over ``G`` trials lies within the range of the ``G`` trial means, and that
     range misses the true mean with probability ``q^G + (1 - q)^G >= 2^(1 - G)`` (``q`` the chance that one
@@ -215,6 +223,18 @@ def bootstrap_mean_interval(
     return float(low), float(high)
 
 
+CLUSTER_LEVELS: tuple[str, ...] = ("trial", "world")
+"""The units the intervals resample (module docstring): the trials (``episode_id``) or the mazes
+(``setup`` + ``world_seed``)."""
+
+
+def check_cluster(cluster: str) -> str:
+    """``cluster`` if it is one of :data:`CLUSTER_LEVELS` (ValueError naming them otherwise)."""
+    if cluster not in CLUSTER_LEVELS:
+        raise ValueError(f"cluster={cluster!r}: expected one of {', '.join(CLUSTER_LEVELS)}")
+    return cluster
+
+
 @dataclass
 class RobotTrial:
     """One robot in one trial: the row written to the per-episode JSONL.
@@ -266,11 +286,14 @@ class RobotTrial:
 @dataclass(frozen=True)
 class MetricSummary:
     """SR / SPL / CR over a set of robot-trials with ``(low, high)`` confidence intervals; an SPL / CR /
-    SPL-disc interval is ``(nan, nan)`` when the records span too few trials for one
-    (:func:`min_trials_for_interval`)."""
+    SPL-disc interval is ``(nan, nan)`` when the records span too few clusters for one
+    (:func:`min_trials_for_interval`). ``cluster`` is what the intervals resample (:data:`CLUSTER_LEVELS`);
+    ``n_worlds`` counts the mazes (``setup`` + ``world_seed``)."""
 
     n_robot_trials: int
     n_trials: int
+    n_worlds: int
+    cluster: str
     sr: float
     sr_ci: tuple[float, float]
     spl: float
@@ -281,11 +304,16 @@ class MetricSummary:
     spl_disc_ci: tuple[float, float]
 
 
-def summarize(records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0) -> MetricSummary:
+def summarize(
+    records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0, cluster: str = "trial"
+) -> MetricSummary:
     """Aggregate the *measured* robot-trial records into SR, SPL, CR and their intervals.
 
-    See the module docstring for the formulas; records with ``measured=False`` are skipped.
+    See the module docstring for the formulas; records with ``measured=False`` are skipped. ``cluster``
+    (:data:`CLUSTER_LEVELS`): the intervals resample whole trials (``"trial"``) or whole mazes
+    (``"world"``).
     """
+    check_cluster(cluster)
     records = [r for r in records if r.measured]
     if len(records) == 0:
         raise ValueError("cannot summarise an empty list of (measured) robot-trials")
@@ -303,10 +331,14 @@ def summarize(records: Sequence[RobotTrial], confidence: float = 0.95, seed: int
     cr_values = collision_rate_terms(
         np.array([r.collisions for r in records]), np.array([r.steps for r in records])
     )
-    _, groups = np.unique([r.episode_id for r in records], return_inverse=True)
+    _, trials = np.unique([r.episode_id for r in records], return_inverse=True)
+    _, worlds = np.unique([f"{r.setup}/{r.world_seed}" for r in records], return_inverse=True)
+    groups = trials if cluster == "trial" else worlds
     return MetricSummary(
         n_robot_trials=len(records),
-        n_trials=int(groups.max()) + 1,
+        n_trials=int(trials.max()) + 1,
+        n_worlds=int(worlds.max()) + 1,
+        cluster=cluster,
         sr=success_rate(success),
         sr_ci=clustered_wilson_interval(success, groups, confidence),
         spl=float(spl_values.mean()),

@@ -24,7 +24,7 @@ def plot_setup_bars(
     with its confidence interval as an error bar and its value written above.
 
     The legend sits above the panels, outside them, so it never covers a bar or a value; the figure is
-    about 0.45 inch per bar wide so the values stay legible. A bar without an interval (NaN: too few trials,
+    about 0.45 inch per bar wide so the values stay legible. A bar without an interval (NaN: too few trials, or mazes,
     :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`) has no error bar, and a line under the
     panels says so.
 
@@ -99,7 +99,8 @@ def plot_setup_bars(
         loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=legend_columns, fontsize=8, frameon=False
     )
     if missing_interval:
-        fig.supxlabel("no error bar: too few trials for a confidence interval", fontsize=8, color="0.35")
+        units = "mazes" if any(s.metrics.cluster == "world" for s in summaries) else "trials"
+        fig.supxlabel(f"no error bar: too few {units} for a confidence interval", fontsize=8, color="0.35")
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")

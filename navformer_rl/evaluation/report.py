@@ -29,6 +29,7 @@ from typing import Any
 
 from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.harness import checkpoint_ablation, label_ablation_problem
+from navformer_rl.evaluation.measures import check_cluster
 from navformer_rl.evaluation.paper_results import (
     ABLATION_TO_TABLE4,
     METHOD_TO_PAPER_COLUMN,
@@ -42,10 +43,10 @@ from navformer_rl.evaluation.paper_results import (
 from navformer_rl.evaluation.plots import plot_setup_bars
 from navformer_rl.evaluation.tables import (
     ALL_SETUPS,
-    INTERVAL_METHOD,
     SetupSummary,
     format_ratio,
     format_sr,
+    interval_method,
     ordered_setups,
     read_records,
     summarize_by_setup,
@@ -284,6 +285,7 @@ def write_report(
     title: str = "NavFormer evaluation",
     confidence: float = 0.95,
     seed: int = 0,
+    cluster: str = "trial",
 ) -> Path:
     """Write the markdown report (module docstring) to ``out_path``; returns its path.
 
@@ -291,7 +293,11 @@ def write_report(
         result_dirs: folders written by ``evaluate`` (one per method/label); order = column order.
         out_path: the ``.md`` file; ``<stem>_metrics.png`` is written beside it. An existing file is
             replaced only if it is a report written here (FileExistsError otherwise).
+        confidence, seed: level and bootstrap seed of the intervals.
+        cluster: what the intervals resample, whole trials or whole mazes
+            (:data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`).
     """
+    check_cluster(cluster)
     if not result_dirs:
         raise ValueError("write_report needs at least one evaluation folder")
     out_path = Path(out_path)
@@ -318,7 +324,7 @@ def write_report(
         labels.append(run["label"])
         records += mine
         runs.append((folder, run))
-    summaries = summarize_by_setup(records, confidence, seed)
+    summaries = summarize_by_setup(records, confidence, seed, cluster)
     plot_path = report_dir / f"{out_path.stem}_metrics.png"  # not metrics.png: an evaluation folder's own
     plot = plot_setup_bars(summaries, plot_path, methods=labels, title=title)
 
@@ -386,7 +392,7 @@ def write_report(
         + "\n"
     )
     parts.append(f"## Results (ours, {100 * confidence:g} % confidence intervals in brackets)\n")
-    parts.append(f"Intervals: {INTERVAL_METHOD.strip('()')}.\n")
+    parts.append(f"Intervals: {interval_method(cluster, confidence)}.\n")
     parts.append(table_markdown(summaries, labels))
     parts.append(f"![SR, SPL and CR per setup]({plot.name})\n")
     parts.append(

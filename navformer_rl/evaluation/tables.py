@@ -12,13 +12,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from navformer_rl.durable import atomic_write_text
-from navformer_rl.evaluation.measures import MetricSummary, RobotTrial, min_trials_for_interval, summarize
+from navformer_rl.evaluation.measures import (
+    MetricSummary,
+    RobotTrial,
+    check_cluster,
+    min_trials_for_interval,
+    summarize,
+)
 
 ALL_SETUPS = "all"
 """Setup name of the row that pools every setup of a method."""
 
 CSV_COLUMNS: tuple[str, ...] = (
-    "method", "setup", "size", "n_robots", "n_trials", "n_robot_trials",
+    "method", "setup", "size", "n_robots", "n_worlds", "n_trials", "n_robot_trials", "cluster",
     "sr", "sr_low", "sr_high", "spl", "spl_low", "spl_high", "cr", "cr_low", "cr_high",
     "spl_disc", "spl_disc_low", "spl_disc_high",
 )  # fmt: skip
@@ -72,22 +78,32 @@ def ordered_setups(summaries: Sequence[SetupSummary]) -> list[tuple[float | None
     return sorted(first.values(), key=lambda k: setup_order_key(*k))
 
 
-INTERVAL_METHOD = (
-    "(Wilson on the trial-clustered effective sample size for SR - robots of one trial are not independent, "
-    "and when every outcome is equal or a setup has fewer than "
-    f"{min_trials_for_interval()} trials (at 95 %) the number of trials is the sample size; trial-level "
-    "bootstrap for SPL and CR, n/a with fewer trials than that)"
-)
-"""How the tables' intervals are computed, for the notes beside them."""
+def interval_method(cluster: str = "trial", confidence: float = 0.95) -> str:
+    """How the tables' intervals are computed, for the notes beside them (``cluster``: what they resample,
+    :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`)."""
+    units = {"trial": "trials", "world": "mazes (worlds)"}[check_cluster(cluster)]
+    fewest = min_trials_for_interval(confidence)
+    return (
+        f"Wilson on the {cluster}-clustered effective sample size for SR - robots of one trial are not "
+        f"independent{', nor are trials in one maze' if cluster == 'world' else ''} - and when every outcome "
+        f"is equal or a row has fewer than {fewest} {units} the number of {units} is the sample size; "
+        f"bootstrap over {units} for SPL and CR, n/a with fewer {units} than that"
+        + (
+            "; the intervals describe these mazes (`--cluster-by world` widens them to the variation between mazes)"
+            if cluster == "trial"
+            else ""
+        )
+    )
 
 
 def summarize_by_setup(
-    records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0
+    records: Sequence[RobotTrial], confidence: float = 0.95, seed: int = 0, cluster: str = "trial"
 ) -> list[SetupSummary]:
     """One :class:`SetupSummary` per (method, setup), plus a pooled ``"all"`` row per method that ran more
     than one setup (with a single setup it would repeat that setup's row).
 
-    Only ``measured`` robot-trials count (see :func:`~navformer_rl.evaluation.measures.summarize`).
+    Only ``measured`` robot-trials count; ``cluster`` chooses what the intervals resample (see
+    :func:`~navformer_rl.evaluation.measures.summarize`).
     """
     measured = [r for r in records if r.measured]
     if not measured:
@@ -98,9 +114,13 @@ def summarize_by_setup(
         setups = sorted({(r.size, r.n_robots, r.setup) for r in mine}, key=lambda s: setup_order_key(*s))
         for size, n_robots, setup in setups:
             rows = [r for r in mine if r.setup == setup]
-            out.append(SetupSummary(method, setup, size, n_robots, summarize(rows, confidence, seed)))
+            out.append(
+                SetupSummary(method, setup, size, n_robots, summarize(rows, confidence, seed, cluster))
+            )
         if len(setups) > 1:
-            out.append(SetupSummary(method, ALL_SETUPS, None, None, summarize(mine, confidence, seed)))
+            out.append(
+                SetupSummary(method, ALL_SETUPS, None, None, summarize(mine, confidence, seed, cluster))
+            )
     return out
 
 
@@ -114,7 +134,7 @@ def summaries_to_csv(summaries: Sequence[SetupSummary]) -> str:
         m = s.metrics
         writer.writerow(
             [s.method, s.setup, "" if s.size is None else s.size, "" if s.n_robots is None else s.n_robots,
-             m.n_trials, m.n_robot_trials,
+             m.n_worlds, m.n_trials, m.n_robot_trials, m.cluster,
              _cell(m.sr), _cell(m.sr_ci[0]), _cell(m.sr_ci[1]),
              _cell(m.spl), _cell(m.spl_ci[0]), _cell(m.spl_ci[1]),
              _cell(m.cr), _cell(m.cr_ci[0]), _cell(m.cr_ci[1]),
@@ -176,14 +196,19 @@ def table_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str] | N
 
 
 def write_summary_files(
-    records: Sequence[RobotTrial], out_dir: str | os.PathLike, confidence: float = 0.95, seed: int = 0
+    records: Sequence[RobotTrial],
+    out_dir: str | os.PathLike,
+    confidence: float = 0.95,
+    seed: int = 0,
+    cluster: str = "trial",
 ) -> list[SetupSummary]:
     """Write ``summary.csv`` and ``summary.md`` (Table I layout) for ``records`` into ``out_dir``."""
     out_dir = Path(out_dir)
-    summaries = summarize_by_setup(records, confidence, seed)
+    summaries = summarize_by_setup(records, confidence, seed, cluster)
     atomic_write_text(out_dir / "summary.csv", summaries_to_csv(summaries))
     note = (
-        f"SR / SPL / CR with {100 * confidence:g} % confidence intervals in brackets {INTERVAL_METHOD}.\n\n"
+        f"SR / SPL / CR with {100 * confidence:g} % confidence intervals in brackets "
+        f"({interval_method(cluster, confidence)}).\n\n"
     )
     atomic_write_text(out_dir / "summary.md", note + table_markdown(summaries))
     return summaries

@@ -17,6 +17,7 @@ from navformer_rl.evaluation.episodes import (
     make_protocol_episodes,
 )
 from navformer_rl.evaluation.harness import EvaluationResult, PolicySpec, evaluate
+from navformer_rl.evaluation.measures import check_cluster
 
 GENERATION_DEFAULTS = {
     "trials_per_setup": PAPER_TRIALS_PER_SETUP,
@@ -29,9 +30,10 @@ null gets."""
 
 
 def check_policy(cfg: DictConfig) -> None:
-    """Refuse (ValueError) an unknown method, a missing or unreadable checkpoint, or a label naming a training
-    ablation the checkpoint was not trained with; the recipe calls it first, before it prints the output folder
-    and generates episodes (``PolicySpec.validate`` loads the checkpoint)."""
+    """Refuse (ValueError) an unknown method, a missing or unreadable checkpoint, a label naming a training
+    ablation the checkpoint was not trained with, or an unknown ``cluster``; the recipe calls it first, before
+    it prints the output folder and generates episodes (``PolicySpec.validate`` loads the checkpoint)."""
+    check_cluster(str(cfg.cluster))
     PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed)).validate(cfg.label)
 
 
@@ -62,6 +64,7 @@ def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult
         seed=int(cfg.seed),
         maps_per_setup=int(cfg.maps_per_setup),
         videos_per_setup=int(cfg.videos_per_setup),
+        cluster=str(cfg.cluster),
         progress=bool(cfg.progress),
         resume=bool(cfg.resume),
     )

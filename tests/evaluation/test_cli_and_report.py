@@ -1,6 +1,7 @@
 """`navformer evaluate` (make-episodes, run, report) and the markdown report."""
 
 import argparse
+import csv
 import hashlib
 import json
 import shutil
@@ -30,14 +31,24 @@ def test_make_episodes_then_evaluate_then_report(tmp_path, capsys):
 
     out = tmp_path / "vrw"
     argv = ["evaluate", "--method", "vrw", "--episodes", str(episodes), "--out", str(out), "--videos", "0"]
-    assert _run([*argv, "--maps", "1", "--no-progress"]) == 0
+    assert _run([*argv, "--maps", "1", "--cluster-by", "world", "--no-progress"]) == 0
     assert "| 7.5m-2r | 7.5 × 7.5 | 2 |" in capsys.readouterr().out
     assert (out / "maps" / "7.5m-2r_w00t00.png").is_file()
+    # intervals over mazes: one maze holds both trials, too few for SPL / CR intervals
+    (row,) = csv.DictReader((out / "summary.csv").open())
+    assert (row["cluster"], row["n_worlds"], row["n_trials"], row["spl_low"]) == ("world", "1", "2", "")
+    assert json.loads((out / "run.json").read_text())["cluster"] == "world"
+    assert "fewer than 6 mazes (worlds)" in (out / "summary.md").read_text()
 
     report = tmp_path / "report" / "README.md"
     assert _run(["evaluate", "report", str(out), "--out", str(report)]) == 0
     text = report.read_text()
     assert "vrw SR" in text and (tmp_path / "report" / "README_metrics.png").is_file()
+    assert "Intervals: Wilson on the trial-clustered" in text  # the report chooses its own clusters
+    assert _run(["evaluate", "report", str(out), "--out", str(report), "--cluster-by", "world"]) == 0
+    assert "Intervals: Wilson on the world-clustered" in report.read_text()
+    with pytest.raises(SystemExit):
+        _run(["evaluate", "report", str(out), "--out", str(report), "--cluster-by", "maze"])
     assert "../vrw/maps/7.5m-2r_w00t00.png" in text
     # generation options with an episode file would be ignored: refused instead
     with pytest.raises(ValueError, match="--max-steps: only with --protocol"):

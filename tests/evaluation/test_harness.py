@@ -238,9 +238,9 @@ def test_summary_intervals_do_not_depend_on_the_policy_seed(tmp_path, tiny_episo
     seeds = []
     summarize = tables.summarize_by_setup
 
-    def recording(records, confidence=0.95, seed=0):
+    def recording(records, confidence=0.95, seed=0, cluster="trial"):
         seeds.append(seed)
-        return summarize(records, confidence, seed)
+        return summarize(records, confidence, seed, cluster)
 
     monkeypatch.setattr(tables, "summarize_by_setup", recording)
     evaluate(

@@ -9,6 +9,7 @@ from navformer_rl.evaluation.measures import (
     RobotTrial,
     TrialTracker,
     bootstrap_mean_interval,
+    check_cluster,
     clustered_wilson_interval,
     collision_rate,
     collision_rate_terms,
@@ -223,6 +224,60 @@ def test_summarize_and_record_round_trip():
     row = records[0].to_dict()
     assert row["spl"] == pytest.approx(0.8) and row["collision_rate"] == pytest.approx(0.1)
     assert RobotTrial.from_dict(row) == records[0]
+
+
+def _maze_protocol_records():
+    """6 mazes x 3 trials x 2 robots of one setup, where the maze decides: every robot succeeds in the even
+    mazes and fails in the odd ones (SPL 0.8 / 0), and robot 1 of each trial collides in 1 of 10 steps."""
+    records = []
+    for world in range(6):
+        for trial in range(3):
+            for robot in range(2):
+                win = world % 2 == 0
+                record = _trial(f"w{world}t{trial}", robot, win, 10, robot, 5.0 if win else 9.0, 4.0)
+                records.append(dataclasses.replace(record, world_seed=100 + world, trial=trial))
+    return records
+
+
+def test_intervals_cluster_by_trial_or_by_maze():
+    records = _maze_protocol_records()
+    by_trial, by_maze = summarize(records), summarize(records, cluster="world")
+    assert (by_trial.n_trials, by_trial.n_worlds, by_trial.cluster) == (18, 6, "trial")
+    assert (by_maze.n_trials, by_maze.n_worlds, by_maze.cluster) == (18, 6, "world")
+    assert by_maze.sr == by_trial.sr == 0.5 and by_maze.spl == by_trial.spl == pytest.approx(0.4)
+    success = np.array([r.success for r in records])
+    trials = np.repeat(np.arange(18), 2)
+    mazes = np.repeat(np.arange(6), 6)
+    # robots of a maze always agree: n_eff = the number of trials, or of mazes
+    assert by_trial.sr_ci == pytest.approx(wilson_interval(9, 18))
+    assert by_maze.sr_ci == pytest.approx(wilson_interval(3, 6))
+    assert by_maze.sr_ci == pytest.approx(clustered_wilson_interval(success, mazes))
+    assert by_trial.sr_ci == pytest.approx(clustered_wilson_interval(success, trials))
+    spl_values = np.array([r.spl for r in records])
+    assert by_maze.spl_ci == pytest.approx(bootstrap_mean_interval(spl_values, mazes, seed=0))
+    # the maze decides the outcome, so resampling mazes (6 units) gives the wider interval
+    assert by_maze.sr_ci[1] - by_maze.sr_ci[0] > by_trial.sr_ci[1] - by_trial.sr_ci[0]
+    assert by_maze.spl_ci[1] - by_maze.spl_ci[0] >= by_trial.spl_ci[1] - by_trial.spl_ci[0]
+    # CR: robot 1 always 0.1, robot 0 always 0 -> every trial and maze has mean 0.05: a zero-width interval
+    assert by_maze.cr_ci == pytest.approx((0.05, 0.05))
+
+
+def test_maze_clusters_need_enough_mazes_and_are_told_apart_by_setup():
+    records = _maze_protocol_records()
+    five = [r for r in records if r.world_seed != 105]  # 5 mazes, 15 trials
+    by_maze = summarize(five, cluster="world")
+    assert by_maze.n_worlds == 5 and np.isnan(by_maze.spl_ci).all() and np.isnan(by_maze.cr_ci).all()
+    assert by_maze.sr_ci == pytest.approx(wilson_interval(3, 5))  # 3 of 5 mazes succeed, n_eff = 5
+    assert not np.isnan(summarize(five).spl_ci).any()  # 15 trials are enough for trial clusters
+    # the same world seed in another setup is another maze
+    other_setup = [dataclasses.replace(r, setup="s2", episode_id="s2-" + r.episode_id) for r in five[:6]]
+    assert summarize(five + other_setup, cluster="world").n_worlds == 6
+
+
+def test_unknown_cluster_level_is_refused():
+    assert check_cluster("world") == "world"
+    with pytest.raises(ValueError, match="cluster='maze': expected one of trial, world"):
+        summarize(_maze_protocol_records(), cluster="maze")
 
 
 def test_trial_tracker_counts_only_active_steps():

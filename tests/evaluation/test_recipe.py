@@ -140,3 +140,13 @@ def test_recipe_shows_the_traceback_with_navformer_debug(tmp_path):
     done = _run_recipe(tmp_path, "method=navformr", NAVFORMER_DEBUG="1")
     assert done.returncode not in (0, 2)
     assert "Traceback" in done.stderr and "ValueError: unknown method 'navformr'" in done.stderr
+
+
+def test_recipe_refuses_an_unknown_cluster_level_before_anything_runs():
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.load(RECIPE.parent / "config.yaml")
+    assert cfg.cluster == "trial"
+    cfg.cluster = "maze"
+    with pytest.raises(ValueError, match="cluster='maze': expected one of trial, world"):
+        _recipe_utils().check_policy(cfg)
