@@ -541,6 +541,54 @@ def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     }
 
 
+class LogWindow:
+    """The metrics of the iterations since the last log row, summarised into the next one.
+
+    Every metric is averaged over the iterations that reported it - ``loss_dt_exploration`` over the D_e
+    iterations only, ``loss_dt_collision_avoidance`` over the D_ca ones, so an even ``logger.log_interval``
+    still logs both tasks; ``frames_per_s`` is the window's frames over its seconds; ``lr``, ``lr_dve`` and
+    ``tau`` are the logged iteration's own values. Part of the resume state, so a resumed run logs the same
+    rows as an uninterrupted one whatever the checkpoint and log intervals.
+    """
+
+    LAST_VALUE_KEYS = ("lr", "lr_dve", "tau")
+
+    def __init__(self) -> None:
+        self._sums: dict[str, float] = {}
+        self._counts: dict[str, int] = {}
+        self._last: dict[str, float] = {}
+
+    def __len__(self) -> int:
+        """Iterations in the window."""
+        return self._counts.get("loss", 0)
+
+    def add(self, metrics: Mapping[str, float]) -> None:
+        """Add one iteration's metrics (the dict of :meth:`Trainer.step`)."""
+        for key, value in metrics.items():
+            if key in self.LAST_VALUE_KEYS:
+                self._last[key] = float(value)
+            else:
+                self._sums[key] = self._sums.get(key, 0.0) + float(value)
+                self._counts[key] = self._counts.get(key, 0) + 1
+
+    def pop_row(self) -> dict[str, float]:
+        """The summarised row (empty for an empty window); the window starts over."""
+        row = {key: total / self._counts[key] for key, total in self._sums.items()}
+        if self._sums.get("iteration_s", 0.0) > 0.0 and "frames" in self._sums:
+            row["frames_per_s"] = self._sums["frames"] / self._sums["iteration_s"]
+        row.update(self._last)
+        self.__init__()
+        return row
+
+    def state_dict(self) -> dict[str, dict]:
+        return {"sums": dict(self._sums), "counts": dict(self._counts), "last": dict(self._last)}
+
+    def load_state_dict(self, state: Mapping[str, Mapping]) -> None:
+        self._sums = {str(k): float(v) for k, v in state["sums"].items()}
+        self._counts = {str(k): int(v) for k, v in state["counts"].items()}
+        self._last = {str(k): float(v) for k, v in state["last"].items()}
+
+
 class Trainer:
     """The built training run. Use :func:`build_trainer`; then ``step()`` per iteration.
 
@@ -551,6 +599,7 @@ class Trainer:
         optimizers: ``{"navformer": AdamW, "dve": Adam}`` ("dve" absent without SSL).
         scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
+        log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
     """
 
     def __init__(self, cfg: TrainConfig, *, datasets: dict[str, Any]) -> None:
@@ -611,6 +660,7 @@ class Trainer:
             self.device.type, enabled=self.model_config.autocast_dtype == "float16"
         )
         self.logger = None
+        self.log_window = LogWindow()
 
     # -- construction helpers -------------------------------------------------------------------------
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
@@ -676,6 +726,8 @@ class Trainer:
                 self.updater.step()
                 self.tau_schedule.step()
         self.iteration += 1
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)  # the timing covers the queued GPU work
         elapsed = time.perf_counter() - start
         frames = int(batch["mask"].sum()) + (2 * pairs.shape[0] if pairs is not None else 0)
         metrics = {
@@ -735,6 +787,17 @@ class Trainer:
             return TensorboardLogger(self.cfg.logger.exp_name, log_dir=log_dir)
         return None
 
+    def record(self, metrics: Mapping[str, float]) -> bool:
+        """Add this iteration's ``metrics`` to :attr:`log_window` and, when the iteration is a multiple of
+        ``logger.log_interval`` or the last one, :meth:`log` the window's summary. Returns True when a row was
+        written."""
+        self.log_window.add(metrics)
+        due = self.iteration % self.cfg.logger.log_interval == 0
+        if not (due or self.iteration == self.cfg.optim.iterations):
+            return False
+        self.log(self.log_window.pop_row())
+        return True
+
     def log(self, metrics: Mapping[str, float]) -> None:
         """Write ``metrics`` (plus ``timeit`` averages as ``time/<name>``) at the current iteration."""
         from torchrl._utils import timeit
@@ -753,6 +816,7 @@ class Trainer:
             "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
             "cross_task": self.cross_task.state_dict(),
             "rng": ckpt.capture_rng_state(),
+            "log_window": self.log_window.state_dict(),
         }
         if self.scaler.is_enabled():
             state["grad_scaler"] = self.scaler.state_dict()
@@ -799,6 +863,8 @@ class Trainer:
             self.tau_schedule.load_state_dict(state["tau_schedule"])
             self.pairs.load_state_dict(state["pairs"])
         ckpt.restore_rng_state(state["rng"])
+        if "log_window" in state:  # absent from checkpoints of earlier versions: their window starts empty
+            self.log_window.load_state_dict(state["log_window"])
         self.iteration = int(state["iteration"])
 
 
@@ -937,8 +1003,8 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
         )
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / "train_config.json", json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
-    if trainer.iteration > 0:
-        _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
+    # rows a crashed run logged after its last checkpoint (all of them when it crashed before the first)
+    _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
     trainer.logger = trainer.make_logger()
     return trainer
 
@@ -975,8 +1041,7 @@ def train(cfg: TrainConfig) -> TrainResult:
     with contextlib.closing(bar):
         while trainer.iteration < total:
             metrics = trainer.step()
-            if trainer.iteration % cfg.logger.log_interval == 0:
-                trainer.log(metrics)
+            trainer.record(metrics)
             if trainer.iteration % cfg.checkpoint.interval == 0 or trainer.iteration == total:
                 last_checkpoint = trainer.save_checkpoint()
             bar.update(1)

@@ -50,6 +50,6 @@ def make_progress_bar(train_cfg: TrainConfig, start: int) -> tqdm:
 
 
 def log_metrics(trainer: Trainer, metrics: dict[str, float]) -> None:
-    """Write the iteration's metrics and the ``timeit`` averages through the TorchRL logger."""
-    if trainer.iteration % trainer.cfg.logger.log_interval == 0:
-        trainer.log(metrics)
+    """Add the iteration's metrics to the trainer's log window; every ``logger.log_interval`` iterations (and
+    at the last) their means and the ``timeit`` averages go through the TorchRL logger."""
+    trainer.record(metrics)

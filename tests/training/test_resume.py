@@ -10,7 +10,7 @@ import torch
 from safetensors.torch import load_file
 
 from navformer_rl.checkpoint import load_resume_state
-from navformer_rl.training import build_trainer, train
+from navformer_rl.training import LogWindow, build_trainer, train
 
 
 def scalars(run_dir: Path, name: str) -> list[tuple[int, float]]:
@@ -100,3 +100,59 @@ def test_resume_without_checkpoint_starts_fresh_and_finished_run_is_a_no_op(tiny
     assert result.iterations == 2
     again = train(tiny_config("optim.iterations=2", f"output_dir={run}", "resume=true"))
     assert again.iterations == 2 and again.metrics == {} and again.checkpoint == result.checkpoint
+
+
+def test_log_window_averages_each_metric_over_the_iterations_that_reported_it():
+    window = LogWindow()
+    window.add({"loss": 1.0, "loss_dt_exploration": 0.5, "frames": 10.0, "iteration_s": 1.0, "lr": 2e-4})
+    window.add(
+        {"loss": 3.0, "loss_dt_collision_avoidance": 2.5, "frames": 30.0, "iteration_s": 1.0, "lr": 1e-4}
+    )
+    restored = LogWindow()
+    restored.load_state_dict(window.state_dict())
+    assert len(restored) == 2
+    row = restored.pop_row()
+    assert row == {
+        "loss": 2.0,
+        "loss_dt_exploration": 0.5,  # only the D_e iteration
+        "loss_dt_collision_avoidance": 2.5,
+        "frames": 20.0,
+        "iteration_s": 1.0,
+        "frames_per_s": 20.0,  # 40 frames in 2 s, not the mean of the two rates
+        "lr": 1e-4,  # the logged iteration's own value
+    }
+    assert len(restored) == 0 and restored.pop_row() == {}
+
+
+def test_every_log_row_summarises_its_window_also_across_a_resume(tiny_config, tmp_path):
+    """An even log interval (D_e on odd iterations, D_ca on even) still logs both tasks; a checkpoint
+    between two rows (interval 3 vs 2) resumes with the unlogged iterations, so the rows match."""
+    common = ["optim.iterations=6", "checkpoint.keep_last=0", "logger.log_interval=4"]
+    straight = train(tiny_config(*common, f"output_dir={tmp_path / 'straight'}", "checkpoint.interval=6"))
+    # rows at 4 and at the last iteration (6), each averaging its window
+    assert [s for s, _ in scalars(straight.run_dir, "loss")] == [4, 6]
+    assert [s for s, _ in scalars(straight.run_dir, "loss_dt_exploration")] == [4, 6]
+    assert [s for s, _ in scalars(straight.run_dir, "loss_dt_collision_avoidance")] == [4, 6]
+    # the crashed process: checkpoint at 3 (iterations 1-3 not logged yet), a row at 4, then gone
+    interrupted_dir = tmp_path / "interrupted"
+    cfg = tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3")
+    trainer = build_trainer(cfg)
+    for _ in range(3):
+        trainer.record(trainer.step())
+    trainer.save_checkpoint()
+    assert trainer.record(trainer.step())
+    del trainer
+    train(tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3", "resume=true"))
+    for name in ("loss", "loss_dt", "loss_dt_exploration", "loss_dt_collision_avoidance", "loss_byol", "tau"):
+        assert scalars(interrupted_dir, name) == scalars(straight.run_dir, name), name
+
+
+def test_a_run_that_crashed_before_its_first_checkpoint_restarts_its_logs(tiny_config, tmp_path):
+    run = tmp_path / "run"
+    cfg = tiny_config("optim.iterations=3", f"output_dir={run}", "checkpoint.interval=3")
+    trainer = build_trainer(cfg)
+    for _ in range(2):
+        trainer.record(trainer.step())
+    del trainer  # crashed before iteration 3's checkpoint: nothing to resume from
+    train(tiny_config("optim.iterations=3", f"output_dir={run}", "checkpoint.interval=3", "resume=true"))
+    assert [s for s, _ in scalars(run, "loss")] == [1, 2, 3]  # not 1, 2, 1, 2, 3
