@@ -102,7 +102,14 @@ class MultiRobotNavEnv(EnvBase):
 
     ``env.world`` (:class:`WorldSpec`) and ``env.simulator`` (:class:`Simulator`) expose the current
     episode; ``env.set_next_episode(EpisodeSpec | WorldSpec)`` makes the next reset replay a fixed
-    world, starts and targets (evaluation).
+    world, starts and targets (evaluation); its ``world.config.robot_radius`` must cover every robot (ValueError
+    naming both radii otherwise).
+
+    ``step`` raises RuntimeError before the first reset, after a reset that failed while building the
+    simulator (e.g. starts that overlap a wall), and once the episode has ended (root ``done``: every robot
+    succeeded, or ``max_steps`` steps), so ``("agents", "step_count")`` never exceeds ``max_steps``; TorchRL's
+    ``rollout(..., break_when_any_done=False)``, ``step_and_maybe_reset``, ``SerialEnv`` and the collectors
+    reset ended episodes before stepping.
     """
 
     batch_locked = True
@@ -145,6 +152,7 @@ class MultiRobotNavEnv(EnvBase):
         self.simulator: Simulator | None = None
         self._next_episode: EpisodeSpec | WorldSpec | None = None
         self._episodes_in_world = 0
+        self._ended = False  # the current episode is over (root done): step() refuses until reset()
         self._rng = np.random.default_rng(None if seed is None else check_seed(seed))
         self._make_specs()
 
@@ -212,6 +220,7 @@ class MultiRobotNavEnv(EnvBase):
             world = episode.build() if isinstance(episode, EpisodeSpec) else episode
             if world.n_robots != self.n_agents:
                 raise ValueError(f"the episode has {world.n_robots} robots, this env drives {self.n_agents}")
+            check_world_config(world.config, self.robot_specs, name="the episode's world.config")
             self._episodes_in_world = self.episodes_per_world  # a fixed episode is never reused implicitly
             return world
         if self.world is not None and self._episodes_in_world < self.episodes_per_world:
@@ -223,8 +232,15 @@ class MultiRobotNavEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         world = self._draw_world()
-        self.simulator = simulator_for_world(world, self.robot_specs, self.textured, self.simulator)
+        try:
+            self.simulator = simulator_for_world(world, self.robot_specs, self.textured, self.simulator)
+        except BaseException:  # the previous simulator may be closed: the env is not reset any more
+            if self.simulator is not None:
+                self.simulator.close()
+            self.simulator, self.world, self._episodes_in_world = None, None, 0
+            raise
         self.world = world
+        self._ended = False
         a = self.n_agents
         self._target_xy = world.target_positions.astype(np.float64)
         self._target_pixels = torch.from_numpy(
@@ -248,6 +264,12 @@ class MultiRobotNavEnv(EnvBase):
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         if self.simulator is None:
             raise RuntimeError("call reset() before step()")
+        if self._ended:
+            raise RuntimeError(
+                f"the episode ended (every robot succeeded, or max_steps={self.max_steps} steps were taken; root "
+                "'done' was True); call reset() before stepping again (TorchRL's rollout(..., "
+                "break_when_any_done=False), step_and_maybe_reset and the collectors do)"
+            )
         action = tensordict.get(_ACTION_KEY, None)
         if action is None:
             keys = sorted(tensordict.keys(True, True), key=str)
@@ -275,6 +297,7 @@ class MultiRobotNavEnv(EnvBase):
             fresh = self.simulator.render_all(active)
             self._pixels = np.where(active[:, None, None, None], fresh, self._pixels)
         truncated = self._step_count >= self.max_steps and not self._success.all()
+        self._ended = truncated or bool(self._success.all())
         return self._make_tensordict(collided, kind, reward=arrived, truncated=truncated)
 
     def _make_tensordict(

@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navformer_rl.checks import check_number
+from navformer_rl.checks import check_int, check_number
 from navformer_rl.constants import CONTROL_DT, IMAGE_SIZE
 from navformer_rl.envs.robots import RobotSpec
 from navformer_rl.envs.scene import WALL_PALETTE, add_box, add_floor, add_robot, add_target
@@ -226,8 +226,9 @@ class Simulator:
     def set_poses(self, poses, indices: Sequence[int] | None = None) -> None:
         """Teleport robots (all, or ``indices``) to ``poses`` float ``[k, 3]`` and zero their velocities.
 
-        ValueError when a pose is not finite, lies outside the world, or overlaps a wall, a target or
-        another robot (1 mm tolerance).
+        ValueError when a pose is not finite, when the robot's disc leaves the world ``[0, size]^2`` (it
+        needs ``radius <= x <= size - radius``, the same for ``y``), or when it overlaps a wall, a target or
+        another robot (1 mm tolerance for both).
         """
         idx = np.arange(self.n_robots) if indices is None else np.asarray(indices, dtype=np.int64).reshape(-1)
         poses = np.asarray(poses, dtype=np.float64)
@@ -238,6 +239,7 @@ class Simulator:
         new = self._poses.copy()
         new[idx] = poses
         new[idx, 2] = (poses[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        size = self.world.size
         for i in idx:
             hit = self._static_overlap(new[i : i + 1, :2], self._radii[i] - 1e-3)[0]
             others = self._solid_others(i)
@@ -245,6 +247,13 @@ class Simulator:
             if hit or (gaps.size and gaps.min() < -1e-3):
                 raise ValueError(
                     f"pose {new[i].tolist()} of robot {i} overlaps a wall, a target or another robot"
+                )
+            r = float(self._radii[i])
+            x, y = new[i, :2]
+            if not (r - 1e-3 <= x <= size - r + 1e-3 and r - 1e-3 <= y <= size - r + 1e-3):
+                raise ValueError(
+                    f"pose {new[i].tolist()} of robot {i} is outside the world: its disc (radius {r} m) must lie "
+                    f"within [0, {size}]^2, i.e. {r} <= x, y <= {size - r}"
                 )
         self._poses = new
         self._velocities[idx] = 0.0
@@ -465,12 +474,14 @@ class Simulator:
         Rays start at each robot's disc edge, 0.15 m above the floor, spread evenly over ``fov`` radians
         centred on the heading (a full circle for ``fov >= 2 pi``), and return the distance from the robot
         centre to the first wall, target or visible robot, or ``max_range`` when nothing is hit.
+        ValueError unless ``n_rays`` is an integer >= 1 and ``fov``, ``max_range`` are finite numbers > 0.
         """
         idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         for i in idx:
             self._check_index(int(i))
-        if n_rays < 1 or not fov > 0 or not max_range > 0:
-            raise ValueError(f"need n_rays >= 1, fov > 0, max_range > 0; got {n_rays}, {fov}, {max_range}")
+        n_rays = check_int(n_rays, "n_rays")
+        fov = check_number(fov, "fov", greater_than=0.0, unit="radians")
+        max_range = check_number(max_range, "max_range", greater_than=0.0, unit="metres")
         self._sync()
         if self._broadphase_stale:  # moved bodies need fresh AABBs before ray tests (not for rendering)
             self._p.performCollisionDetection(physicsClientId=self._client)
@@ -537,10 +548,13 @@ def simulator_for_world(
     world: WorldSpec, specs: list[RobotSpec], textured: bool, previous: Simulator | None
 ) -> Simulator:
     """A simulator showing ``world``: ``previous`` re-posed when it already shows the same walls and targets
-    (a new episode in the same maze costs no scene rebuild), otherwise a new one (``previous`` is closed)."""
+    (a new episode in the same maze costs no scene rebuild), otherwise a new one (``previous`` is closed).
+
+    ValueError when ``world.starts`` do not fit (see :meth:`Simulator.set_poses`); ``previous`` may then be
+    closed already, so a caller must not keep using it."""
     if previous is not None and same_scene(world, previous.world):
-        previous.world = world
         previous.set_poses(world.starts)
+        previous.world = world
         return previous
     if previous is not None:
         previous.close()

@@ -8,6 +8,7 @@ targets, collisions, shortest path) is in ``info`` only.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from typing import Any
 
@@ -50,8 +51,13 @@ class TargetNavEnv(gym.Env):
         kind: ``"maze"`` or ``"arena"``.
         robot_style: style of robot 0 (``"jackal"`` or ``"turtlebot3"``).
         obstacle_style: style of the other robots (default: ``robot_style``).
-        obstacle_policy: drives robots 1..R-1 (default :class:`GoalSeekingPolicy`).
-        max_episode_steps: truncation horizon (500 in the paper).
+        obstacle_policy: drives robots 1..R-1 (default :class:`GoalSeekingPolicy`). The env keeps its own deep
+            copy, so one policy object passed to several envs (e.g. ``gym.make_vec(..., obstacle_policy=p)``)
+            is never shared between them; ``env.obstacle_policy`` is that copy.
+        max_episode_steps: truncation horizon (500 in the paper) of an env built directly. Through
+            ``gym.make`` this argument cannot be given (``gym.make(id, max_episode_steps=N)`` is gymnasium's own,
+            registered default 500): gymnasium's ``TimeLimit`` wrapper then truncates, see
+            :attr:`max_episode_steps`.
         render_mode: ``None`` or ``"rgb_array"`` (top-down map with trajectories beside the camera view).
         episodes_per_world: resets that reuse the same world with fresh starts before a new world is drawn
             (the paper draws a new world every 10 trials).
@@ -67,7 +73,10 @@ class TargetNavEnv(gym.Env):
     non-negative integers and ``options`` a dict.
 
     ``reset(seed=..., options={"episode": EpisodeSpec | WorldSpec})`` replays a fixed episode; its world is
-    never reused implicitly (the next plain reset draws a new world, whatever ``episodes_per_world``).
+    never reused implicitly (the next plain reset draws a new world, whatever ``episodes_per_world``). Its
+    ``world.config.robot_radius`` must cover every robot of this env (ValueError naming both radii otherwise).
+    A reset that fails while building the simulator (e.g. starts that overlap a wall) leaves the env not
+    reset: ``step`` raises "call reset() before step()" until a reset succeeds.
     ``info`` keys: ``pose`` float32 [3], ``velocity`` [2], ``target_position`` [2], ``distance_to_target``,
     ``success``, ``collision`` (robot 0 was in contact on the last step: blocked, or touching a wall, a
     target or another robot, e.g. because it was driven into), ``collision_kind`` (0/1/2), ``collisions``
@@ -94,18 +103,22 @@ class TargetNavEnv(gym.Env):
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        self.max_episode_steps = check_int(max_episode_steps, "max_episode_steps")
+        self._max_episode_steps = check_int(max_episode_steps, "max_episode_steps")
         self.episodes_per_world = check_int(episodes_per_world, "episodes_per_world")
         if world_config is None:
             world_config = WorldConfig(size=size, n_robots=n_robots, kind=kind)
         check_world_config(world_config)
         self.robot_specs = robot_specs_for(world_config.n_robots, robot_style, obstacle_style)
         self.config = check_world_config(world_config, self.robot_specs)
-        self.obstacle_policy = obstacle_policy if obstacle_policy is not None else GoalSeekingPolicy()
-        if not isinstance(self.obstacle_policy, ObstaclePolicy):
+        if obstacle_policy is None:
+            obstacle_policy = GoalSeekingPolicy()
+        elif not isinstance(obstacle_policy, ObstaclePolicy):
             raise ValueError(
                 f"obstacle_policy must have reset(world, sim, rng) and act(sim, indices), got {obstacle_policy!r}"
             )
+        else:  # its own copy: a policy keeps per-episode state (targets, plans) of the env it drives
+            obstacle_policy = copy.deepcopy(obstacle_policy)
+        self.obstacle_policy = obstacle_policy
         self.render_mode = render_mode
         self.textured = textured
         image = gym.spaces.Box(0, 255, (IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)
@@ -114,6 +127,19 @@ class TargetNavEnv(gym.Env):
         self.world: WorldSpec | None = None
         self.simulator: Simulator | None = None
         self._episodes_in_world = 0
+
+    @property
+    def max_episode_steps(self) -> int | None:
+        """The step count at which the env itself truncates an episode (``None``: never by itself).
+
+        Built directly: the ``max_episode_steps`` argument. Made by ``gym.make`` (which sets :attr:`spec`): the
+        spec's ``max_episode_steps``, which gymnasium >= 1.0 leaves ``None`` on the unwrapped env because its
+        ``TimeLimit`` wrapper truncates (at ``gym.make(id, max_episode_steps=N)``'s ``N``, registered default
+        500, none for ``N = -1``), so the env never cuts a longer horizon short.
+        """
+        if self.spec is not None:
+            return self.spec.max_episode_steps
+        return self._max_episode_steps
 
     # ------------------------------------------------------------------ episode set-up
     def _next_world(self, options: dict[str, Any] | None) -> WorldSpec:
@@ -145,6 +171,7 @@ class TargetNavEnv(gym.Env):
             raise ValueError(
                 f"the episode has {world.n_robots} robots, this env drives {len(self.robot_specs)}"
             )
+        check_world_config(world.config, self.robot_specs, name="the episode's world.config")
         return world
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -159,7 +186,12 @@ class TargetNavEnv(gym.Env):
         if seed is not None:
             self.world, self._episodes_in_world = None, 0
         world = self._next_world(options)
-        self.simulator = simulator_for_world(world, self.robot_specs, self.textured, self.simulator)
+        try:
+            self.simulator = simulator_for_world(world, self.robot_specs, self.textured, self.simulator)
+        except BaseException:  # the previous simulator may be closed: the env is not reset any more
+            self.close()
+            self.world, self._episodes_in_world = None, 0
+            raise
         self.world = world
         self.obstacle_policy.reset(world, self.simulator, self.np_random)
         target = world.targets[0]
@@ -201,7 +233,8 @@ class TargetNavEnv(gym.Env):
         self._collisions += int(collided)
         self._last_contact = (collided, int(contacts.kind[0]))
         success = bool(np.hypot(*(after - self._target_xy)) <= SUCCESS_RADIUS)
-        truncated = not success and self._step >= self.max_episode_steps
+        horizon = self.max_episode_steps
+        truncated = not success and horizon is not None and self._step >= horizon
         return self._observation(), float(success), success, truncated, self._info(success)
 
     def _observation(self) -> dict[str, np.ndarray]:

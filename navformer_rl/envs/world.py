@@ -76,8 +76,9 @@ class WorldConfig:
             replacement), non-empty tuples; known shapes are ``TARGET_HALF_EXTENT``'s keys, colours
             ``TARGET_RGBA``'s.
         cell_size: nominal maze cell in metres (> 0); a side of ``size`` gets
-            ``max(2, round(size / cell_size))`` cells of ``size / n`` metres (2.5 m cells leave 2.4 m
-            corridors: two robots pass). A maze's corridors (cell minus ``wall_thickness``) must be wider
+            ``max(2, round(size / cell_size))`` cells of ``size / n`` metres (Python's ``round``: a half goes
+            to the even count, e.g. 11.25 m -> 4 cells, 13.75 m -> 6; 2.5 m cells leave 2.4 m corridors:
+            two robots pass). A maze's corridors (cell minus ``wall_thickness``) must be wider
             than ``2 * robot_radius`` unless ``loop_fraction`` is 1 (no interior walls left).
         loop_fraction: share of the interior walls left by the perfect maze that are removed again
             (adds loops, so several routes exist), in [0, 1].
@@ -195,7 +196,8 @@ class WorldConfig:
 
     @property
     def cells_per_side(self) -> int:
-        """Maze cells per side: ``max(2, round(size / cell_size))``."""
+        """Maze cells per side: ``max(2, round(size / cell_size))``; Python's ``round`` sends a half to the even
+        count (6.25 m -> 2 cells, 8.75 m -> 4, 11.25 m -> 4, 13.75 m -> 6 with 2.5 m cells)."""
         return max(2, round(self.size / self.cell_size))
 
 
@@ -291,15 +293,18 @@ class EpisodeSpec:
         return replace_layout(world, self.starts, self.targets)
 
 
-def check_world_config(config: WorldConfig, robot_specs: Sequence[RobotSpec] = ()) -> WorldConfig:
+def check_world_config(
+    config: WorldConfig, robot_specs: Sequence[RobotSpec] = (), name: str = "world_config"
+) -> WorldConfig:
     """``config`` itself; ValueError unless it is a :class:`WorldConfig` whose ``robot_radius`` (used to place
-    starts and targets) is at least the radius of every robot in ``robot_specs``."""
+    starts and targets) is at least the radius of every robot in ``robot_specs``. The message calls the config
+    ``name`` (e.g. ``"the episode's world.config"`` for a fixed episode)."""
     if not isinstance(config, WorldConfig):
-        raise ValueError(f"world_config must be a WorldConfig, got {type(config).__name__}")
+        raise ValueError(f"{name} must be a WorldConfig, got {type(config).__name__}")
     largest = max(robot_specs, key=lambda spec: spec.radius, default=None)
     if largest is not None and config.robot_radius < largest.radius:
         raise ValueError(
-            f"world_config.robot_radius={config.robot_radius!r} m is smaller than the {largest.name} robot's "
+            f"{name}.robot_radius={config.robot_radius!r} m is smaller than the {largest.name} robot's "
             f"radius {largest.radius} m; expected at least the largest robot's radius (starts and targets "
             "are placed with it)"
         )
@@ -443,7 +448,10 @@ def sample_start_poses(
 ) -> np.ndarray:
     """Collision-free random poses float32 ``[n, 3]`` for ``n`` robots in ``world`` (e.g. new starts, or the
     D_ssl obstacle layouts). Robot ``i < len(world.targets)`` is kept more than ``min_target_distance``
-    (default ``SUCCESS_RADIUS + start_target_margin``) from its own target; all are clear of every target."""
+    (default ``SUCCESS_RADIUS + start_target_margin``) from its own target; all are clear of every target.
+    ValueError unless ``n`` is an integer >= 0 (0 gives an empty ``[0, 3]`` array), or when the robots do not
+    fit."""
+    n = check_int(n, "n", minimum=0)
     cfg = world.config
     radius = cfg.robot_radius if robot_radius is None else robot_radius
     min_dist = (
@@ -472,21 +480,73 @@ def sample_start_poses(
     return np.array(poses, dtype=np.float32).reshape(n, 3)
 
 
+_Body = tuple[float, float, float, float, bool]
+"""A solid body ``(x, y, half_x, half_y, is_disc)``: a wall box, a cube target, or a sphere target (a disc of
+radius ``half_x == half_y``)."""
+
+
+def _bodies_overlap(a: _Body, b: _Body) -> bool:
+    """True when two solid bodies overlap (touching is fine)."""
+    if a[4] and b[4]:
+        return math.hypot(a[0] - b[0], a[1] - b[1]) < a[2] + b[2]
+    if a[4] or b[4]:  # a disc against a box
+        (cx, cy, r, _, _), (bx, by, hx, hy, _) = (a, b) if a[4] else (b, a)
+        dx = max(abs(cx - bx) - hx, 0.0)
+        dy = max(abs(cy - by) - hy, 0.0)
+        return dx * dx + dy * dy < r * r
+    return abs(a[0] - b[0]) < a[2] + b[2] and abs(a[1] - b[1]) < a[3] + b[3]
+
+
+def check_targets(size: float, walls: np.ndarray, targets: Sequence[TargetSpec]) -> None:
+    """ValueError unless every target is a known (shape, colour), the pairs are distinct, each ``position`` is a
+    finite ``(x, y)`` whose solid body (sphere or cube, ``half_extent``) lies within ``[0, size]^2`` and
+    overlaps no wall box of ``walls`` float ``[W, 4]`` and no other target (touching is fine). Looser than
+    :func:`generate_world`'s placement (0.9 m from walls, 2 m apart), which hand-made layouts need not meet."""
+    for t in targets:
+        if t.shape not in TARGET_HALF_EXTENT or t.color not in TARGET_RGBA:
+            raise ValueError(
+                f"unknown target {t.shape!r}/{t.color!r}; expected a shape from {sorted(TARGET_HALF_EXTENT)} "
+                f"and a colour from {sorted(TARGET_RGBA)}"
+            )
+    if len({(t.shape, t.color) for t in targets}) != len(targets):
+        raise ValueError("targets must be distinct (shape, colour) pairs")
+    bodies = []
+    for i, t in enumerate(targets):
+        position = np.asarray(t.position, dtype=np.float64)
+        if position.shape != (2,) or not np.all(np.isfinite(position)):
+            raise ValueError(f"target {i} position must be a finite float [2] (x, y), got {t.position!r}")
+        x, y = position.tolist()
+        half = t.half_extent
+        if not (half <= x <= size - half and half <= y <= size - half):
+            raise ValueError(
+                f"target {i} ({t.shape}, {t.color}) at {[x, y]} is outside the world: its body (half extent "
+                f"{half} m) must lie within [0, {size}]^2, i.e. {half} <= x, y <= {size - half}"
+            )
+        body = (x, y, half, half, t.shape == "sphere")
+        for cx, cy, hx, hy in np.asarray(walls, dtype=np.float64).reshape(-1, 4).tolist():
+            if _bodies_overlap(body, (cx, cy, hx, hy, False)):
+                raise ValueError(
+                    f"target {i} ({t.shape}, {t.color}) at {[x, y]} overlaps the wall box "
+                    f"(cx, cy, half_x, half_y) = {[cx, cy, hx, hy]}"
+                )
+        for j, other in enumerate(bodies):
+            if _bodies_overlap(body, other):
+                raise ValueError(f"target {i} at {[x, y]} overlaps target {j} at {list(other[:2])}")
+        bodies.append(body)
+
+
 def replace_layout(world: WorldSpec, starts=None, targets: list[TargetSpec] | None = None) -> WorldSpec:
     """A copy of ``world`` with new ``starts`` float ``[R, 3]`` and/or ``targets`` (occupancy rebuilt).
 
-    ValueError when a start overlaps a wall or target or another start, or counts disagree."""
+    ValueError when counts disagree, a target fails :func:`check_targets` (unknown or repeated, outside the
+    world, overlapping a wall or another target), or a start overlaps a wall or target or another start."""
     targets = world.targets if targets is None else list(targets)
     starts = world.starts if starts is None else np.asarray(starts, dtype=np.float32)
     if starts.ndim != 2 or starts.shape[1] != 3 or not np.all(np.isfinite(starts)):
         raise ValueError(f"starts must be finite float [R, 3] (x, y, yaw), got shape {starts.shape}")
     if len(targets) != len(starts):
         raise ValueError(f"{len(starts)} starts need as many targets, got {len(targets)}")
-    if len({(t.shape, t.color) for t in targets}) != len(targets):
-        raise ValueError("targets must be distinct (shape, colour) pairs")
-    for t in targets:
-        if t.shape not in TARGET_HALF_EXTENT or t.color not in TARGET_RGBA:
-            raise ValueError(f"unknown target {t.shape!r}/{t.color!r}")
+    check_targets(world.size, world.walls, targets)
     occupancy = _build_occupancy(world.size, world.walls, targets)
     new = dataclasses.replace(world, starts=starts, targets=targets, occupancy=occupancy)
     blocked = occupancy.inflate(world.config.robot_radius)

@@ -1,8 +1,11 @@
 """TorchRL MultiRobotNavEnv (and the single-robot TorchRL wrapper): specs, keys, determinism, success."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
+from torchrl.collectors import Collector
 from torchrl.envs.utils import check_env_specs, step_mdp
 
 from navformer_rl.envs.multi_robot import MultiRobotNavEnv
@@ -247,3 +250,48 @@ def test_torchrl_wrapper_refuses_bad_actions_and_seeds():
     td["action"] = torch.zeros(2)
     env.step(td)
     env.close()
+
+
+def test_stepping_an_ended_episode_is_an_error_and_rollouts_still_reset(make_open_world):
+    world = make_open_world([(1.0, 1.0, 0.0)], [(4.0, 4.0, "sphere", "blue")])
+    env = MultiRobotNavEnv(size=5.0, n_robots=1, max_steps=2, textured=False, seed=0)
+    env.set_next_episode(world)
+    td = env.reset()
+    for _ in range(2):
+        td["agents", "action"] = torch.zeros(1, 2)
+        td = step_mdp(env.step(td))
+    assert td["truncated"].item() and td["agents", "step_count"].item() == 2
+    td["agents", "action"] = torch.zeros(1, 2)
+    with pytest.raises(RuntimeError, match=r"the episode ended .*max_steps=2.*call reset\(\)"):
+        env.step(td)
+    step_count_spec = env.observation_spec["agents", "step_count"]
+    rollout = env.rollout(7, break_when_any_done=False)  # resets after each truncation
+    assert rollout["next", "agents", "step_count"].flatten().tolist() == [1, 2, 1, 2, 1, 2, 1]
+    assert step_count_spec.is_in(rollout["next", "agents", "step_count"])
+    collector = Collector(env, None, frames_per_batch=5, total_frames=10)  # SyncDataCollector
+    for batch in collector:
+        assert step_count_spec.is_in(batch["next", "agents", "step_count"])
+        assert batch["next", "agents", "step_count"].max().item() <= 2
+    collector.shutdown()
+
+
+def test_an_episode_for_smaller_robots_or_a_failed_reset_is_refused_clearly(make_open_world):
+    env = MultiRobotNavEnv(size=5.0, n_robots=2, textured=False, seed=0)
+    env.reset()
+    env.set_next_episode(
+        EpisodeSpec(config=WorldConfig(size=5.0, n_robots=2, robot_radius=0.2), world_seed=0)
+    )
+    with pytest.raises(ValueError, match=r"the episode's world\.config\.robot_radius=0\.2 m .*jackal"):
+        env.reset()
+    good = make_open_world(
+        [(1.0, 1.0, 0.0), (1.0, 4.0, 0.0)], [(4.0, 1.0, "sphere", "red"), (4.0, 4.0, "box", "blue")]
+    )
+    starts = np.array([[1.0, 1.0, 0.0], [3.6, 4.0, 0.0]], dtype=np.float32)  # robot 1 in its box target
+    env.set_next_episode(dataclasses.replace(good, starts=starts))  # unchecked starts
+    with pytest.raises(ValueError, match="overlaps"):
+        env.reset()
+    assert env.simulator is None
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
+        env.step(env.full_action_spec.zero().update(env.full_observation_spec.zero()))
+    env.set_next_episode(good)
+    assert env.reset()["agents", "step_count"].tolist() == [[0], [0]]  # usable again

@@ -190,6 +190,40 @@ def test_set_poses_rejects_overlaps(make_open_world):
         sim.set_poses([[1.0, 1.0, 0.0], [1.3, 1.0, 0.0]])
 
 
+def test_set_poses_refuses_poses_outside_the_world(make_open_world):
+    inner_wall_only = np.array(
+        [(2.5, 2.5, 0.05, 0.5)], dtype=np.float32
+    )  # no outer walls: nothing else stops it
+    world = make_open_world(
+        [(1.0, 1.0, 0.0), (1.0, 4.0, 0.0)], FAR_TARGET + [(4.0, 1.0, "box", "blue")], inner_wall_only
+    )
+    sim = Simulator(world, [JACKAL, TURTLEBOT3], textured=False)
+    with pytest.raises(
+        ValueError, match=r"robot 0 is outside the world: its disc \(radius 0\.3 m\) must lie within"
+    ):
+        sim.set_poses([[-50.0, -50.0, 0.0], [30.0, 30.0, 0.0]])
+    with pytest.raises(ValueError, match=r"robot 1 is outside the world.*0\.2 <= x, y <= 4\.8"):
+        sim.set_poses([[4.9, 2.5, 0.0]], indices=[1])  # the disc pokes out of [0, 5]^2
+    assert np.allclose(sim.poses[:, :2], [[1.0, 1.0], [1.0, 4.0]])  # nothing moved
+    sim.set_poses([[0.3, 0.3, 0.0], [4.8, 2.5, 0.0]])  # touching the border is fine
+    assert np.allclose(sim.poses[:, :2], [[0.3, 0.3], [4.8, 2.5]])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((2.5, math.pi, 6.0), r"n_rays must be an integer >= 1, got 2\.5"),
+        ((0, math.pi, 6.0), r"n_rays must be an integer >= 1, got 0"),
+        ((4, 0.0, 6.0), r"fov must be a finite number > 0 \(radians\), got 0\.0"),
+        ((4, math.pi, float("nan")), r"max_range must be a finite number > 0 \(metres\), got nan"),
+    ],
+)
+def test_ray_scan_refuses_bad_settings(make_open_world, args, message):
+    sim = sim_at(make_open_world, [(2.5, 2.5, 0.0)])
+    with pytest.raises(ValueError, match=message):
+        sim.ray_scan(0, *args)
+
+
 def test_ray_scan_known_distances_and_hidden_robots(make_open_world):
     sim = sim_at(make_open_world, [(2.5, 2.5, 0.0), (4.0, 2.5, 0.0)])
     # 4 rays over a full circle: -pi, -pi/2, 0, +pi/2

@@ -1,5 +1,6 @@
 """gymnasium TargetNavEnv: API check, determinism, reward/termination/truncation, errors, plug-in policy."""
 
+import dataclasses
 import math
 
 import gymnasium as gym
@@ -8,9 +9,11 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import navformer_rl  # noqa: F401  (registers the id)
+from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy
 from navformer_rl.envs.registration import ENV_ID
 from navformer_rl.envs.target_nav import TargetNavEnv
-from navformer_rl.envs.world import WorldConfig
+from navformer_rl.envs.world import EpisodeSpec, WorldConfig
 
 
 def test_registered_env_passes_gymnasium_check_env():
@@ -165,8 +168,8 @@ class RecordingPolicy:
 
 
 def test_obstacle_policy_is_pluggable_and_obstacles_can_be_turtlebots():
-    policy = RecordingPolicy()
-    env = TargetNavEnv(size=5.0, n_robots=3, obstacle_policy=policy, obstacle_style="turtlebot3")
+    env = TargetNavEnv(size=5.0, n_robots=3, obstacle_policy=RecordingPolicy(), obstacle_style="turtlebot3")
+    policy = env.obstacle_policy  # the env's own copy
     _, info0 = env.reset(seed=2)
     _, _, _, _, info1 = env.step(np.zeros(2, dtype=np.float32))
     assert policy.calls == ["reset", [1, 2]]
@@ -210,3 +213,87 @@ def test_a_fixed_episode_is_not_reused_by_later_plain_resets(make_open_world):
                 )
             }
         )
+
+
+def turn_in_place(env, n_steps):
+    """Step ``n_steps`` times turning in place (never succeeds); returns the step's info where the episode
+    ended, or the last one."""
+    for _ in range(n_steps):
+        _, _, terminated, truncated, info = env.step(np.array([0.0, 1.0], dtype=np.float32))
+        if terminated or truncated:
+            break
+    return terminated, truncated, info
+
+
+def test_gym_make_truncates_at_its_max_episode_steps_also_beyond_500(make_open_world):
+    world = make_open_world([(1.0, 2.5, 0.0)], [(4.0, 4.0, "sphere", "green")])
+    env = gym.make(ENV_ID, size=5.0, n_robots=1, textured=False)
+    assert env.spec.max_episode_steps == MAX_EPISODE_STEPS  # registered with the paper's horizon
+    assert env.unwrapped.max_episode_steps is None  # gymnasium's TimeLimit truncates, not the env
+    longer = gym.make(ENV_ID, size=5.0, n_robots=1, textured=False, max_episode_steps=MAX_EPISODE_STEPS + 1)
+    assert longer.spec.max_episode_steps == MAX_EPISODE_STEPS + 1
+    longer.reset(seed=0, options={"episode": world})
+    terminated, truncated, info = turn_in_place(longer, MAX_EPISODE_STEPS + 5)
+    assert truncated and not terminated and info["step"] == MAX_EPISODE_STEPS + 1  # not cut short at 500
+    shorter = gym.make(ENV_ID, size=5.0, n_robots=1, textured=False, max_episode_steps=3)
+    shorter.reset(seed=0, options={"episode": world})
+    terminated, truncated, info = turn_in_place(shorter, 10)
+    assert truncated and info["step"] == 3
+
+
+def test_a_directly_built_env_truncates_at_its_own_max_episode_steps(make_open_world):
+    env = TargetNavEnv(size=5.0, n_robots=1, max_episode_steps=4, textured=False)
+    assert env.spec is None and env.max_episode_steps == 4
+    env.reset(seed=0, options={"episode": make_open_world([(1.0, 2.5, 0.0)], [(4.0, 4.0, "box", "red")])})
+    terminated, truncated, info = turn_in_place(env, 10)
+    assert truncated and not terminated and info["step"] == 4
+    assert TargetNavEnv(size=5.0).max_episode_steps == MAX_EPISODE_STEPS
+
+
+def test_one_obstacle_policy_object_given_to_two_envs_is_not_shared():
+    shared = GoalSeekingPolicy()
+    env_a = TargetNavEnv(size=5.0, n_robots=2, obstacle_policy=shared, textured=False)
+    env_b = TargetNavEnv(size=5.0, n_robots=2, obstacle_policy=shared, textured=False)
+    assert env_a.obstacle_policy is not shared and env_a.obstacle_policy is not env_b.obstacle_policy
+    reference = TargetNavEnv(size=5.0, n_robots=2, obstacle_policy=GoalSeekingPolicy(), textured=False)
+    env_a.reset(seed=1)
+    env_b.reset(seed=2)  # a shared policy would now steer env_a's obstacle to env_b's target
+    reference.reset(seed=1)
+    for _ in range(8):
+        _, _, _, _, info_a = env_a.step(np.zeros(2, dtype=np.float32))
+        _, _, _, _, info_ref = reference.step(np.zeros(2, dtype=np.float32))
+    assert np.array_equal(info_a["robot_poses"], info_ref["robot_poses"])
+    vec = gym.make_vec(
+        ENV_ID, num_envs=2, vectorization_mode="sync", size=5.0, n_robots=2, obstacle_policy=shared
+    )
+    assert vec.envs[0].unwrapped.obstacle_policy is not vec.envs[1].unwrapped.obstacle_policy
+    vec.close()
+
+
+def test_a_fixed_episode_built_for_smaller_robots_is_refused():
+    episode = EpisodeSpec(config=WorldConfig(size=5.0, n_robots=1, robot_radius=0.2), world_seed=0)
+    env = TargetNavEnv(size=5.0, n_robots=1)
+    with pytest.raises(
+        ValueError, match=r"the episode's world\.config\.robot_radius=0\.2 m .*jackal robot's radius 0\.3"
+    ):
+        env.reset(seed=0, options={"episode": episode})
+    with pytest.raises(ValueError, match=r"world\.config\.robot_radius=0\.2"):
+        env.reset(options={"episode": episode.build()})  # a WorldSpec too
+    turtlebots = TargetNavEnv(size=5.0, n_robots=1, robot_style="turtlebot3")
+    assert turtlebots.reset(seed=0, options={"episode": episode})[1]["world_seed"] == 0  # radius 0.2 fits
+
+
+def test_a_reset_that_fails_building_the_simulator_leaves_the_env_not_reset(make_open_world):
+    good = make_open_world([(1.0, 2.5, 0.0)], [(4.0, 4.0, "sphere", "green")])
+    in_wall = dataclasses.replace(good, starts=np.array([[0.3, 2.5, 0.0]], dtype=np.float32))  # unchecked
+    env = TargetNavEnv(size=5.0, n_robots=1, textured=False)
+    for previous in (None, good):  # a new scene (the old simulator is closed) and the same scene (re-posed)
+        env.reset(seed=0, options={"episode": previous} if previous is not None else None)
+        with pytest.raises(ValueError, match="overlaps"):
+            env.reset(options={"episode": in_wall})
+        assert env.simulator is None
+        with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
+            env.step(np.zeros(2, dtype=np.float32))
+        assert env.render() is None
+    _, info = env.reset(options={"episode": good})  # usable again
+    assert env.step(np.zeros(2, dtype=np.float32))[4]["step"] == 1 and info["step"] == 0

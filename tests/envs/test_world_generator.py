@@ -14,6 +14,8 @@ from navformer_rl.envs.world import (
     WorldConfig,
     generate_world,
     replace_layout,
+    sample_start_poses,
+    world_from_layout,
 )
 
 
@@ -185,6 +187,42 @@ def test_replace_layout_checks_starts(tiny_maze):
         replace_layout(tiny_maze, targets=[target])
     moved = replace_layout(tiny_maze, starts=tiny_maze.starts[::-1].copy())
     assert np.array_equal(moved.starts, tiny_maze.starts[::-1])
+
+
+def test_replace_layout_checks_targets_against_bounds_walls_and_each_other(tiny_maze):
+    ok = list(tiny_maze.targets)
+    inner = next(w for w in tiny_maze.walls if 0.5 < w[0] < 4.5 and 0.5 < w[1] < 4.5)  # an interior wall
+    cases = [
+        ((0.0, 2.5), "sphere", r"target 0 \(sphere, green\) at \[0\.0, 2\.5\] is outside the world"),
+        ((4.9, 1.0), "box", r"is outside the world: its body \(half extent 0\.2 m\)"),
+        ((float(inner[0]), float(inner[1])), "sphere", r"target 0 .* overlaps the wall box"),
+        ((float("nan"), 1.0), "box", r"target 0 position must be a finite float \[2\]"),
+    ]
+    for position, shape, message in cases:
+        bad = TargetSpec(np.array(position, dtype=np.float32), shape, "green")
+        with pytest.raises(ValueError, match=message):
+            replace_layout(tiny_maze, targets=[bad] + ok[1:])
+        with pytest.raises(ValueError, match=message):  # EpisodeSpec overrides go through the same check
+            EpisodeSpec(config=tiny_maze.config, world_seed=tiny_maze.seed, targets=[bad] + ok[1:]).build()
+    on_top = TargetSpec(ok[1].position + np.float32(0.3), "sphere", "cyan")  # 0.42 m apart: bodies overlap
+    with pytest.raises(ValueError, match="target 2 .* overlaps target 1"):
+        replace_layout(tiny_maze, targets=[ok[0], ok[1], on_top])
+    walls = np.array([(2.5, 0.0, 2.55, 0.05), (2.5, 5.0, 2.55, 0.05)], dtype=np.float32)
+    near = [TargetSpec(np.array([1.0, 0.3], np.float32), "sphere", "red")]  # touches the wall face at 0.05
+    assert world_from_layout(5.0, walls, near, [(1.0, 3.0, 0.0)]).targets[0].color == "red"
+    with pytest.raises(ValueError, match="overlaps the wall box"):
+        world_from_layout(
+            5.0, walls, [TargetSpec(np.array([1.0, 0.25], np.float32), "box", "red")], [(1.0, 3.0, 0.0)]
+        )
+
+
+def test_sample_start_poses_refuses_bad_counts(tiny_maze):
+    rng = np.random.default_rng(0)
+    for n in (-1, 2.5, True, "2"):
+        with pytest.raises(ValueError, match=f"n must be an integer >= 0, got {n!r}"):
+            sample_start_poses(tiny_maze, n, rng)
+    assert sample_start_poses(tiny_maze, 0, rng).shape == (0, 3)
+    assert sample_start_poses(tiny_maze, np.int64(2), rng).shape == (2, 3)
 
 
 def test_episode_spec_rebuilds_the_world_with_overrides(tiny_maze):
