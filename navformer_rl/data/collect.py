@@ -239,7 +239,11 @@ def collision_avoidance_world(settings: CollisionAvoidanceSettings, unit: int):
     return generate_world(config, seed), rng
 
 
-def _exploration_unit(settings: ExplorationSettings, unit: int):
+def _exploration_unit(settings: ExplorationSettings, unit: int, by_item: dict[str, list[int]] | None = None):
+    """D_e unit ``unit``: ``(rows, targets, counters)``, one rows TensorDict and one uint8 ``[84, 84, 3]``
+    target image per successful episode, and the unit's ``attempted`` / ``failed`` episodes,
+    ``robot_steps`` (of every episode) and ``collision_steps`` (of the stored ones). ``by_item``, when
+    given, receives each counter's value through each stored trajectory (failures before it included)."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.envs.target_image import render_target_image
@@ -266,10 +270,26 @@ def _exploration_unit(settings: ExplorationSettings, unit: int):
         target = world.targets[0]
         rows.append(traj.rows(TASK_ID[DatasetKind.EXPLORATION], len(targets), target.position))
         targets.append(render_target_image(target.shape, target.color))
+        _snapshot(by_item, counters, ("attempted", "failed", "collision_steps", "robot_steps"))
     return rows, targets, counters
 
 
-def _collision_avoidance_unit(settings: CollisionAvoidanceSettings, unit: int):
+def _snapshot(by_item: dict[str, list[int]] | None, counters: dict[str, int], names: tuple[str, ...]) -> None:
+    """Append the current value of each counter of ``names`` to ``by_item`` (when given): called once per
+    stored item, so ``by_item[name][k]`` is the counter through item ``k`` (``write_shard``'s
+    ``counters_by_item``)."""
+    if by_item is not None:
+        for name in names:
+            by_item.setdefault(name, []).append(counters[name])
+
+
+def _collision_avoidance_unit(
+    settings: CollisionAvoidanceSettings, unit: int, by_item: dict[str, list[int]] | None = None
+):
+    """D_ca unit ``unit`` (one arena episode): ``(rows, targets, counters)``, one trajectory per robot that
+    reached its target, in robot order. ``by_item``, when given, receives ``attempted``, ``failed``,
+    ``robot_steps`` and ``collision_steps`` through each stored trajectory's robot (the robots before it
+    included); ``episodes`` and ``robot_robot_collision_episodes`` count the whole episode."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.envs.target_image import render_target_image
@@ -277,7 +297,6 @@ def _collision_avoidance_unit(settings: CollisionAvoidanceSettings, unit: int):
 
     spec = get_robot_spec(settings.robot)
     world, rng = collision_avoidance_world(settings, unit)
-    n_robots = world.n_robots
     sim = Simulator(world, spec)
     try:
         expert = NHORCAExpert()
@@ -286,22 +305,23 @@ def _collision_avoidance_unit(settings: CollisionAvoidanceSettings, unit: int):
     finally:
         sim.close()
     rows, targets = [], []
-    counters = {
-        "episodes": 1,
-        "attempted": n_robots,
-        "failed": 0,
-        "collision_steps": 0,
-        "robot_robot_collision_episodes": int(any(t.robot_collisions for t in trajs)),
-        "robot_steps": sum(len(t.actions) for t in trajs),
-    }
+    through = {"attempted": 0, "failed": 0, "collision_steps": 0, "robot_steps": 0}  # robots 0..i
     for i, traj in enumerate(trajs):
+        through["attempted"] += 1
+        through["robot_steps"] += len(traj.actions)
         if not traj.succeeded:
-            counters["failed"] += 1
+            through["failed"] += 1
             continue
-        counters["collision_steps"] += int(np.sum(traj.collisions))
+        through["collision_steps"] += int(np.sum(traj.collisions))
         target = world.targets[i]
         rows.append(traj.rows(TASK_ID[DatasetKind.COLLISION_AVOIDANCE], len(targets), target.position))
         targets.append(render_target_image(target.shape, target.color))
+        _snapshot(by_item, through, tuple(through))
+    counters = {
+        "episodes": 1,
+        "robot_robot_collision_episodes": int(any(t.robot_collisions for t in trajs)),
+        **through,
+    }
     return rows, targets, counters
 
 
@@ -352,9 +372,12 @@ def ssl_world(settings: SSLSettings, unit: int) -> tuple[WorldSpec, int, np.rand
     return world, n_drawn, rng
 
 
-def _ssl_unit(settings: SSLSettings, unit: int) -> tuple[TensorDict, dict[str, int]]:
+def _ssl_unit(
+    settings: SSLSettings, unit: int, by_item: dict[str, list[int]] | None = None
+) -> tuple[TensorDict, dict[str, int]]:
     """D_ssl unit ``unit``: ``pairs_per_world`` rows (``pixels_static`` / ``pixels_dynamic`` uint8
-    ``[84, 84, 3]``, ``world``, ``pose`` ``[3]``) and its counters."""
+    ``[84, 84, 3]``, ``world``, ``pose`` ``[3]``) and its counters. ``by_item``, when given, receives
+    ``pairs_with_visible_robot`` through each pair; the other counters describe the whole world."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.sim import Simulator
 
@@ -382,7 +405,10 @@ def _ssl_unit(settings: SSLSettings, unit: int) -> tuple[TensorDict, dict[str, i
         sim.close()
     statics, dynamics = np.stack(statics), np.stack(dynamics)
     rows = ssl_rows(pixels_static=statics, pixels_dynamic=dynamics, world=unit, pose=np.stack(poses))
-    visible = int((statics != dynamics).reshape(len(statics), -1).any(1).sum())
+    shows_robot = (statics != dynamics).reshape(len(statics), -1).any(1)
+    visible = int(shows_robot.sum())
+    if by_item is not None:
+        by_item["pairs_with_visible_robot"] = np.cumsum(shows_robot).tolist()
     return rows, {
         "worlds": 1,
         "layouts": len(layouts),
@@ -397,15 +423,16 @@ def run_unit(root: str, kind: str, settings: Any, unit: int) -> dict[str, int]:
     """Collect work unit ``unit`` and write its shard under ``root`` (runs inside a worker process)."""
     torch.set_num_threads(1)
     kind = DatasetKind.parse(kind)
+    by_item: dict[str, list[int]] = {}
     if kind is DatasetKind.SSL:
-        rows, counters = _ssl_unit(settings, unit)
-        write_shard(root, kind, unit, rows, None, counters)
+        rows, counters = _ssl_unit(settings, unit, by_item)
+        write_shard(root, kind, unit, rows, None, counters, by_item)
         return {"items": int(rows.shape[0]), "rows": int(rows.shape[0]), **counters}
     make = _exploration_unit if kind is DatasetKind.EXPLORATION else _collision_avoidance_unit
-    rows, targets, counters = make(settings, unit)
+    rows, targets, counters = make(settings, unit, by_item)
     td = torch.cat(rows) if rows else None
     tgt = torch.from_numpy(np.stack(targets)) if targets else None
-    write_shard(root, kind, unit, td, tgt, counters)
+    write_shard(root, kind, unit, td, tgt, counters, by_item)
     return {"items": len(targets), "rows": 0 if td is None else int(td.shape[0]), **counters}
 
 
@@ -528,16 +555,33 @@ _SSL_PLACEMENT_DOC = (
 )
 
 
-def code_fingerprint() -> str:
-    """sha256 of the source that determines the data (``envs/``, ``experts/``, this module, the schema).
+FINGERPRINT_MODULES = ("data/collect.py", "data/schema.py", "constants.py", "checks.py")
+"""Package modules besides ``envs/*.py`` and ``experts/*.py`` whose source determines the data: this
+module, the schema, the protocol constants (``SUCCESS_RADIUS``, ``CONTROL_DT``, ``IMAGE_SIZE``,
+``TARGET_SHAPES`` / ``TARGET_COLORS``, ...) and the setting checks that convert the values the worlds are
+built from. The other package modules this code imports only move bytes or draw (``durable``, ``mp4``,
+``data/writer``, whose shard format ``stats.json`` checks itself, and ``__init__``'s version string)."""
 
-    Stored in the settings, so resuming with changed simulator or expert code is refused instead of
-    silently mixing two versions of the experts in one dataset."""
+
+def fingerprint_files(package: Path | None = None) -> list[Path]:
+    """The files :func:`code_fingerprint` hashes, under the package folder ``package`` (default: this
+    installed package): ``envs/*.py``, ``experts/*.py`` and :data:`FINGERPRINT_MODULES`."""
+    package = Path(__file__).resolve().parents[1] if package is None else Path(package)
+    files = sorted([*package.glob("envs/*.py"), *package.glob("experts/*.py")])
+    return files + [package / name for name in FINGERPRINT_MODULES]
+
+
+def code_fingerprint(package: Path | None = None) -> str:
+    """sha256 of the source that determines the data (:func:`fingerprint_files`: ``envs/``, ``experts/``,
+    this module, the schema, ``constants.py`` and ``checks.py``), of this package or of the package folder
+    ``package``.
+
+    Stored in the settings, so resuming with changed simulator, expert or constants code is refused
+    instead of silently mixing two versions of the data in one dataset."""
     import hashlib
 
-    package = Path(__file__).resolve().parents[1]
-    files = sorted([*package.glob("envs/*.py"), *package.glob("experts/*.py")])
-    files += [package / "data" / "collect.py", package / "data" / "schema.py"]
+    package = Path(__file__).resolve().parents[1] if package is None else Path(package)
+    files = fingerprint_files(package)
     digest = hashlib.sha256()
     for file in files:
         digest.update(file.relative_to(package).as_posix().encode())

@@ -1,13 +1,15 @@
 """Open a finished dataset folder, validate it, and build replay buffers / batchers over it.
 
-``open_dataset(path, kind=None) -> NavDataset``. Every check happens before any memmap is touched, so a
-foreign, truncated or half-written folder raises ``ValueError``/``FileNotFoundError`` naming the path and
-what was expected instead of crashing (a truncated memmap would otherwise fault on first read).
+``open_dataset(path, kind=None, verify=False) -> NavDataset``. The structural checks happen before any
+memmap is touched, so a foreign, truncated or half-written folder raises ``ValueError``/``FileNotFoundError``
+naming the path and what was expected instead of crashing (a truncated memmap would otherwise fault on first
+read); then the small columns' content is checked (cheap), and with ``verify=True`` every file's sha256.
 """
 
 from __future__ import annotations
 
 import hashlib
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +21,13 @@ from torchrl.data.replay_buffers.checkpointers import StorageCheckpointerBase
 from torchrl.envs.transforms import Transform
 
 from navformer_rl.checks import is_count
+from navformer_rl.data.integrity import (
+    HASHES_KEY,
+    hashes_problem,
+    short_repr,
+    trajectory_content_problem,
+    verify_hashes,
+)
 from navformer_rl.data.samplers import (
     DEFAULT_CONTEXT_STEPS,
     EpisodeTable,
@@ -30,9 +39,9 @@ from navformer_rl.data.schema import SCHEMA_VERSION, TARGET_FIELDS, DatasetKind,
 from navformer_rl.data.writer import (
     CONSOLIDATED_DIR,
     METADATA_FILE,
+    consolidated_file_names,
     load_checked,
     read_json_object,
-    short_repr,
 )
 from navformer_rl.durable import atomic_write_json
 
@@ -202,14 +211,20 @@ class NavDataset:
         return f"NavDataset(root={str(self.root)!r}, kind={self.kind.value!r}, rows={len(self)}, trajectories={self.num_trajectories})"
 
 
-def open_dataset(path: str | Path, kind: DatasetKind | str | None = None) -> NavDataset:
+def open_dataset(path: str | Path, kind: DatasetKind | str | None = None, verify: bool = False) -> NavDataset:
     """Open and validate a finished dataset folder.
 
     Raises ``FileNotFoundError`` for a missing folder or memmap file, ``ValueError`` naming the file for
-    everything else: a ``metadata.json`` that is not a JSON object or lacks a valid ``kind`` or ``counts``,
-    an unknown schema version, an unfinished collection, a wrong ``kind``, a memmap whose file size, dtype or
-    shape differs from the schema and the recorded counts, or rows whose trajectories / target ids do not
-    match the recorded number of trajectories.
+    everything else: a ``metadata.json`` that is not a JSON object or lacks a valid ``kind`` or ``counts``
+    (or has a malformed ``content_hashes``), an unknown schema version, an unfinished collection, a wrong
+    ``kind``, a memmap whose file size, dtype or shape differs from the schema and the recorded counts, rows
+    whose trajectories / target ids do not match the recorded number of trajectories, or trajectory rows
+    whose small columns are impossible (:func:`~navformer_rl.data.integrity.trajectory_content_problem`: steps,
+    task, actions, rewards, return-to-go; milliseconds per 100k rows, the pixels are not read).
+
+    ``verify=True`` also reads every memmap file and compares its sha256 with the one ``metadata.json``
+    recorded at collection (about 1.1-1.6 s per GB, so off by default: paper-scale pixels are many GB); a
+    dataset collected before hashes were recorded has none, which gives a ``UserWarning`` and no check.
     """
     root = Path(path)
     meta_path = root / METADATA_FILE
@@ -250,15 +265,44 @@ def open_dataset(path: str | Path, kind: DatasetKind | str | None = None) -> Nav
                 f"integer; {_DAMAGED}"
             )
     n_rows, n_items = counts["rows"], counts["items"]
+    hashes = metadata.get(HASHES_KEY)  # absent in datasets collected before hashes were recorded
+    if hashes is not None:
+        problem = hashes_problem(hashes, consolidated_file_names(found))
+        if problem is not None:
+            raise ValueError(f"{meta_path}: {HASHES_KEY!r} {problem}; {_DAMAGED}")
     consolidated = root / CONSOLIDATED_DIR
     rows = load_checked(consolidated / "rows", fields_for(found), n_rows)
     targets = None
     if found.is_trajectory:
         targets = load_checked(consolidated / "targets", TARGET_FIELDS, n_items)["target_pixels"]
+    if verify:
+        _verify(root, hashes, meta_path)
     dataset = NavDataset(root, metadata, rows, targets)
     if found.is_trajectory:
         _check_trajectory_ids(dataset, meta_path, n_items)
+        problem = trajectory_content_problem(dataset.rows, found)
+        if problem is not None:
+            key, what = problem
+            file = consolidated.joinpath("rows", *key[:-1], f"{key[-1]}.memmap")
+            raise ValueError(f"{file}: {what}; {_DAMAGED}")
     return dataset
+
+
+def _verify(root: Path, hashes: dict[str, Any] | None, meta_path: Path) -> None:
+    """``verify=True`` of :func:`open_dataset`: every memmap file's sha256 against ``metadata.json``."""
+    if hashes is None:
+        warnings.warn(
+            f"{meta_path} records no {HASHES_KEY} (the dataset was collected before navformer_rl recorded "
+            "them), so verify=True has nothing to compare; only the structure and the small columns' "
+            "content were checked",
+            UserWarning,
+            stacklevel=3,
+        )
+        return
+    try:
+        verify_hashes(root, hashes, meta_path)
+    except ValueError as err:
+        raise ValueError(f"{err}; {_DAMAGED}") from None
 
 
 def _check_trajectory_ids(dataset: NavDataset, meta_path: Path, n_items: int) -> None:

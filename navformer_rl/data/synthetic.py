@@ -130,6 +130,7 @@ def make_synthetic_dataset(
                 rows, targets = _trajectory_unit(kind, rng, items_per_shard, min_len, max_len)
             else:
                 rows, targets = _ssl_unit(rng, unit, items_per_shard), None
-            writer.write_shard(unit, rows, targets, {"attempted": items_per_shard})
+            attempted = list(range(1, items_per_shard + 1))  # every synthetic item succeeds
+            writer.write_shard(unit, rows, targets, {"attempted": items_per_shard}, {"attempted": attempted})
         unit += 1
     return writer.finalize(extra_metadata={"seeds": {"base": seed}})

@@ -7,7 +7,8 @@ Layout of a dataset folder::
     shards/unit-000012/    one per deterministic work unit, renamed into place when complete:
         rows/              memmapped TensorDict of the unit's rows (local episode / target ids from 0)
         targets/           memmapped TensorDict {"target_pixels": uint8 [n, 84, 84, 3]} (trajectory kinds)
-        stats.json         {"items": n, "rows": r, "counters": {...}}
+        stats.json         {"items": n, "rows": r, "counters": {...}, "counters_by_item": {...},
+                            "content_hashes": {"algorithm": "sha256", "files": {"rows/step.memmap": ...}}}
     shards/.tmp-unit-*/    a shard being written; one left by a crash is deleted by the next DatasetWriter
     consolidated/          after completion: rows/ (one flat memmap, global ids) and targets/
                            (built in consolidated.tmp/, then renamed); shards/ is deleted afterwards.
@@ -19,7 +20,11 @@ interruptions: rerunning the same command after a crash yields the same bytes.
 A unit's folder is renamed into place only after all its files are written and fsynced, so a committed
 shard is complete: one whose ``stats.json`` or memmaps cannot be read was damaged afterwards (disk error,
 partial copy, manual edit). Reading it raises ``ValueError`` naming the file and the problem, and saying to
-delete that unit's folder so that the next run collects it again (same seed, same data). Temp folders
+delete that unit's folder so that the next run collects it again (same seed, same data). ``stats.json``
+records the sha256 of every memmap file of the shard, so damage that keeps the file sizes (a column
+overwritten in place) is found too: when a collection resumes and when the shard is consolidated.
+``finalize`` records the sha256 of every consolidated memmap file in ``metadata.json`` (checked by
+``open_dataset(..., verify=True)``). Temp folders
 (``shards/.tmp-*``) and temp files of interrupted ``metadata.json`` rewrites (``.metadata.*.tmp.json``,
 see :func:`navformer_rl.durable.atomic_leftovers`) are provably uncommitted and are deleted silently.
 """
@@ -39,6 +44,15 @@ import torch
 from tensordict import TensorDict
 
 from navformer_rl.checks import check_int, is_count
+from navformer_rl.data.integrity import (
+    HASHES_KEY,
+    check_sorted,
+    content_hashes,
+    hashes_problem,
+    short_repr,
+    trajectory_content_problem,
+    verify_hashes,
+)
 from navformer_rl.data.schema import (
     SCHEMA_VERSION,
     TARGET_FIELDS,
@@ -87,12 +101,6 @@ def folder_lock(root: str | Path) -> contextlib.AbstractContextManager[Path]:
 _JSON_TYPES = {list: "an array", str: "a string", int: "a number", float: "a number", bool: "a boolean"}
 
 
-def short_repr(value: Any, limit: int = 80) -> str:
-    """``repr(value)`` cut to ``limit`` characters (for error messages about values read from files)."""
-    text = repr(value)
-    return text if len(text) <= limit else f"{text[: limit - 3]}..."
-
-
 def read_json_object(path: str | Path, remedy: str) -> dict[str, Any]:
     """Parse ``path`` as a JSON object.
 
@@ -136,27 +144,95 @@ def damaged_shard_remedy(root: str | Path, unit: int) -> str:
     )
 
 
-def stats_problem(stats: dict[str, Any], kind: DatasetKind) -> str | None:
-    """What is wrong with a shard's parsed ``stats.json`` (``None`` when nothing): it must be
-    ``{"items": n, "rows": r, "counters": {name: count}}`` with non-negative integers, ``n <= r`` for
-    trajectory kinds (a trajectory has at least one row) and ``n == r`` for D_ssl (one row per pair)."""
-    for key in ("items", "rows"):
-        if key not in stats:
-            return f"{key!r} is missing, expected {{'items': n, 'rows': r, 'counters': {{...}}}}"
-        if not is_count(stats[key]):
-            return f"{key!r} is {short_repr(stats[key])}, expected a non-negative integer"
+def memmap_names(part: str, fields: dict[tuple[str, ...], FieldSpec]) -> list[str]:
+    """Paths, relative to the folder holding ``part``, of the memmap files of ``fields`` in memmap folder
+    ``part``: ``memmap_names("rows", {("next", "reward"): ...}) == ["rows/next/reward.memmap"]``."""
+    return [Path(part, *key[:-1], f"{key[-1]}.memmap").as_posix() for key in fields]
+
+
+def shard_file_names(kind: DatasetKind, n_rows: int) -> list[str]:
+    """The memmap files of a shard of ``n_rows`` rows, relative to its unit folder (none when empty)."""
+    if not n_rows:
+        return []
+    names = memmap_names("rows", fields_for(kind))
+    return names + (memmap_names("targets", TARGET_FIELDS) if kind.is_trajectory else [])
+
+
+def consolidated_file_names(kind: DatasetKind) -> list[str]:
+    """The memmap files of a finished dataset of ``kind``, relative to the dataset folder."""
+    names = memmap_names(f"{CONSOLIDATED_DIR}/rows", fields_for(kind))
+    return names + (memmap_names(f"{CONSOLIDATED_DIR}/targets", TARGET_FIELDS) if kind.is_trajectory else [])
+
+
+def _counters_problem(stats: dict[str, Any]) -> str | None:
+    """What is wrong with the ``counters`` / ``counters_by_item`` of a shard's stats (``None`` when nothing);
+    ``items`` must already be checked."""
     counters = stats.get("counters")
     if not isinstance(counters, dict):
         return f"'counters' is {short_repr(counters)}, expected an object of non-negative integer counters"
     bad = {name: value for name, value in counters.items() if not is_count(value)}
     if bad:
         return f"counters {short_repr(bad)} are not non-negative integers"
+    by_item = stats.get("counters_by_item")
+    if not isinstance(by_item, dict):
+        return (
+            f"'counters_by_item' is {short_repr(by_item)}, expected an object {{counter: [its value through "
+            "item 0, through item 1, ...]}}"
+        )
+    items = stats["items"]
+    for name, prefix in by_item.items():
+        if name not in counters:
+            return f"'counters_by_item' holds {name!r}, which 'counters' lacks"
+        valid = isinstance(prefix, list) and len(prefix) == items and all(is_count(v) for v in prefix)
+        valid = valid and all(a <= b for a, b in zip(prefix, prefix[1:]))
+        if not valid or (prefix and prefix[-1] > counters[name]):
+            return (
+                f"counters_by_item[{name!r}] is {short_repr(prefix)}, expected {items} non-decreasing "
+                f"non-negative integers up to counters[{name!r}] = {counters[name]}"
+            )
+    return None
+
+
+def stats_problem(stats: dict[str, Any], kind: DatasetKind) -> str | None:
+    """What is wrong with a shard's parsed ``stats.json`` (``None`` when nothing): it must be
+    ``{"items": n, "rows": r, "counters": {name: count}, "counters_by_item": {name: [count through item
+    0, ..., through item n-1]}, "content_hashes": {"algorithm": "sha256", "files": {path: hex}}}`` with
+    non-negative integers, ``n <= r`` for trajectory kinds (a trajectory has at least one row), ``n == r``
+    for D_ssl (one row per pair), and a hash of every memmap file of the shard."""
+    for key in ("items", "rows"):
+        if key not in stats:
+            return f"{key!r} is missing, expected {{'items': n, 'rows': r, 'counters': {{...}}}}"
+        if not is_count(stats[key]):
+            return f"{key!r} is {short_repr(stats[key])}, expected a non-negative integer"
+    problem = _counters_problem(stats)
+    if problem is not None:
+        return problem
     items, rows = stats["items"], stats["rows"]
     if kind.is_trajectory and items > rows:
         return f"'items' is {items} but 'rows' {rows}; every trajectory has at least one row"
     if not kind.is_trajectory and items != rows:
         return f"'items' is {items} but 'rows' {rows}; a D_ssl shard has one row per pair"
-    return None
+    if HASHES_KEY not in stats:
+        return (
+            f"{HASHES_KEY!r} is missing: the shard was written by a navformer_rl version that recorded no "
+            "content hashes, or the file was edited"
+        )
+    problem = hashes_problem(stats[HASHES_KEY], shard_file_names(kind, rows))
+    return None if problem is None else f"{HASHES_KEY!r} {problem}"
+
+
+def taken_counters(stats: dict[str, Any], take: int) -> dict[str, int]:
+    """The counters of a checked shard's first ``take`` items: all of ``counters`` when every item is taken;
+    otherwise each counter's value through item ``take - 1`` from ``counters_by_item``, and the whole unit's
+    value for a counter that has none (a per-unit count such as ``episodes``)."""
+    counters, by_item = stats["counters"], stats["counters_by_item"]
+    if take >= stats["items"]:
+        return dict(counters)
+    taken = {}
+    for name, value in counters.items():
+        prefix = by_item.get(name)
+        taken[name] = value if prefix is None else (prefix[take - 1] if take else 0)
+    return taken
 
 
 def write_shard(
@@ -166,19 +242,34 @@ def write_shard(
     rows: TensorDict | None,
     targets: torch.Tensor | None,
     counters: dict[str, int],
+    counters_by_item: dict[str, list[int]] | None = None,
 ) -> None:
     """Atomically write work unit ``unit`` (safe to call from worker processes).
 
     ``rows``: flat TensorDict in the kind's schema with local ``episode``/``target_id`` starting at 0
-    (``None`` when the unit produced nothing, e.g. every episode failed). ``targets``: uint8
-    ``[n_items, 84, 84, 3]`` for trajectory kinds. ``counters``: integer statistics summed into metadata.
+    (``None`` when the unit produced nothing, e.g. every episode failed), sorted by ``(episode, step)``
+    and passing :func:`trajectory_content_problem` for trajectory kinds. ``targets``: uint8
+    ``[n_items, 84, 84, 3]`` for trajectory kinds. ``counters``: integer statistics of the whole unit,
+    summed into the metadata. ``counters_by_item``: for some of them, the value through each item
+    (``n_items`` non-decreasing integers), which the metadata takes when the dataset ends after item ``k``
+    of this unit (others count whole). ``stats.json`` also records the sha256 of every memmap file.
     The shard is built in ``shards/.tmp-unit-XXXXXX-<pid>`` and renamed; a crash leaves no partial shard.
     """
     kind = DatasetKind.parse(kind)
     final = shard_dir(root, unit)
     if final.exists():
         return
-    n_rows, n_items = _check_shard(kind, f"shard {unit} of {root}", rows, targets)
+    where = f"shard {unit} of {root}"
+    n_rows, n_items = _check_shard(kind, where, rows, targets)
+    stats: dict[str, Any] = {
+        "items": n_items,
+        "rows": n_rows,
+        "counters": {k: int(v) for k, v in counters.items()},
+        "counters_by_item": {k: [int(x) for x in v] for k, v in (counters_by_item or {}).items()},
+    }
+    problem = _counters_problem(stats)
+    if problem is not None:
+        raise ValueError(f"{where}: {problem}")
     tmp = final.with_name(f"{_TMP_PREFIX}{final.name}-{os.getpid()}")
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -187,7 +278,7 @@ def write_shard(
         rows.memmap_(tmp / "rows")
         if kind.is_trajectory:
             TensorDict({"target_pixels": targets.contiguous()}, batch_size=[n_items]).memmap_(tmp / "targets")
-    stats = {"items": n_items, "rows": n_rows, "counters": {k: int(v) for k, v in counters.items()}}
+    stats[HASHES_KEY] = content_hashes(tmp, shard_file_names(kind, n_rows))
     atomic_write_json(tmp / STATS_FILE, stats)
     fsync_tree(tmp)
     try:
@@ -204,7 +295,8 @@ def _check_shard(
     kind: DatasetKind, where: str, rows: TensorDict | None, targets: torch.Tensor | None
 ) -> tuple[int, int]:
     """``(n_rows, n_items)`` of a shard after checking its rows (schema, and for trajectory kinds episodes
-    ``0..n_items-1`` matching the targets, sorted by ``(episode, step)``); ``ValueError`` naming ``where``."""
+    ``0..n_items-1`` matching the targets, sorted by ``(episode, step)``, and their content:
+    :func:`trajectory_content_problem`); ``ValueError`` naming ``where``."""
     n_rows = 0 if rows is None else int(rows.shape[0])
     if n_rows:
         check_rows(rows, fields_for(kind), where)
@@ -222,23 +314,10 @@ def _check_shard(
             f"got {int(episodes.min())}..{int(episodes.max())}"
         )
     check_sorted(episodes, rows["step"], where)
+    problem = trajectory_content_problem(rows, kind)
+    if problem is not None:
+        raise ValueError(f"{where}: key {key_name(problem[0])!r}: {problem[1]}")
     return n_rows, n_items
-
-
-def check_sorted(episode: torch.Tensor, step: torch.Tensor, where: str) -> None:
-    """Raise ``ValueError`` naming ``where`` unless the rows (int64 ``[rows]`` columns) are sorted by
-    ``(episode, step)``: episode ids contiguous and non-decreasing, steps strictly increasing within each
-    episode (consolidation cuts a shard after its first k episodes, which needs this order)."""
-    episode, step = episode.reshape(-1).to(torch.int64), step.reshape(-1).to(torch.int64)
-    d_episode, d_step = torch.diff(episode), torch.diff(step)
-    bad = (d_episode < 0) | (d_episode > 1) | ((d_episode == 0) & (d_step <= 0))
-    if bool(bad.any()):
-        row = int(torch.nonzero(bad)[0]) + 1
-        raise ValueError(
-            f"{where}: rows must be sorted by (episode, step) with contiguous episode ids, but row {row} has "
-            f"(episode, step) = ({int(episode[row])}, {int(step[row])}) after "
-            f"({int(episode[row - 1])}, {int(step[row - 1])})"
-        )
 
 
 class DatasetWriter:
@@ -358,19 +437,21 @@ class DatasetWriter:
 
     def check_shard(self, unit: int) -> dict[str, Any]:
         """:meth:`shard_stats` of committed unit ``unit`` after also checking that each of its memmap files
-        exists with the byte size its ``stats.json`` implies (``stat`` only, nothing is read). Run on every
-        unit when a collection resumes, so a damaged shard is reported before any work, not at consolidation.
+        exists with the byte size its ``stats.json`` implies and still has the sha256 recorded there (each
+        file is read once: about 1.2 s per GB here). Run on every unit when a collection resumes, so a
+        damaged shard is reported before any work, and on every unit consolidated. Raises ``ValueError``
+        naming the file and saying to delete the unit's folder.
         """
         stats = self.shard_stats(unit)
-        if stats["rows"]:
-            parts = [("rows", fields_for(self.kind), stats["rows"])]
-            if self.kind.is_trajectory:
-                parts.append(("targets", TARGET_FIELDS, stats["items"]))
-            for part, fields, n in parts:
-                try:
-                    check_memmap_files(shard_dir(self.root, unit) / part, fields, n)
-                except (ValueError, FileNotFoundError) as err:
-                    raise ValueError(f"{err}; {damaged_shard_remedy(self.root, unit)}") from None
+        folder = shard_dir(self.root, unit)
+        try:
+            if stats["rows"]:
+                check_memmap_files(folder / "rows", fields_for(self.kind), stats["rows"])
+                if self.kind.is_trajectory:
+                    check_memmap_files(folder / "targets", TARGET_FIELDS, stats["items"])
+            verify_hashes(folder, stats[HASHES_KEY], folder / STATS_FILE)
+        except (ValueError, FileNotFoundError) as err:
+            raise ValueError(f"{err}; {damaged_shard_remedy(self.root, unit)}") from None
         return stats
 
     def _load_shard(
@@ -384,9 +465,15 @@ class DatasetWriter:
             raise ValueError(f"{err}; {damaged_shard_remedy(self.root, unit)}") from None
 
     def write_shard(
-        self, unit: int, rows: TensorDict | None, targets: torch.Tensor | None, counters: dict[str, int]
+        self,
+        unit: int,
+        rows: TensorDict | None,
+        targets: torch.Tensor | None,
+        counters: dict[str, int],
+        counters_by_item: dict[str, list[int]] | None = None,
     ) -> None:
-        write_shard(self.root, self.kind, unit, rows, targets, counters)
+        """:func:`write_shard` into this dataset's folder."""
+        write_shard(self.root, self.kind, unit, rows, targets, counters, counters_by_item)
 
     def prefix_plan(self) -> tuple[list[tuple[int, int]], int]:
         """Units 0, 1, ... while complete: ``([(unit, items_taken)], items_total)``, stopping once
@@ -409,7 +496,11 @@ class DatasetWriter:
     def finalize(self, extra_metadata: dict[str, Any] | None = None) -> Path:
         """Consolidate the completed prefix into ``consolidated/`` and mark the dataset complete.
 
-        Idempotent: rerunning after a crash at any point gives the same folder. Returns ``root``.
+        Every shard used is checked first (:meth:`check_shard`: sizes and content hashes). The metadata's
+        ``counts`` sum the shards' counters over the items taken (:func:`taken_counters`: the last unit
+        used may give only its first items), and ``content_hashes`` records the sha256 of every
+        consolidated memmap file. Idempotent: rerunning after a crash at any point gives the same folder.
+        Returns ``root``.
         """
         if self.is_complete:
             self._remove_shards()
@@ -424,8 +515,8 @@ class DatasetWriter:
         row_counts = []
         counters: dict[str, int] = {}
         for unit, take in plan:
-            stats = self.shard_stats(unit)
-            for key, value in stats["counters"].items():
+            stats = self.check_shard(unit)  # a shard changed since it was written is refused here
+            for key, value in taken_counters(stats, take).items():
                 counters[key] = counters.get(key, 0) + value
             rows = self._take_rows(unit, take)
             row_counts.append(rows)
@@ -466,6 +557,7 @@ class DatasetWriter:
             "status": "complete",
             "counts": counts,
             "statistics": dataset_statistics(TensorDict.load_memmap(final / "rows"), self.kind),
+            HASHES_KEY: content_hashes(self.root, consolidated_file_names(self.kind)),
         }
         atomic_write_json(self.root / METADATA_FILE, self.metadata)
         self._remove_shards()

@@ -1,6 +1,8 @@
 """Tiny real collections through the simulator and the experts (seeded), resume, and the CLI."""
 
+import ast
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -56,6 +58,22 @@ def test_tiny_collision_avoidance_collection(tmp_path):
     _check_trajectories(ds, task=1)
     # several robots of one arena episode: distinct targets, each trajectory with its own image
     assert len({ds.targets[i].numpy().tobytes() for i in range(4)}) >= 3
+    # the counts describe the robots up to the last stored trajectory, not the whole last episode
+    counts = ds.metadata["counts"]
+    assert counts["attempted"] - counts["failed"] == counts["items"] == 4
+    assert counts["robot_steps"] >= counts["rows"]
+
+
+def test_counts_describe_the_stored_trajectories_only(tmp_path):
+    """The dataset ends after the first trajectory of a 2-episode unit: the metadata counts the attempts up
+    to it (as the dataset card's success rate does), not the unit's second episode."""
+    s = settings_for("e", "small", seed=0, n_trajectories=1, episodes_per_unit=2, world_sizes=(5.0,))
+    ds = open_dataset(collect("e", tmp_path / "e", s, workers=1, progress=False), kind="e")
+    counts = ds.metadata["counts"]
+    assert counts["items"] == 1 and counts["units"] == 1
+    assert counts["attempted"] - counts["failed"] == 1
+    steps_of_failures = counts["robot_steps"] - counts["rows"]
+    assert steps_of_failures >= 0 and (steps_of_failures > 0) == (counts["failed"] > 0)
 
 
 def test_tiny_ssl_collection_pairs_share_the_pose(tmp_path):
@@ -73,9 +91,62 @@ def test_tiny_ssl_collection_pairs_share_the_pose(tmp_path):
 def test_failed_episodes_are_dropped_and_counted():
     # 3 steps are never enough to reach a target in a 5 m maze: every episode fails
     s = settings_for("e", "small", seed=0, episodes_per_unit=2, world_sizes=(5.0,), max_steps=3)
-    rows, targets, counters = collect_module._exploration_unit(s, 0)
-    assert rows == [] and targets == []
+    by_item: dict[str, list[int]] = {}
+    rows, targets, counters = collect_module._exploration_unit(s, 0, by_item)
+    assert rows == [] and targets == [] and by_item == {}
     assert counters == {"attempted": 2, "failed": 2, "collision_steps": 0, "robot_steps": 6}
+
+
+# ------------------------------------------------------------------------------- code fingerprint
+PACKAGE = REPO / "navformer_rl"
+NOT_SHAPING_DATA = {"__init__.py", "durable.py", "mp4.py", "data/writer.py"}
+"""Package modules imported by the collection code that only move bytes, draw, or give the version."""
+
+
+def _package_imports(file: Path) -> set[str]:
+    """Package files (relative to ``navformer_rl/``) that ``file`` imports, at any depth of its code."""
+    found = set()
+    for node in ast.walk(ast.parse(file.read_text())):
+        if isinstance(node, ast.Import):
+            modules = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            modules = [f"{node.module}.{alias.name}" for alias in node.names] + [node.module]
+        else:
+            continue
+        for module in modules:
+            parts = module.split(".")
+            if parts[0] != "navformer_rl":
+                continue
+            inner = parts[1:]
+            candidates = [Path(*inner[:-1], f"{inner[-1]}.py")] if inner else []
+            for candidate in (*candidates, Path(*inner, "__init__.py")):
+                if (PACKAGE / candidate).is_file():
+                    found.add(candidate.as_posix())
+                    break
+    return found
+
+
+def test_code_fingerprint_covers_every_module_that_shapes_the_data():
+    hashed = {f.relative_to(PACKAGE).as_posix() for f in collect_module.fingerprint_files()}
+    assert {"constants.py", "checks.py", "data/collect.py", "data/schema.py", "envs/sim.py"} <= hashed
+    imported = set().union(*(_package_imports(PACKAGE / name) for name in hashed))
+    # a module the collection code imports is hashed or known not to change the data
+    assert imported - hashed <= NOT_SHAPING_DATA, sorted(imported - hashed - NOT_SHAPING_DATA)
+
+
+def test_code_fingerprint_changes_with_the_constants(tmp_path):
+    """SUCCESS_RADIUS, CONTROL_DT, IMAGE_SIZE, TARGET_SHAPES / TARGET_COLORS shape the data: a collection
+    resumed after changing them must be refused, so they change the fingerprint."""
+    package = tmp_path / "navformer_rl"
+    for file in collect_module.fingerprint_files():
+        target = package / file.relative_to(PACKAGE)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(file, target)
+    before = collect_module.code_fingerprint(package)
+    assert before == collect_module.code_fingerprint()
+    constants = package / "constants.py"
+    constants.write_text(constants.read_text().replace("SUCCESS_RADIUS = 1.5", "SUCCESS_RADIUS = 1.0"))
+    assert collect_module.code_fingerprint(package) != before
 
 
 def test_collection_is_deterministic_and_resumes_identically(tmp_path, folder_bytes):

@@ -5,9 +5,11 @@ temp files are deleted silently.
 Collections here run with a synthetic ``unit_fn`` (no simulator), so each takes well under a second.
 """
 
+import hashlib
 import json
 import re
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +108,24 @@ def _remove_and_mkdir(path: Path) -> None:
     path.mkdir()
 
 
+def _drop_stats_key(key):
+    def damage(path: Path) -> None:
+        stats = json.loads(path.read_text())
+        del stats[key]
+        path.write_text(json.dumps(stats))
+
+    return damage
+
+
+def _edit_hashes(edit):
+    def damage(path: Path) -> None:
+        stats = json.loads(path.read_text())
+        edit(stats["content_hashes"])
+        path.write_text(json.dumps(stats))
+
+    return damage
+
+
 STATS_DAMAGE = {
     "truncated": (lambda p: p.write_bytes(p.read_bytes()[:20]), r"is not valid JSON \(truncated or corrupt"),
     "empty": (lambda p: p.write_bytes(b""), r"is empty, expected a JSON object"),
@@ -119,6 +139,32 @@ STATS_DAMAGE = {
     "counters list": (_edit_stats(counters=[1]), r"'counters' is \[1\], expected an object"),
     "counter float": (_edit_stats(counters={"attempted": 1.5}), r"counters \{'attempted': 1.5\} are not"),
     "items > rows": (_edit_stats(items=99), r"'items' is 99 but 'rows' \d+; every trajectory has"),
+    # content hashes (a shard written before they were recorded has none)
+    "no hashes": (
+        _drop_stats_key("content_hashes"),
+        r"'content_hashes' is missing: the shard was written by a navformer_rl version that recorded no",
+    ),
+    "hash not hex": (
+        _edit_hashes(lambda h: h["files"].__setitem__("rows/action.memmap", "xyz")),
+        r"'content_hashes' holds 'xyz' for 'rows/action.memmap', expected a sha256 hex digest",
+    ),
+    "hash of a file missing": (
+        _edit_hashes(lambda h: h["files"].pop("targets/target_pixels.memmap")),
+        r"'content_hashes' lists no hash of \['targets/target_pixels.memmap'\] and unknown files \[\]",
+    ),
+    "other algorithm": (
+        _edit_hashes(lambda h: h.__setitem__("algorithm", "md5")),
+        r"'content_hashes' has algorithm 'md5', expected \{'algorithm': 'sha256'",
+    ),
+    # per-item counters (what the metadata counts when the dataset ends inside this unit)
+    "counters_by_item short": (
+        _edit_stats(counters_by_item={"attempted": [1]}),
+        r"counters_by_item\['attempted'\] is \[1\], expected 2 non-decreasing non-negative integers",
+    ),
+    "counters_by_item unknown": (
+        _edit_stats(counters_by_item={"failed": [0, 0]}),
+        r"'counters_by_item' holds 'failed', which 'counters' lacks",
+    ),
 }
 
 
@@ -172,6 +218,72 @@ SHARD_DAMAGE = {
     # unit 2 gives only its first trajectory: its rows are read to find where that one ends
     "cut shard's rows corrupt": (2, _memmap_meta("rows", 2), r"unit-000002/rows: cannot read the memmapped"),
 }
+
+
+def _overwrite(part: str, name: str, dtype, value):
+    """Damage keeping the file size: set every element of memmap ``part/name`` of a unit to ``value``."""
+
+    def damage(root: Path, unit: int) -> None:
+        path = writer_module.shard_dir(root, unit) / part / name
+        column = np.fromfile(path, dtype=dtype)
+        column[:] = value
+        column.tofile(path)
+
+    return damage
+
+
+def _flip_byte(part: str, name: str):
+    def damage(root: Path, unit: int) -> None:
+        path = writer_module.shard_dir(root, unit) / part / name
+        data = bytearray(path.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        path.write_bytes(bytes(data))
+
+    return damage
+
+
+CONTENT_DAMAGE = {  # (unit, damage, file): the sizes, meta.json and stats.json stay as they were
+    "steps zeroed": (1, _overwrite("rows", "step.memmap", np.int64, 0), "rows/step.memmap"),
+    "actions NaN": (0, _overwrite("rows", "action.memmap", np.float32, np.nan), "rows/action.memmap"),
+    "one target pixel": (1, _flip_byte("targets", "target_pixels.memmap"), "targets/target_pixels.memmap"),
+    "one frame pixel of the cut unit": (2, _flip_byte("rows", "pixels.memmap"), "rows/pixels.memmap"),
+}
+
+
+@pytest.mark.parametrize("case", list(CONTENT_DAMAGE))
+def test_resume_with_same_size_content_damage_names_the_file_and_the_fix(
+    case, resumable, reference, folder_bytes
+):
+    unit, damage, name = CONTENT_DAMAGE[case]
+    damage(resumable, unit)
+    file = writer_module.shard_dir(resumable, unit) / name
+    with pytest.raises(
+        ValueError,
+        match=rf"^{re.escape(str(file))}: its content changed after it was written \(its sha256 is [0-9a-f]+\.\.\., "
+        rf"\S*unit-{unit:06d}/stats.json recorded [0-9a-f]+\.\.\..*{REMEDY.format(unit=unit)}",
+    ):
+        _collect(resumable)
+    assert json.loads((resumable / "metadata.json").read_text())["status"] == "collecting"
+    shutil.rmtree(writer_module.shard_dir(resumable, unit))
+    _collect(resumable)
+    assert folder_bytes(resumable) == folder_bytes(reference)
+
+
+def test_shard_changed_after_the_resume_check_is_refused_at_consolidation(interrupted, tmp_path):
+    """The audit's case: shards changed in place between the resume's check and consolidation (or by a
+    caller that consolidates without resuming) never reach ``consolidated/``."""
+    root = tmp_path / "copy"
+    shutil.copytree(interrupted, root)
+    writer = writer_module.DatasetWriter(
+        root, "e", json.loads((root / "metadata.json").read_text())["settings"], target_count=5
+    )
+    for unit in writer.completed_units():
+        writer.check_shard(unit)
+    _overwrite("rows", "step.memmap", np.int64, 0)(root, 1)
+    with pytest.raises(ValueError, match=r"unit-000001/rows/step.memmap: its content changed after it was"):
+        writer.finalize()
+    assert not (root / "consolidated").exists()
+    assert json.loads((root / "metadata.json").read_text())["status"] == "collecting"
 
 
 @pytest.mark.parametrize("case", list(SHARD_DAMAGE))
@@ -265,11 +377,14 @@ def _edit_memmap_meta(part, edit):
     return damage
 
 
-def _write_column(key, value):
+def _write_column(key, value, dtype=np.int64, rows=slice(-1, None)):
+    """Same-size damage: set ``rows`` (default: the last) of consolidated column ``key`` (a path below
+    ``consolidated/rows``, e.g. ``next/reward``) to ``value``."""
+
     def damage(root: Path) -> None:
         path = root / "consolidated" / "rows" / f"{key}.memmap"
-        column = np.fromfile(path, dtype=np.int64)
-        column[-1] = value
+        column = np.fromfile(path, dtype=dtype)
+        column[rows] = value
         column.tofile(path)
 
     return damage
@@ -339,6 +454,48 @@ OPEN_DAMAGE = {
         _drop_last_target,
         rf"consolidated/rows: 'episode' numbers 12 trajectories, but \S*{META} records counts.items = 11",
     ),
+    "content_hashes of another algorithm": (
+        _edit_metadata(lambda m: m["content_hashes"].__setitem__("algorithm", "md5")),
+        rf"{META}: 'content_hashes' has algorithm 'md5', expected",
+    ),
+    "content_hashes lacking a file": (
+        _edit_metadata(lambda m: m["content_hashes"]["files"].pop("consolidated/rows/step.memmap")),
+        rf"{META}: 'content_hashes' lists no hash of \['consolidated/rows/step.memmap'\]",
+    ),
+    # content checks of the small columns (same sizes: only their values say the data is wrong)
+    "every step 0": (
+        _write_column("step", 0, rows=slice(None)),
+        r"consolidated/rows/step.memmap: row 1 \(trajectory 0\) has step 0, expected 1: steps count 0, 1, 2",
+    ),
+    "steps not increasing": (
+        _write_column("step", 0, rows=slice(-1, None)),
+        r"rows/step.memmap: row \d+ \(trajectory 11\) has step 0, expected \d+",
+    ),
+    "task of the other dataset": (
+        _write_column("task", 1, rows=slice(5, 6)),
+        r"rows/task.memmap: row 5 \(trajectory 0, step 5\) has task 1, expected 0 for 'e'",
+    ),
+    "action NaN": (
+        _write_column("action", np.nan, np.float32, rows=slice(None)),
+        r"rows/action.memmap: row 0 \(trajectory 0, step 0\) holds action \[nan, nan\], expected finite",
+    ),
+    "action out of range": (
+        _write_column("action", 1.5, np.float32, rows=slice(-1, None)),
+        r"rows/action.memmap: row \d+ \(trajectory 11, step \d+\) holds action \[\S+, 1.5\], expected finite "
+        r"values in \[-1, 1\]",
+    ),
+    "reward not 0 or 1": (
+        _write_column("next/reward", 0.5, np.float32, rows=slice(3, 4)),
+        r"rows/next/reward.memmap: row 3 \(trajectory 0, step 3\) holds reward 0.5, expected 0 or 1",
+    ),
+    "return_to_go not eq. 3": (
+        _write_column("return_to_go", 0.0, np.float32, rows=slice(2, 3)),
+        r"rows/return_to_go.memmap: row 2 \(trajectory 0, step 2\) holds return_to_go 0.0, expected 1.0: the",
+    ),
+    "reward moved": (  # every value in {0, 1}, but the trajectory's return-to-go no longer matches
+        _write_column("next/reward", 1.0, np.float32, rows=slice(0, 1)),
+        r"rows/return_to_go.memmap: row 0 \(trajectory 0, step 0\) holds return_to_go 1.0, expected 2.0",
+    ),
 }
 
 
@@ -350,6 +507,47 @@ def test_open_damaged_dataset_names_the_file_and_the_problem(case, e_dataset, tm
     damage(root)
     with pytest.raises(ValueError, match=rf"^{re.escape(str(root))}/\S*{problem}"):
         open_dataset(root)
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_metadata_records_the_sha256_of_every_consolidated_file(e_dataset):
+    hashes = json.loads((e_dataset / "metadata.json").read_text())["content_hashes"]
+    files = sorted(p for p in (e_dataset / "consolidated").rglob("*.memmap"))
+    assert hashes["algorithm"] == "sha256"
+    assert hashes["files"] == {p.relative_to(e_dataset).as_posix(): _sha256(p) for p in files}
+    assert len(files) == 15  # 14 row keys and the targets table
+
+
+@pytest.mark.parametrize("name", ["rows/pixels.memmap", "targets/target_pixels.memmap"])
+def test_verify_finds_a_changed_pixel_that_the_cheap_checks_cannot(name, e_dataset, tmp_path):
+    root = tmp_path / "copy"
+    shutil.copytree(e_dataset, root)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        open_dataset(root, verify=True)  # intact: nothing to report
+    file = root / "consolidated" / name
+    data = bytearray(file.read_bytes())
+    data[1000] ^= 0x01
+    file.write_bytes(bytes(data))
+    open_dataset(root)  # the pixels are not read by default
+    with pytest.raises(
+        ValueError,
+        match=rf"^{re.escape(str(file))}: its content changed after it was written \(its sha256 is \S+, "
+        rf"{re.escape(str(root / META))} recorded \S+ when it was written\); the dataset folder was damaged",
+    ):
+        open_dataset(root, verify=True)
+
+
+def test_a_dataset_written_before_hashes_opens_and_verify_has_nothing_to_check(e_dataset, tmp_path):
+    root = tmp_path / "old"
+    shutil.copytree(e_dataset, root)
+    _edit_metadata(lambda m: m.pop("content_hashes"))(root)
+    assert open_dataset(root).num_trajectories == 12
+    with pytest.warns(UserWarning, match=r"records no content_hashes .* verify=True has nothing to compare"):
+        assert open_dataset(root, verify=True).num_trajectories == 12
 
 
 def test_a_complete_dataset_from_other_code_is_reused_with_a_warning(tmp_path, monkeypatch):

@@ -126,7 +126,7 @@ def test_resume_after_crashes_is_byte_identical(tmp_path, monkeypatch, folder_by
     real_write_shard = writer_module.write_shard
     calls = {"n": 0}
 
-    def crash_on_third_shard(root, kind, unit, rows, targets, counters):
+    def crash_on_third_shard(root, kind, unit, rows, targets, counters, *more):
         calls["n"] += 1
         if calls["n"] == 3:
             # die half-way through a shard: a partial temp folder is left behind
@@ -134,7 +134,7 @@ def test_resume_after_crashes_is_byte_identical(tmp_path, monkeypatch, folder_by
             partial.mkdir(parents=True)
             (partial / "garbage").write_bytes(b"x" * 10)
             raise _Crash
-        return real_write_shard(root, kind, unit, rows, targets, counters)
+        return real_write_shard(root, kind, unit, rows, targets, counters, *more)
 
     monkeypatch.setattr(writer_module, "write_shard", crash_on_third_shard)
     with pytest.raises(_Crash):
@@ -207,6 +207,67 @@ def test_write_shard_refuses_rows_not_sorted_by_episode_and_step(tmp_path):
     assert not (tmp_path / "shards").exists()  # refused before anything was written
     writer_module.write_shard(tmp_path, "e", 2, rows, targets, {})
     assert writer_module.shard_dir(tmp_path, 2).is_dir()
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "problem"),
+    [
+        ("action", float("nan"), r"key 'action': row 4 \(trajectory \d, step \d\) holds action \[nan, nan\]"),
+        ("return_to_go", 3.0, r"key 'return_to_go': row 4 \(trajectory \d, step \d\) holds return_to_go 3.0"),
+    ],
+)
+def test_write_shard_refuses_impossible_content(key, value, problem, tmp_path):
+    rows, targets = _unit_rows()
+    rows[key][4] = value
+    with pytest.raises(ValueError, match=rf"shard 0 of \S+: {problem}"):
+        writer_module.write_shard(tmp_path, "e", 0, rows, targets, {})
+    assert not (tmp_path / "shards").exists()  # refused before anything was written
+
+
+def _cut_unit_writer(root):
+    """Two units of 4 trajectories with per-item counters; the dataset takes unit 0 and 1 item of unit 1."""
+    writer = writer_module.DatasetWriter(root, "e", {"test": "counts"}, target_count=5)
+    for unit, counters, by_item in (
+        (
+            0,
+            {"attempted": 6, "failed": 2, "episodes": 1},
+            {"attempted": [1, 3, 4, 6], "failed": [0, 1, 1, 2]},
+        ),
+        (
+            1,
+            {"attempted": 7, "failed": 3, "episodes": 1},
+            {"attempted": [2, 3, 5, 5], "failed": [1, 1, 2, 2]},
+        ),
+    ):
+        rows, targets = syn._trajectory_unit(syn.DatasetKind.EXPLORATION, syn._unit_rng(0, unit), 4, 2, 4)
+        writer.write_shard(unit, rows, targets, counters, by_item)
+    return writer
+
+
+def test_counts_cover_only_the_items_taken(tmp_path):
+    root = _cut_unit_writer(tmp_path / "d").finalize()
+    counts = json.loads((root / "metadata.json").read_text())["counts"]
+    # unit 1 gives its first trajectory: the attempts up to it (one failure, one success), not its 7
+    assert counts == {
+        "rows": counts["rows"],
+        "items": 5,
+        "units": 2,
+        "attempted": 8,
+        "failed": 3,
+        "episodes": 2,
+    }
+    assert counts["attempted"] - counts["failed"] == counts["items"]
+
+
+def test_write_shard_refuses_inconsistent_item_counters(tmp_path):
+    rows, targets = _unit_rows()
+    with pytest.raises(
+        ValueError, match=r"shard 0 of \S+: counters_by_item\['attempted'\] is \[1, 2\], expected 3"
+    ):
+        writer_module.write_shard(tmp_path, "e", 0, rows, targets, {"attempted": 3}, {"attempted": [1, 2]})
+    with pytest.raises(ValueError, match=r"up to counters\['attempted'\] = 2"):
+        writer_module.write_shard(tmp_path, "e", 0, rows, targets, {"attempted": 2}, {"attempted": [1, 2, 3]})
+    assert not (tmp_path / "shards").exists()
 
 
 def test_second_collection_into_a_locked_folder_is_refused(tmp_path):
