@@ -6,7 +6,9 @@ Success = the robot came within ``SUCCESS_RADIUS`` (1.5 m) of its target centre 
 
     OMP_NUM_THREADS=1 python benchmarks/expert_quality.py --episodes 100 --out benchmarks/experts.md
 
-Writes a markdown section (atomic) with the table, the machine and the command.
+Prints a markdown section ("## Expert quality") with the table, the machine and the command; with ``--out FILE``
+it also writes it into FILE (atomically), replacing only that section when FILE already has one and
+appending it otherwise, so the other sections of ``benchmarks/experts.md`` stay.
 """
 
 from __future__ import annotations
@@ -115,6 +117,23 @@ def atomic_write(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+SECTION_HEADING = "## Expert quality"
+
+
+def replace_section(document: str, section: str) -> str:
+    """``document`` with its :data:`SECTION_HEADING` section (up to the next ``## `` heading) replaced by
+    ``section``, or with ``section`` appended when it has none."""
+    lines = document.splitlines()
+    if SECTION_HEADING not in lines:
+        return (document.rstrip("\n") + "\n\n" if document.strip() else "") + section.rstrip("\n") + "\n"
+    start = lines.index(SECTION_HEADING)
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+    kept_after = "\n".join(lines[end:])
+    before = "\n".join(lines[:start])
+    parts = [part for part in (before, section.rstrip("\n"), kept_after) if part]
+    return "\n\n".join(part.strip("\n") for part in parts) + "\n"
+
+
 def pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
@@ -128,7 +147,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sizes", type=float, nargs="*", default=[7.5, 12.5, 17.5])
     parser.add_argument("--skip-ca", action="store_true")
     parser.add_argument("--fca", action="store_true", help="also run FCA teams (3-9 robots) in 12.5 m mazes")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/experts.md"))
+    parser.add_argument(
+        "--out", type=Path, default=None, help="markdown file whose '## Expert quality' section to replace"
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write raw per-episode rows here")
     args = parser.parse_args(argv)
     if args.episodes < 1:
@@ -155,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
     elapsed = time.time() - t_start
 
     lines = [
-        "## Expert quality",
+        SECTION_HEADING,
         "",
         f"Seeded episodes (world seeds {args.seed}..{args.seed + args.episodes - 1}), no rendering, success = within "
         f"{SUCCESS_RADIUS} m of the target within {MAX_EPISODE_STEPS} steps. Team episodes use 3 + k mod 7 robots.",
@@ -184,7 +205,11 @@ def main(argv: list[str] | None = None) -> None:
         + "`",
         "",
     ]
-    atomic_write(args.out, "\n".join(lines))
+    section = "\n".join(lines)
+    print(section)
+    if args.out is not None:
+        previous = args.out.read_text() if args.out.exists() else ""
+        atomic_write(args.out, replace_section(previous, section))
     if args.json is not None:
         atomic_write(args.json, json.dumps({"summary": results, "episodes": raw}, indent=1))
 
