@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument(
         "--seed", type=cli_args.seed, default=0, help="seed of stochastic policies (default 0)"
     )
-    _add_cluster_option(parser)
+    _add_cluster_option(parser, "trial")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--fresh", action="store_true", help="recompute every episode (default: reuse finished ones in --out)"
@@ -93,20 +93,21 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     report.add_argument("--out", dest="report_out", type=Path, required=True, help="report .md file to write")
     report.add_argument("--title", default="NavFormer evaluation")
-    _add_cluster_option(report)
+    _add_cluster_option(report, None)
     report.set_defaults(run=_run_report)
     return parser
 
 
-def _add_cluster_option(parser: argparse.ArgumentParser) -> None:
+def _add_cluster_option(parser: argparse.ArgumentParser, default: str | None) -> None:
     from navformer_rl.evaluation.measures import CLUSTER_LEVELS
 
+    default_text = "the folders' own choice, trial when they differ" if default is None else default
     parser.add_argument(
         "--cluster-by",
         choices=CLUSTER_LEVELS,
-        default="trial",
-        help="what the confidence intervals resample: trials (default; intervals for these mazes) or "
-        "worlds (also the variation between mazes; needs 6 mazes per setup)",
+        default=default,
+        help="what the confidence intervals resample: trial (intervals for these mazes) or world (also the "
+        f"variation between mazes; needs 6 mazes per setup); default: {default_text}",
     )
 
 

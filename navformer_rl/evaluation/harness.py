@@ -301,7 +301,7 @@ def evaluate(
             :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`.
         progress: show a tqdm progress bar.
         resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
-            the same method, label, checkpoint weights, seed, trial length and package version (an
+            the same method (your own policy: the same factory), label, checkpoint weights, seed, trial length, video_fps and package version (an
             interrupted run picks up where it stopped); False recomputes everything.
     """
     invoked = time.perf_counter()
@@ -346,6 +346,8 @@ def evaluate(
             "seed": int(seed),
             "max_steps": episode_set.max_steps,
             "checkpoint_sha256": description.get("checkpoint_sha256"),
+            "factory": description.get("factory"),  # your own policy: module.qualname, not only its label
+            "video_fps": float(video_fps),
             "record_fields": sorted(RobotTrial.__dataclass_fields__),
             # results of another release (simulator or policy fixes) are recomputed, never mixed in
             "package_version": __version__,

@@ -102,8 +102,11 @@ def _recorded_ablation(run: dict[str, Any]) -> str | None:
 def _paper_numbers(summary: SetupSummary, column: str) -> tuple[float, float, float] | None:
     if summary.setup == ALL_SETUPS:
         return None
-    if column in ABLATION_TO_TABLE4.values():
-        return TABLE4[column] if (summary.size, summary.n_robots) == TABLE4_SETUP else None
+    if (
+        column in ABLATION_TO_TABLE4.values()
+    ):  # Table IV: four measured Jackals, not the unseen-obstacle setup
+        same_setup = (summary.size, summary.n_robots) == TABLE4_SETUP
+        return TABLE4[column] if same_setup and not summary.setup.endswith("-unseen") else None
     if summary.setup.endswith("-unseen"):
         return TABLE3["unseen"].get(column)
     if summary.setup.endswith("-seen"):
@@ -279,13 +282,33 @@ def _unpaired_warning(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str | None
     )
 
 
+def _interval_settings(
+    runs: Sequence[tuple[Path, Mapping[str, Any]]], confidence: float | None, cluster: str | None
+) -> tuple[float, str, list[str]]:
+    """The report's interval level and clusters (the folders' shared ones where not given) and a phrase per
+    folder whose own ``summary.md`` used other ones (``run.json``; folders of earlier versions: 0.95, trials)."""
+    recorded = {folder: (run.get("confidence", 0.95), run.get("cluster", "trial")) for folder, run in runs}
+    if confidence is None:
+        levels = {level for level, _ in recorded.values()}
+        confidence = levels.pop() if len(levels) == 1 else 0.95
+    if cluster is None:
+        clusters = {units for _, units in recorded.values()}
+        cluster = clusters.pop() if len(clusters) == 1 else "trial"
+    differing = [
+        f"{folder} was evaluated with {100 * level:g} % intervals over {units}s"
+        for folder, (level, units) in recorded.items()
+        if (level, units) != (confidence, cluster)
+    ]
+    return confidence, cluster, differing
+
+
 def write_report(
     result_dirs: Sequence[str | os.PathLike],
     out_path: str | os.PathLike,
     title: str = "NavFormer evaluation",
-    confidence: float = 0.95,
+    confidence: float | None = None,
     seed: int = 0,
-    cluster: str = "trial",
+    cluster: str | None = None,
 ) -> Path:
     """Write the markdown report (module docstring) to ``out_path``; returns its path.
 
@@ -293,11 +316,17 @@ def write_report(
         result_dirs: folders written by ``evaluate`` (one per method/label); order = column order.
         out_path: the ``.md`` file; ``<stem>_metrics.png`` is written beside it. An existing file is
             replaced only if it is a report written here (FileExistsError otherwise).
-        confidence, seed: level and bootstrap seed of the intervals.
+        confidence, seed: level and bootstrap seed of the intervals; ``confidence=None``: the level the
+            folders were evaluated with (``run.json``), 0.95 when they differ.
         cluster: what the intervals resample, whole trials or whole mazes
-            (:data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`).
+            (:data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`); ``None``: the folders' own choice
+            (``run.json``), ``"trial"`` when they differ. The report says when a folder's own
+            ``summary.md`` used other intervals.
     """
-    check_cluster(cluster)
+    if cluster is not None:
+        check_cluster(cluster)
+    if confidence is not None and not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence={confidence!r}: expected a level in (0, 1), e.g. 0.95")
     if not result_dirs:
         raise ValueError("write_report needs at least one evaluation folder")
     out_path = Path(out_path)
@@ -324,6 +353,7 @@ def write_report(
         labels.append(run["label"])
         records += mine
         runs.append((folder, run))
+    confidence, cluster, differing = _interval_settings(runs, confidence, cluster)
     summaries = summarize_by_setup(records, confidence, seed, cluster)
     plot_path = report_dir / f"{out_path.stem}_metrics.png"  # not metrics.png: an evaluation folder's own
     plot = plot_setup_bars(summaries, plot_path, methods=labels, title=title)
@@ -393,6 +423,13 @@ def write_report(
     )
     parts.append(f"## Results (ours, {100 * confidence:g} % confidence intervals in brackets)\n")
     parts.append(f"Intervals: {interval_method(cluster, confidence)}.\n")
+    if differing:
+        parts.append(
+            "Note: "
+            + "; ".join(differing)
+            + f" (their own `summary.md`); this report recomputes every interval at {100 * confidence:g} % "
+            f"over {cluster}s from the per-episode rows.\n"
+        )
     parts.append(table_markdown(summaries, labels))
     parts.append(f"![SR, SPL and CR per setup]({plot.name})\n")
     parts.append(

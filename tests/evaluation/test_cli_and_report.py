@@ -44,9 +44,12 @@ def test_make_episodes_then_evaluate_then_report(tmp_path, capsys):
     assert _run(["evaluate", "report", str(out), "--out", str(report)]) == 0
     text = report.read_text()
     assert "vrw SR" in text and (tmp_path / "report" / "README_metrics.png").is_file()
-    assert "Intervals: Wilson on the trial-clustered" in text  # the report chooses its own clusters
-    assert _run(["evaluate", "report", str(out), "--out", str(report), "--cluster-by", "world"]) == 0
-    assert "Intervals: Wilson on the world-clustered" in report.read_text()
+    # the report follows the folders' own intervals (run.json), unless told otherwise, and then says so
+    assert "Intervals: Wilson on the world-clustered" in text and "Note:" not in text
+    assert _run(["evaluate", "report", str(out), "--out", str(report), "--cluster-by", "trial"]) == 0
+    text = report.read_text()
+    assert "Intervals: Wilson on the trial-clustered" in text
+    assert f"Note: {out} was evaluated with 95 % intervals over worlds" in text
     with pytest.raises(SystemExit):
         _run(["evaluate", "report", str(out), "--out", str(report), "--cluster-by", "maze"])
     assert "../vrw/maps/7.5m-2r_w00t00.png" in text
@@ -170,7 +173,7 @@ def test_ablation_labels_are_compared_with_their_table4_row():
             base, method=method, episode_id=f"{setup}-{i}", setup=setup, size=size, n_robots=n
         )
         for method in ("navformer-no_thsc", "navformer-seed1")
-        for setup, size, n in (("12.5m-4r", 12.5, 4), ("7.5m-2r", 7.5, 2))
+        for setup, size, n in (("12.5m-4r", 12.5, 4), ("7.5m-2r", 7.5, 2), ("12.5m-4r-unseen", 12.5, 4))
         for i in range(2)
     ]
     table = paper_comparison_markdown(summarize_by_setup(records), ["navformer-no_thsc", "navformer-seed1"])
@@ -182,6 +185,9 @@ def test_ablation_labels_are_compared_with_their_table4_row():
     assert by_setup["12.5m-4r"].startswith("| 12.5m-4r | 100.00% / 32.08% | 0.800 / 0.261 | 0.000 / 0.500 |")
     # Table IV has no 7.5 m row: no paper value for the ablation there, Table I's for the full model
     assert by_setup["7.5m-2r"] == "| 7.5m-2r | - | - | - | 100.00% / 80.83% | 0.800 / 0.562 | 0.000 / 0.228 |"
+    # Table IV measured four Jackals: not the unseen-obstacle setup (one Jackal, three TurtleBot3s), which
+    # has Table III's full-model row only
+    assert by_setup["12.5m-4r-unseen"].startswith("| 12.5m-4r-unseen | - | - | - | 100.00% / ")
 
 
 def test_cli_refuses_a_label_naming_another_ablation_before_generating_episodes(

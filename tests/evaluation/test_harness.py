@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from tensordict.nn import TensorDictModuleBase
 
 from navformer_rl.baselines.random_walk import RandomWalkPolicy
 from navformer_rl.evaluation import harness
@@ -247,3 +248,42 @@ def test_summary_intervals_do_not_depend_on_the_policy_seed(tmp_path, tiny_episo
         "vrw", tiny_episodes, tmp_path / "vrw", seed=3, maps_per_setup=0, videos_per_setup=0, progress=False
     )
     assert seeds == [0]
+
+
+class _ConstantPolicy(TensorDictModuleBase):
+    """Every robot commands ``(linear, 0)``: in ``("agents", "pixels")``, out ``("agents", "action")``."""
+
+    in_keys = [("agents", "pixels")]
+    out_keys = [("agents", "action")]
+
+    def __init__(self, linear: float) -> None:
+        super().__init__()
+        self.linear = linear
+
+    def forward(self, tensordict):
+        robots = tensordict["agents", "pixels"].shape[0]
+        action = torch.zeros(robots, 2)
+        action[:, 0] = self.linear
+        return tensordict.set(("agents", "action"), action)
+
+
+def standing_policy():
+    return _ConstantPolicy(0.0)
+
+
+def driving_policy():
+    return _ConstantPolicy(1.0)
+
+
+driving_policy.__name__ = "standing_policy"  # the same label as standing_policy, another policy
+
+
+def test_resume_tells_apart_your_own_policies_that_share_a_label(tmp_path, tiny_episodes):
+    out = tmp_path / "mine"
+    common = dict(maps_per_setup=0, videos_per_setup=0, progress=False)
+    standing = evaluate(standing_policy, tiny_episodes, out, **common)
+    assert all(r.path_length == 0.0 for r in standing.records)
+    driving = evaluate(driving_policy, tiny_episodes, out, **common)
+    assert driving.episodes_computed == len(tiny_episodes)  # not the standing policy's rows
+    assert all(r.path_length > 0.0 for r in driving.records)
+    assert json.loads((out / "run.json").read_text())["factory"].endswith(".driving_policy")
