@@ -44,7 +44,8 @@ class BYOLAugmentation(nn.Module):
     moves them to the batch's device), so results are reproducible and the global RNG is untouched.
     Defaults follow BYOL's view 1 (colour jitter 0.4/0.4/0.2, p = 0.8) with a crop scale of [0.3, 1]
     instead of [0.08, 1] (84 px navigation views) and hue 0: kornia's hue shift goes through HSV and
-    costs more than the other three ops together (see ``docs/model.md``).
+    costs more than the other three ops together (see ``docs/model.md``). ``chunk``: images per pass on
+    the CPU (32 keeps the elementwise passes in cache); other devices take the batch in one pass.
     """
 
     def __init__(
@@ -144,8 +145,11 @@ class BYOLAugmentation(nn.Module):
         size = self.image_size
         memory_format = torch.channels_last if channels_last else torch.contiguous_format
         views = torch.empty(n, 3, size, size, dtype=dtype, device=pixels.device, memory_format=memory_format)
-        for start in range(0, n, self.chunk):  # chunks keep the ~10 elementwise passes in cache
-            part = slice(start, start + self.chunk)
+        # CPU: chunks keep the ~10 elementwise passes in cache; a GPU takes the batch in one pass (a chunk
+        # would only add kernel launches). The views do not depend on the chunk size.
+        step = self.chunk if pixels.device.type == "cpu" else max(n, 1)
+        for start in range(0, n, step):
+            part = slice(start, start + step)
             chunk = images_to_float(pixels[part], channels_last=False)
             chunk = crop_and_resize(chunk, boxes[part], (size, size), mode="bilinear", align_corners=True)
             for name in order:

@@ -355,4 +355,6 @@ def restore_rng_state(state: Mapping[str, Any]) -> None:
     )
     random.setstate(state["python"])
     if "cuda" in state and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])
+        # one state per GPU visible when it was saved; a resume may see fewer (or more) GPUs
+        for index, device_state in enumerate(state["cuda"][: torch.cuda.device_count()]):
+            torch.cuda.set_rng_state(device_state, index)

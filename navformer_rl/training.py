@@ -701,17 +701,18 @@ class Trainer:
         """
         from torchrl._utils import timeit
 
+        sync = self.device.type == "cuda"  # time the GPU work of each phase, not its launches
         start = time.perf_counter()
-        with timeit("sample"):
+        with timeit("sample", sync=sync):
             task, batch = self.cross_task.sample()
             keys = ["pixels", "action", "return_to_go", "step", "mask", "target_pixels"]
             batch = batch.select(*keys).to(self.device, non_blocking=True)
             pairs = self.pairs.sample().to(self.device, non_blocking=True) if self.pairs is not None else None
         for optimizer in self.optimizers.values():
             optimizer.zero_grad(set_to_none=True)
-        with timeit("forward_backward"):
+        with timeit("forward_backward", sync=sync):
             loss_dt, loss_byol, byol_out = self._forward_backward(batch, pairs)
-        with timeit("optimizer"):
+        with timeit("optimizer", sync=sync):
             if self.cfg.optim.clip_grad_norm is not None:
                 for optimizer in self.optimizers.values():
                     self.scaler.unscale_(optimizer)

@@ -156,3 +156,21 @@ def test_a_run_that_crashed_before_its_first_checkpoint_restarts_its_logs(tiny_c
     del trainer  # crashed before iteration 3's checkpoint: nothing to resume from
     train(tiny_config("optim.iterations=3", f"output_dir={run}", "checkpoint.interval=3", "resume=true"))
     assert [s for s, _ in scalars(run, "loss")] == [1, 2, 3]  # not 1, 2, 1, 2, 3
+
+
+def test_rng_restore_sets_the_states_of_the_gpus_it_sees(monkeypatch):
+    """A checkpoint saved with 2 visible GPUs resumes where 1 is visible (and the other way round)."""
+    from navformer_rl.checkpoint import capture_rng_state, restore_rng_state
+
+    state = capture_rng_state()
+    state["cuda"] = [torch.zeros(16, dtype=torch.uint8), torch.ones(16, dtype=torch.uint8)]
+    restored = []
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "set_rng_state", lambda s, device: restored.append((device, int(s[0]))))
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    restore_rng_state(state)
+    assert restored == [(0, 0)]
+    restored.clear()
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 4)
+    restore_rng_state(state)
+    assert restored == [(0, 0), (1, 1)]
