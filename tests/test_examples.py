@@ -64,3 +64,20 @@ def test_cli_bad_input_is_one_clear_line(args, message, tmp_path):
     assert out.returncode == 2
     assert "Traceback" not in out.stderr
     assert message in out.stderr
+
+
+def test_collector_example_collects_across_episode_resets():
+    # 2 mazes x 30 steps with 12-step episodes: each env resets twice inside the collection
+    out = run(
+        "examples/collect_with_navformer_policy.py",
+        "--frames",
+        "60",
+        "--frames-per-batch",
+        "20",
+        "--max-steps",
+        "12",
+    )
+    assert out.returncode == 0, out.stderr
+    batches = [line for line in out.stdout.splitlines() if line.startswith("batch (2, 10)")]
+    assert len(batches) == 3
+    assert "replay buffer: 60 env steps" in out.stdout and "'pixels'" in out.stdout
