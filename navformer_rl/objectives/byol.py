@@ -173,6 +173,14 @@ class BYOLLoss(LossModule):
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass
 
+    def train(self, mode: bool = True) -> BYOLLoss:
+        """``nn.Module.train`` that also reaches the projector and predictor networks (their BatchNorm),
+        which TorchRL's ``convert_to_functional`` keeps outside the child modules; ``eval()`` calls it."""
+        super().train(mode)
+        self.online_network.train(mode)
+        self.predictor.train(mode)
+        return self
+
     @property
     def in_keys(self) -> list[NestedKey]:
         keys = [self.tensor_keys.pixels_dynamic]

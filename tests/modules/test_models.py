@@ -301,6 +301,11 @@ def test_right_padding_changes_neither_valid_outputs_nor_the_loss(batch_factory)
     torch.testing.assert_close(
         masked_action_mse(out_junk, target, mask), masked_action_mse(out, target, mask), rtol=0, atol=1e-7
     )
+    # non-finite or huge padding too (0 * NaN in the attention product, LayerNorm overflow): nothing leaks
+    for bad in (float("nan"), float("inf"), 1e30):
+        junk["action"][1, 3:] = bad
+        junk["return_to_go"][1, 3:] = bad
+        torch.testing.assert_close(run(model, junk), out, rtol=0, atol=1e-6)
 
 
 # ---------------------------------------------------------------------------------------- gradients

@@ -223,3 +223,22 @@ def test_soft_update_can_be_made_after_the_loss_has_run():
     loss(pairs())
     assert not any(p.requires_grad for p in loss.target_online_network_params.values(True, True))
     SoftUpdate(loss, eps=0.99).step()
+
+
+def test_train_and_eval_reach_the_heads_batchnorm():
+    """convert_to_functional keeps the projector / predictor outside the child modules: eval() still
+    reaches their BatchNorm (running statistics, not batch statistics)."""
+    from navformer_rl.modules import NavFormerConfig, NavFormerModel
+
+    model = NavFormerModel(NavFormerConfig())
+    loss = BYOLLoss(model.static_encoder, model.general_encoder)
+    norms = [
+        m
+        for net in (loss.online_network, loss.predictor)
+        for m in net.modules()
+        if isinstance(m, torch.nn.BatchNorm1d)
+    ]
+    assert norms and all(m.training for m in norms)
+    assert loss.eval() is loss and not any(m.training for m in norms)
+    loss.train()
+    assert all(m.training for m in norms)
