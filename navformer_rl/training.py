@@ -11,7 +11,9 @@ One iteration (eq. 11)::
 The pieces are exposed so that a recipe can show the loop top to bottom (``recipes/navformer``):
 :func:`load_train_config` (YAML/dict -> dataclasses), :func:`build_trainer` (validates everything, opens the
 datasets, builds model, losses, optimisers, logger, restores a checkpoint when resuming), ``Trainer.step()``,
-``Trainer.save_checkpoint()``, ``Trainer.log()``. :func:`train` is that loop with tqdm progress.
+``Trainer.record()`` (adds the iteration's metrics to the log window and writes a row every
+``logger.log_interval`` iterations), ``Trainer.save_checkpoint()``. :func:`train` is that loop with tqdm
+progress.
 
 Library code: no hydra here. Configuration comes as plain dataclasses; ``navformer train`` and the hydra
 recipe both build them from the packaged ``navformer_rl/config/train.yaml`` layout.
@@ -581,9 +583,12 @@ class LogWindow:
         return row
 
     def state_dict(self) -> dict[str, dict]:
+        """``{"sums": {metric: float}, "counts": {metric: int}, "last": {metric: float}}`` (plain containers,
+        ``weights_only``-safe in ``resume.pt``)."""
         return {"sums": dict(self._sums), "counts": dict(self._counts), "last": dict(self._last)}
 
     def load_state_dict(self, state: Mapping[str, Mapping]) -> None:
+        """Inverse of :meth:`state_dict`."""
         self._sums = {str(k): float(v) for k, v in state["sums"].items()}
         self._counts = {str(k): int(v) for k, v in state["counts"].items()}
         self._last = {str(k): float(v) for k, v in state["last"].items()}

@@ -346,13 +346,15 @@ def evaluate(
             "seed": int(seed),
             "max_steps": episode_set.max_steps,
             "checkpoint_sha256": description.get("checkpoint_sha256"),
-            "factory": description.get("factory"),  # your own policy: module.qualname, not only its label
-            "video_fps": float(video_fps),
             "record_fields": sorted(RobotTrial.__dataclass_fields__),
             # results of another release (simulator or policy fixes) are recomputed, never mixed in
             "package_version": __version__,
         }
-        tasks = _make_tasks(episode_set, out_dir, label, maps_per_setup, videos_per_setup, identity)
+        if "factory" in description:  # your own policy: its module.qualname, not only its label
+            identity["factory"] = description["factory"]
+        tasks = _make_tasks(
+            episode_set, out_dir, label, maps_per_setup, videos_per_setup, video_fps, identity
+        )
         outputs, computed = _run_tasks(
             tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume
         )
@@ -491,8 +493,12 @@ def _make_tasks(
     label: str,
     maps_per_setup: int,
     videos_per_setup: int,
+    video_fps: float,
     identity: dict[str, Any],
 ) -> list[EpisodeTask]:
+    """One task per episode; its resume key hashes ``identity``, the episode, whether it saves a map and a
+    video, and the video's frame rate when it saves one (keys of results without the newer fields stay
+    as they were, so earlier runs resume)."""
     seen: dict[str, int] = {}
     tasks = []
     for index, episode in enumerate(episode_set.episodes):
@@ -500,6 +506,8 @@ def _make_tasks(
         seen[episode.setup] = rank + 1
         save_map, save_video = rank < maps_per_setup, rank < videos_per_setup
         content = {**identity, "episode": episode.to_json(), "map": save_map, "video": save_video}
+        if save_video:
+            content["video_fps"] = float(video_fps)
         key = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
         tasks.append(EpisodeTask(index, episode.to_json(), save_map, save_video, str(out_dir), label, key))
     return tasks

@@ -102,9 +102,8 @@ def _recorded_ablation(run: dict[str, Any]) -> str | None:
 def _paper_numbers(summary: SetupSummary, column: str) -> tuple[float, float, float] | None:
     if summary.setup == ALL_SETUPS:
         return None
-    if (
-        column in ABLATION_TO_TABLE4.values()
-    ):  # Table IV: four measured Jackals, not the unseen-obstacle setup
+    if column in ABLATION_TO_TABLE4.values():
+        # Table IV: four measured Jackals, not the unseen-obstacle setup
         same_setup = (summary.size, summary.n_robots) == TABLE4_SETUP
         return TABLE4[column] if same_setup and not summary.setup.endswith("-unseen") else None
     if summary.setup.endswith("-unseen"):
@@ -282,6 +281,10 @@ def _unpaired_warning(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str | None
     )
 
 
+_UNITS = {"trial": "trials", "world": "mazes"}
+"""What each :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS` value resamples, as the report names it."""
+
+
 def _interval_settings(
     runs: Sequence[tuple[Path, Mapping[str, Any]]], confidence: float | None, cluster: str | None
 ) -> tuple[float, str, list[str]]:
@@ -295,7 +298,7 @@ def _interval_settings(
         clusters = {units for _, units in recorded.values()}
         cluster = clusters.pop() if len(clusters) == 1 else "trial"
     differing = [
-        f"{folder} was evaluated with {100 * level:g} % intervals over {units}s"
+        f"{folder} was evaluated with {100 * level:g} % intervals over {_UNITS[units]} (its own `summary.md`)"
         for folder, (level, units) in recorded.items()
         if (level, units) != (confidence, cluster)
     ]
@@ -427,8 +430,8 @@ def write_report(
         parts.append(
             "Note: "
             + "; ".join(differing)
-            + f" (their own `summary.md`); this report recomputes every interval at {100 * confidence:g} % "
-            f"over {cluster}s from the per-episode rows.\n"
+            + f"; this report recomputes every interval at {100 * confidence:g} % over {_UNITS[cluster]} "
+            "from the per-episode rows.\n"
         )
     parts.append(table_markdown(summaries, labels))
     parts.append(f"![SR, SPL and CR per setup]({plot.name})\n")

@@ -49,7 +49,7 @@ def test_make_episodes_then_evaluate_then_report(tmp_path, capsys):
     assert _run(["evaluate", "report", str(out), "--out", str(report), "--cluster-by", "trial"]) == 0
     text = report.read_text()
     assert "Intervals: Wilson on the trial-clustered" in text
-    assert f"Note: {out} was evaluated with 95 % intervals over worlds" in text
+    assert f"Note: {out} was evaluated with 95 % intervals over mazes (its own `summary.md`)" in text
     with pytest.raises(SystemExit):
         _run(["evaluate", "report", str(out), "--out", str(report), "--cluster-by", "maze"])
     assert "../vrw/maps/7.5m-2r_w00t00.png" in text

@@ -287,3 +287,14 @@ def test_resume_tells_apart_your_own_policies_that_share_a_label(tmp_path, tiny_
     assert driving.episodes_computed == len(tiny_episodes)  # not the standing policy's rows
     assert all(r.path_length > 0.0 for r in driving.records)
     assert json.loads((out / "run.json").read_text())["factory"].endswith(".driving_policy")
+
+
+def test_a_new_video_frame_rate_recomputes_only_the_episodes_with_a_video(tmp_path, tiny_episodes):
+    out = tmp_path / "vrw"
+    common = dict(maps_per_setup=0, videos_per_setup=1, progress=False, seed=3)
+    evaluate("vrw", tiny_episodes, out, video_fps=10.0, **common)
+    again = evaluate("vrw", tiny_episodes, out, video_fps=5.0, **common)
+    assert again.episodes_computed == 1  # the first episode of the setup has the video; the other is reused
+    capture = cv2.VideoCapture(str(out / again.files["videos"][0]))
+    assert capture.get(cv2.CAP_PROP_FPS) == 5.0
+    capture.release()

@@ -196,10 +196,10 @@ class NavFormerModel(nn.Module):
             raise ValueError(f"window_steps={window_steps!r}: expected None or a positive int")
         if target_pixels.dim() == pixels.dim():
             target_pixels = target_pixels[:, 0]
-        if mask is not None:  # padded steps' inputs zeroed: a NaN or 1e30 there would reach valid outputs
-            step = step.masked_fill(
-                ~mask, 0
-            )  # through 0 * NaN in the attention product and LayerNorm overflow
+        if mask is not None:
+            # padded steps' inputs zeroed: a NaN or 1e30 left there would reach valid outputs through
+            # 0 * NaN in the attention product and LayerNorm overflow
+            step = step.masked_fill(~mask, 0)
             return_to_go = return_to_go.masked_fill(~mask[..., None], 0.0)
             action = action.masked_fill(~mask[..., None], 0.0)
         dtype = self.config.torch_autocast_dtype
