@@ -20,6 +20,16 @@ def scalars(run_dir: Path, name: str) -> list[tuple[int, float]]:
         return [(int(step), float(value)) for step, value in csv.reader(handle)]
 
 
+def crash_after_checkpoint(cfg) -> None:
+    """A run that checkpoints at iteration 3, then runs (and logs) iteration 4 and "crashes": the trainer is
+    dropped, so a resume must drop the row it logged after its checkpoint."""
+    trainer = build_trainer(cfg)
+    for _ in range(3):
+        trainer.record(trainer.step())
+    trainer.save_checkpoint()
+    assert trainer.record(trainer.step())
+
+
 def weights(run_dir: Path, iteration: int) -> dict[str, torch.Tensor]:
     return load_file(str(run_dir / "checkpoints" / f"iter_{iteration:06d}" / "model.safetensors"))
 
@@ -38,15 +48,9 @@ def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_tra
     common = [f"encoder_training={encoder_training}", "optim.iterations=6", "checkpoint.keep_last=0", *extra]
     straight = train(tiny_config(*common, f"output_dir={tmp_path / 'straight'}", "checkpoint.interval=6"))
 
-    # First process: checkpoint at iteration 3, one more iteration, then a "crash" (the trainer is dropped).
+    # First process: checkpoint at iteration 3, one more iteration (its row is logged), then a "crash".
     interrupted_dir = tmp_path / "interrupted"
-    cfg = tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3")
-    trainer = build_trainer(cfg)
-    for _ in range(3):
-        trainer.log(trainer.step())
-    trainer.save_checkpoint()
-    trainer.log(trainer.step())  # logged after the checkpoint: the resumed run must drop this row
-    del trainer
+    crash_after_checkpoint(tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3"))
 
     resumed = train(
         tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3", "resume=true")
@@ -135,13 +139,7 @@ def test_every_log_row_summarises_its_window_also_across_a_resume(tiny_config, t
     assert [s for s, _ in scalars(straight.run_dir, "loss_dt_collision_avoidance")] == [4, 6]
     # the crashed process: checkpoint at 3 (iterations 1-3 not logged yet), a row at 4, then gone
     interrupted_dir = tmp_path / "interrupted"
-    cfg = tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3")
-    trainer = build_trainer(cfg)
-    for _ in range(3):
-        trainer.record(trainer.step())
-    trainer.save_checkpoint()
-    assert trainer.record(trainer.step())
-    del trainer
+    crash_after_checkpoint(tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3"))
     train(tiny_config(*common, f"output_dir={interrupted_dir}", "checkpoint.interval=3", "resume=true"))
     for name in ("loss", "loss_dt", "loss_dt_exploration", "loss_dt_collision_avoidance", "loss_byol", "tau"):
         assert scalars(interrupted_dir, name) == scalars(straight.run_dir, name), name
