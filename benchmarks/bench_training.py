@@ -40,6 +40,15 @@ CONFIGS: dict[str, dict] = {
         ],
         "hugetlb": True,
     },
+    "bf16 levers without prefetching (data.prefetch=false)": {
+        "overrides": [
+            "model.autocast_dtype=bfloat16",
+            "model.channels_last=true",
+            "model.encoder_micro_batch=512",
+            "data.prefetch=false",
+        ],
+        "hugetlb": True,
+    },
     "bf16 levers + encoders frozen in L_DT (encoder_training=frozen)": {
         "overrides": [
             "model.autocast_dtype=bfloat16",
@@ -130,6 +139,7 @@ def run_one(data: dict[str, Path], overrides: list[str], repeats: int, out_dir: 
             times[task].append(metrics["iteration_s"])
             frames[task] = metrics["frames"]
     load.append(os.getloadavg()[0])
+    trainer.close()
     median = {task: statistics.median(values) for task, values in times.items()}
     cpu_median = {task: statistics.median(values) for task, values in cpu_times.items()}
     mean = (median["exploration"] + median["collision_avoidance"]) / 2

@@ -40,6 +40,8 @@ import torch
 
 from navformer_rl import checkpoint as ckpt
 from navformer_rl.checks import check_int, check_number
+from navformer_rl.data.prefetch import Prefetcher
+from navformer_rl.devices import check_device, resolve_device
 from navformer_rl.durable import atomic_write_text
 
 ABLATIONS: dict[str, str] = {
@@ -72,7 +74,6 @@ _NO_COLLISION = frozenset({"no_dca"})
 
 ENCODER_TRAINING = ("joint", "frozen")
 LOGGER_BACKENDS = ("csv", "tensorboard", "none")
-DEVICES = ("auto", "cpu", "cuda")
 MODEL_KEYS_SET_ELSEWHERE = {"detach_encoders": "encoder_training=frozen"}
 RESUME_MAY_CHANGE = frozenset(
     {
@@ -85,13 +86,16 @@ RESUME_MAY_CHANGE = frozenset(
         "data.exploration_path",
         "data.collision_path",
         "data.ssl_path",
+        "data.prefetch",
     }
 )
 """Settings a resumed run may change; any other difference from the checkpoint's config is refused."""
 TRAJECTORY_KEYS = [("pixels",), ("action",), ("return_to_go",), ("step",)]
+"""Keys gathered from D_e / D_ca per step (plus ``mask`` and ``target_pixels`` added by the batcher)."""
+BATCH_KEYS = ["pixels", "action", "return_to_go", "step", "mask", "target_pixels"]
+"""What an iteration takes from a trajectory batch to the device."""
 DATASET_KEYS = {"e": "exploration_path", "ca": "collision_path", "ssl": "ssl_path"}
 """The config key (under ``data.``) of each dataset kind."""
-"""Keys gathered from D_e / D_ca per step (plus ``mask`` and ``target_pixels`` added by the batcher)."""
 
 
 # --------------------------------------------------------------------------------------- configuration
@@ -108,6 +112,9 @@ class DataConfig:
         context_steps: longest trajectory window in steps; None = what fits the model's context
             (``NavFormerConfig.window_steps`` = 1024 // 4 = 256 steps). Longer trajectories are cut to a window
             at a random offset.
+        prefetch: draw the next iteration's batches in a background thread while this one trains
+            (:class:`~navformer_rl.data.prefetch.Prefetcher`; the same batches, so the same losses). On CUDA the
+            batches are also gathered into page-locked memory, so their copies to the GPU are asynchronous.
     """
 
     exploration_path: str | None = None
@@ -117,6 +124,7 @@ class DataConfig:
     collision_batch_trajs: int = 150
     ssl_batch_pairs: int = 512
     context_steps: int | None = None
+    prefetch: bool = True
 
 
 @dataclass
@@ -187,7 +195,7 @@ class TrainConfig:
         encoder_training: ``joint`` - L = L_BYOL + L_DT trains the encoders (eq. 11, the paper);
             ``frozen`` - L_DT does not reach the encoders, which learn from BYOL only.
         seed: seeds torch, numpy, python and every sampler.
-        device: ``auto`` (CUDA when available), ``cpu`` or ``cuda``.
+        device: ``auto`` (CUDA when available), ``cpu``, ``cuda`` or ``cuda:N``.
         output_dir: the run directory (checkpoints, logs, config).
         resume: continue from the run directory's latest checkpoint (start fresh when it has none).
     """
@@ -436,10 +444,7 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
         )
     if cfg.logger.backend not in LOGGER_BACKENDS:
         raise ValueError(f"logger.backend={cfg.logger.backend!r}: expected one of {list(LOGGER_BACKENDS)}")
-    if cfg.device not in DEVICES:
-        raise ValueError(f"device={cfg.device!r}: expected one of {list(DEVICES)}")
-    if cfg.device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device=cuda but torch sees no CUDA device; use device=auto or device=cpu")
+    check_device(cfg.device)
     for name in ("exploration_batch_trajs", "collision_batch_trajs", "ssl_batch_pairs"):
         check_int(getattr(cfg.data, name), f"data.{name}")
     if cfg.data.ssl_batch_pairs < 2 and cfg.uses_ssl:
@@ -501,13 +506,6 @@ def model_config(cfg: TrainConfig):
     changes = dict(cfg.model)
     changes["detach_encoders"] = cfg.encoder_training == "frozen"
     return NavFormerConfig.ablation(_MODEL_ABLATION[cfg.ablation], **changes)
-
-
-def resolve_device(name: str) -> torch.device:
-    """``auto`` -> CUDA when available, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 # --------------------------------------------------------------------------------------------- trainer
@@ -601,6 +599,8 @@ class Trainer:
         cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
         model: ``NavFormerModel``.  dt_loss: ``NavFormerLoss``.  byol_loss: ``BYOLLoss`` or None (no SSL).
         cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
+        batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
+            (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
         optimizers: ``{"navformer": AdamW, "dve": Adam}`` ("dve" absent without SSL).
         scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
@@ -622,6 +622,8 @@ class Trainer:
         _seed_everything(cfg.seed)
 
         context = cfg.data.context_steps or self.model_config.window_steps
+        # prefetching trains on one batch while the next is gathered: two buffer sets per batcher
+        buffers = {"buffer_sets": 2 if cfg.data.prefetch else 1, "pin_memory": self.device.type == "cuda"}
         batchers = {}
         for task, key, size, seed_offset in (
             ("exploration", "e", cfg.data.exploration_batch_trajs, 1),
@@ -632,14 +634,17 @@ class Trainer:
                 None
                 if dataset is None
                 else dataset.trajectory_batcher(
-                    size, context, seed=cfg.seed + seed_offset, keys=TRAJECTORY_KEYS
+                    size, context, seed=cfg.seed + seed_offset, keys=TRAJECTORY_KEYS, **buffers
                 )
             )
         self.cross_task = CrossTaskSampler(batchers["exploration"], batchers["collision_avoidance"])
         self.pairs = (
-            datasets["ssl"].pair_batcher(cfg.data.ssl_batch_pairs, seed=cfg.seed + 3)
+            datasets["ssl"].pair_batcher(cfg.data.ssl_batch_pairs, seed=cfg.seed + 3, **buffers)
             if cfg.uses_ssl
             else None
+        )
+        self.batches = Prefetcher(
+            self._draw_batches, self._sampler_state, self._load_sampler_state, enabled=cfg.data.prefetch
         )
 
         self.model = NavFormerModel(self.model_config).to(self.device)
@@ -696,6 +701,28 @@ class Trainer:
             )
         return optimizers
 
+    # -- batches --------------------------------------------------------------------------------------
+    def _draw_batches(self) -> tuple[str, Any, Any]:
+        """One iteration's ``(task, trajectory batch [N] with BATCH_KEYS, D_ssl pairs [B] or None)``."""
+        task, batch = self.cross_task.sample()
+        pairs = self.pairs.sample() if self.pairs is not None else None
+        return task, batch.select(*BATCH_KEYS), pairs
+
+    def _sampler_state(self) -> dict[str, Any]:
+        state = {"cross_task": self.cross_task.state_dict()}
+        if self.pairs is not None:
+            state["pairs"] = self.pairs.state_dict()
+        return state
+
+    def _load_sampler_state(self, state: Mapping[str, Any]) -> None:
+        self.cross_task.load_state_dict(state["cross_task"])
+        if self.pairs is not None:
+            self.pairs.load_state_dict(state["pairs"])
+
+    def close(self) -> None:
+        """Stop drawing batches ahead (the samplers keep the state of the batches handed out)."""
+        self.batches.close()
+
     # -- one iteration --------------------------------------------------------------------------------
     def step(self) -> dict[str, float]:
         """Run one training iteration (eq. 11) and return its metrics as floats.
@@ -708,11 +735,10 @@ class Trainer:
 
         sync = self.device.type == "cuda"  # time the GPU work of each phase, not its launches
         start = time.perf_counter()
-        with timeit("sample", sync=sync):
-            task, batch = self.cross_task.sample()
-            keys = ["pixels", "action", "return_to_go", "step", "mask", "target_pixels"]
-            batch = batch.select(*keys).to(self.device, non_blocking=True)
-            pairs = self.pairs.sample().to(self.device, non_blocking=True) if self.pairs is not None else None
+        with timeit("sample", sync=sync):  # with data.prefetch: the wait for the batches drawn ahead
+            task, batch, pairs = self.batches.next(draw_ahead=self.iteration + 1 < self.cfg.optim.iterations)
+            batch = batch.to(self.device, non_blocking=True)
+            pairs = pairs.to(self.device, non_blocking=True) if pairs is not None else None
         for optimizer in self.optimizers.values():
             optimizer.zero_grad(set_to_none=True)
         with timeit("forward_backward", sync=sync):
@@ -820,7 +846,6 @@ class Trainer:
         state: dict[str, Any] = {
             "iteration": self.iteration,
             "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
-            "cross_task": self.cross_task.state_dict(),
             "rng": ckpt.capture_rng_state(),
             "log_window": self.log_window.state_dict(),
         }
@@ -830,7 +855,8 @@ class Trainer:
             state["byol"] = self.byol_loss.state_dict()
             state["byol_augmentation"] = self.byol_loss.augmentation.rng_state()
             state["tau_schedule"] = self.tau_schedule.state_dict()
-            state["pairs"] = self.pairs.state_dict()
+        # after the batches handed out, not after one drawn ahead: a resumed run draws the next one again
+        state.update(self.batches.state_dict())
         return state
 
     def save_checkpoint(self) -> Path:
@@ -860,14 +886,13 @@ class Trainer:
         state = ckpt.load_resume_state(folder)
         for name, optimizer in self.optimizers.items():
             optimizer.load_state_dict(state["optimizers"][name])
-        self.cross_task.load_state_dict(state["cross_task"])
+        self.batches.load_state_dict({k: state[k] for k in ("cross_task", "pairs") if k in state})
         if self.scaler.is_enabled():
             self.scaler.load_state_dict(state["grad_scaler"])
         if self.byol_loss is not None:
             self.byol_loss.load_state_dict(state["byol"])
             self.byol_loss.augmentation.set_rng_state(state["byol_augmentation"])
             self.tau_schedule.load_state_dict(state["tau_schedule"])
-            self.pairs.load_state_dict(state["pairs"])
         ckpt.restore_rng_state(state["rng"])
         if "log_window" in state:  # absent from checkpoints of earlier versions: their window starts empty
             self.log_window.load_state_dict(state["log_window"])
@@ -1044,7 +1069,7 @@ def train(cfg: TrainConfig) -> TrainResult:
     bar = tqdm(
         total=total, initial=trainer.iteration, disable=not cfg.logger.progress, desc="navformer train"
     )
-    with contextlib.closing(bar):
+    with contextlib.closing(bar), contextlib.closing(trainer):
         while trainer.iteration < total:
             metrics = trainer.step()
             trainer.record(metrics)

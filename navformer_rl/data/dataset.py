@@ -172,11 +172,22 @@ class NavDataset:
         seed: int = 0,
         keys: list[tuple[str, ...]] | None = None,
         reuse_buffers: bool = True,
+        buffer_sets: int = 1,
+        pin_memory: bool = False,
     ) -> TrajectoryBatcher:
-        """Fast padded batches ``[N]`` with per-step keys ``[N, T, ...]``, ``mask`` and ``target_pixels``."""
+        """Fast padded batches ``[N]`` with per-step keys ``[N, T, ...]``, ``mask`` and ``target_pixels``
+        (buffer options: :class:`TrajectoryBatcher`)."""
         self._require_trajectories(num_trajectories)
         sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
-        return TrajectoryBatcher(self.rows, self.targets, sampler, keys=keys, reuse_buffers=reuse_buffers)
+        return TrajectoryBatcher(
+            self.rows,
+            self.targets,
+            sampler,
+            keys=keys,
+            reuse_buffers=reuse_buffers,
+            buffer_sets=buffer_sets,
+            pin_memory=pin_memory,
+        )
 
     def pair_buffer(self, batch_size: int = 512, seed: int = 0) -> TensorDictReplayBuffer:
         """TorchRL buffer of D_ssl pairs, without replacement within an epoch."""
@@ -187,10 +198,25 @@ class NavDataset:
             generator=torch.Generator().manual_seed(seed),
         )
 
-    def pair_batcher(self, batch_size: int = 512, seed: int = 0, reuse_buffers: bool = True) -> PairBatcher:
-        """Fast D_ssl batches ``[B]`` (``pixels_static``, ``pixels_dynamic``, ``world``, ``pose``)."""
+    def pair_batcher(
+        self,
+        batch_size: int = 512,
+        seed: int = 0,
+        reuse_buffers: bool = True,
+        buffer_sets: int = 1,
+        pin_memory: bool = False,
+    ) -> PairBatcher:
+        """Fast D_ssl batches ``[B]`` (``pixels_static``, ``pixels_dynamic``, ``world``, ``pose``; buffer
+        options: :class:`PairBatcher`)."""
         self._require_kind(DatasetKind.SSL)
-        return PairBatcher(self.rows, batch_size=batch_size, seed=seed, reuse_buffers=reuse_buffers)
+        return PairBatcher(
+            self.rows,
+            batch_size=batch_size,
+            seed=seed,
+            reuse_buffers=reuse_buffers,
+            buffer_sets=buffer_sets,
+            pin_memory=pin_memory,
+        )
 
     def _require_trajectories(self, num_trajectories: int) -> None:
         if not self.kind.is_trajectory:

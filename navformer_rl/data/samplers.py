@@ -254,15 +254,24 @@ class TrajectorySampler(Sampler):
         )
 
 
-def _gather_into(source: torch.Tensor, index: torch.Tensor, buffer: torch.Tensor | None) -> torch.Tensor:
+def _gather_into(
+    source: torch.Tensor, index: torch.Tensor, buffer: torch.Tensor | None, pin_memory: bool = False
+) -> torch.Tensor:
     """``source[index]`` written into the first ``len(index)`` rows of ``buffer`` (no allocation), or into a
-    new tensor when ``buffer`` is None."""
+    new tensor (page-locked with ``pin_memory``) when ``buffer`` is None."""
     if buffer is None:
-        out = torch.empty((index.numel(), *source.shape[1:]), dtype=source.dtype)
+        out = torch.empty((index.numel(), *source.shape[1:]), dtype=source.dtype, pin_memory=pin_memory)
     else:
         out = buffer[: index.numel()]
     torch.index_select(source.as_subclass(torch.Tensor), 0, index, out=out)
     return out
+
+
+def _check_buffer_options(buffer_sets: int, pin_memory: bool) -> None:
+    if isinstance(buffer_sets, bool) or not isinstance(buffer_sets, int) or buffer_sets < 1:
+        raise ValueError(f"buffer_sets must be an integer >= 1, got {buffer_sets!r}")
+    if pin_memory and not torch.cuda.is_available():
+        raise ValueError("pin_memory=True needs CUDA (page-locked memory speeds up copies to a GPU)")
 
 
 class TrajectoryBatcher:
@@ -277,8 +286,11 @@ class TrajectoryBatcher:
 
     With ``reuse_buffers=True`` (default) every key is gathered with ``index_select(out=)`` into buffers that
     are reused across calls (grown in steps of 32 timesteps up to ``N * context_steps`` rows when a batch
-    needs more), so the returned tensors are overwritten by the next ``sample()``: consume (or ``.clone()``)
-    a batch before drawing the next. ``reuse_buffers=False`` allocates fresh tensors per batch.
+    needs more), so the returned tensors are overwritten by the ``buffer_sets``-th next ``sample()`` (the
+    next one by default): consume (or ``.clone()``) a batch before then. ``buffer_sets=2`` lets one batch
+    train while the next is drawn (:class:`~navformer_rl.data.prefetch.Prefetcher`). ``pin_memory=True``
+    (CUDA only) allocates page-locked buffers, so ``.to("cuda", non_blocking=True)`` copies asynchronously.
+    ``reuse_buffers=False`` allocates fresh tensors per batch.
     """
 
     _GROWTH_STEPS = 32
@@ -290,7 +302,10 @@ class TrajectoryBatcher:
         sampler: TrajectorySampler,
         keys: list[tuple[str, ...]] | None = None,
         reuse_buffers: bool = True,
+        buffer_sets: int = 1,
+        pin_memory: bool = False,
     ):
+        _check_buffer_options(buffer_sets, pin_memory)
         if sampler.episodes is None:
             sampler.bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"]))
         self.rows = rows
@@ -300,37 +315,50 @@ class TrajectoryBatcher:
             TRAJECTORY_FIELDS if keys is None else {tuple(k): TRAJECTORY_FIELDS[tuple(k)] for k in keys}
         )
         self.reuse_buffers = reuse_buffers
+        self.pin_memory = pin_memory
         self._sources = {key: rows.get(key).as_subclass(torch.Tensor) for key in self.fields}
-        self._buffers: dict[tuple[str, ...], torch.Tensor] = {}
-        self._target_buffer = (
-            torch.empty((sampler.num_trajectories, *targets.shape[1:]), dtype=targets.dtype)
+        self._buffer_sets: list[dict[tuple[str, ...], torch.Tensor]] = [{} for _ in range(buffer_sets)]
+        self._target_buffers = [
+            torch.empty(
+                (sampler.num_trajectories, *targets.shape[1:]), dtype=targets.dtype, pin_memory=pin_memory
+            )
             if reuse_buffers
             else None
-        )
+            for _ in range(buffer_sets)
+        ]
+        self._turn = 0  # which buffer set the next sample() fills
 
-    def _buffer(self, key: tuple[str, ...], n_rows: int, N: int) -> torch.Tensor | None:
-        """The reusable buffer of ``key`` with at least ``n_rows`` rows (None without reuse)."""
+    def _buffer(
+        self, buffers: dict[tuple[str, ...], torch.Tensor], key: tuple[str, ...], n_rows: int, N: int
+    ) -> torch.Tensor | None:
+        """The reusable buffer of ``key`` in ``buffers`` with at least ``n_rows`` rows (None without reuse)."""
         if not self.reuse_buffers:
             return None
-        buffer = self._buffers.get(key)
+        buffer = buffers.get(key)
         if buffer is None or buffer.shape[0] < n_rows:
             steps = -(-n_rows // (N * self._GROWTH_STEPS)) * self._GROWTH_STEPS
             rows = min(N * min(steps, self.sampler.context_steps), N * self.sampler.context_steps)
             spec = self.fields[key]
-            buffer = torch.empty((max(rows, n_rows), *spec.shape), dtype=spec.dtype)
-            self._buffers[key] = buffer
+            buffer = torch.empty(
+                (max(rows, n_rows), *spec.shape), dtype=spec.dtype, pin_memory=self.pin_memory
+            )
+            buffers[key] = buffer
         return buffer
 
     def sample(self) -> TensorDict:
         draw = self.sampler.draw()
         N, T = draw.index.shape
         flat = draw.index.reshape(-1)
+        turn, self._turn = self._turn, (self._turn + 1) % len(self._buffer_sets)
+        buffers = self._buffer_sets[turn]
         out = TensorDict(batch_size=[N])
         for key, spec in self.fields.items():
-            buffer = self._buffer(key, flat.numel(), N)
-            out.set(key, _gather_into(self._sources[key], flat, buffer).view(N, T, *spec.shape))
+            buffer = self._buffer(buffers, key, flat.numel(), N)
+            gathered = _gather_into(self._sources[key], flat, buffer, self.pin_memory)
+            out.set(key, gathered.view(N, T, *spec.shape))
         target_rows = self.sampler.episodes.target_id[draw.trajectory]
-        out.set("target_pixels", _gather_into(self.targets, target_rows, self._target_buffer))
+        target = _gather_into(self.targets, target_rows, self._target_buffers[turn], self.pin_memory)
+        out.set("target_pixels", target)
         out.set("mask", draw.mask)
         out.set("trajectory", draw.trajectory)
         return out
@@ -346,12 +374,22 @@ class PairBatcher:
     """D_ssl batches of ``batch_size`` image pairs (512 in the paper), without replacement within an epoch.
 
     ``sample() -> TensorDict [B]`` with ``pixels_static`` / ``pixels_dynamic`` uint8 ``[B, 84, 84, 3]``,
-    ``world`` int64 ``[B]``, ``pose`` float32 ``[B, 3]``. Buffers are reused as in :class:`TrajectoryBatcher`.
+    ``world`` int64 ``[B]``, ``pose`` float32 ``[B, 3]``. Buffers (``reuse_buffers``, ``buffer_sets``,
+    ``pin_memory``) work as in :class:`TrajectoryBatcher`.
     """
 
-    def __init__(self, rows: TensorDict, batch_size: int = 512, seed: int = 0, reuse_buffers: bool = True):
+    def __init__(
+        self,
+        rows: TensorDict,
+        batch_size: int = 512,
+        seed: int = 0,
+        reuse_buffers: bool = True,
+        buffer_sets: int = 1,
+        pin_memory: bool = False,
+    ):
         from navformer_rl.data.schema import SSL_FIELDS
 
+        _check_buffer_options(buffer_sets, pin_memory)
         if batch_size < 1 or batch_size > rows.shape[0]:
             raise ValueError(
                 f"batch_size must be in [1, {rows.shape[0]}] (pairs in the dataset), got {batch_size}"
@@ -360,10 +398,19 @@ class PairBatcher:
         self.ids = EpochPermutation(rows.shape[0], seed)
         self.fields = SSL_FIELDS
         self._sources = {key: rows.get(key).as_subclass(torch.Tensor) for key in SSL_FIELDS}
-        self._buffers = {
-            key: (torch.empty((batch_size, *spec.shape), dtype=spec.dtype) if reuse_buffers else None)
-            for key, spec in SSL_FIELDS.items()
-        }
+        self.pin_memory = pin_memory
+        self._buffer_sets = [
+            {
+                key: (
+                    torch.empty((batch_size, *spec.shape), dtype=spec.dtype, pin_memory=pin_memory)
+                    if reuse_buffers
+                    else None
+                )
+                for key, spec in SSL_FIELDS.items()
+            }
+            for _ in range(buffer_sets)
+        ]
+        self._turn = 0  # which buffer set the next sample() fills
 
     @property
     def epoch(self) -> int:
@@ -371,9 +418,11 @@ class PairBatcher:
 
     def sample(self) -> TensorDict:
         index = self.ids.draw(self.batch_size)
+        buffers = self._buffer_sets[self._turn]
+        self._turn = (self._turn + 1) % len(self._buffer_sets)
         out = TensorDict(batch_size=[self.batch_size])
         for key in self.fields:
-            out.set(key, _gather_into(self._sources[key], index, self._buffers[key]))
+            out.set(key, _gather_into(self._sources[key], index, buffers[key], self.pin_memory))
         out.set("index", index)
         return out
 

@@ -59,6 +59,12 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--seed", type=cli_args.seed, default=0, help="seed of stochastic policies (default 0)"
     )
     _add_cluster_option(parser, "trial")
+    parser.add_argument(
+        "--device",
+        default="cpu",
+        help="where navformer / dt run their model: cpu (default), cuda, cuda:N or auto; the simulation "
+        "always runs on the CPU",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--fresh", action="store_true", help="recompute every episode (default: reuse finished ones in --out)"
@@ -133,9 +139,19 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
         type=int,
         help=f"with --protocol: steps per trial (default and paper: {MAX_EPISODE_STEPS})",
     )
+    parser.add_argument(
+        "--setups",
+        type=_setup_names,
+        help="with --protocol: only these of its setups, comma-separated (e.g. 7.5m-2r,12.5m-4r; default: all)",
+    )
+
+
+def _setup_names(text: str) -> list[str]:
+    return [name.strip() for name in text.split(",") if name.strip()]
 
 
 _GENERATION_OPTIONS = ("trials_per_setup", "trials_per_world", "episode_seed", "max_steps")
+"""Positional arguments of ``make_protocol_episodes`` after the protocol (``--setups`` is a keyword)."""
 
 
 def _generation(args: argparse.Namespace) -> tuple[int, ...]:
@@ -160,9 +176,9 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     if args.episodes is None and args.protocol is None:
         raise ValueError("give the episodes: --episodes FILE or --protocol {table1,table3,table4,smoke}")
     # Refuse a bad method / checkpoint / label before spending time on episode generation.
-    PolicySpec(args.method, args.checkpoint, args.seed).validate(args.label)
+    PolicySpec(args.method, args.checkpoint, args.seed, device=args.device).validate(args.label)
     if args.episodes is not None:
-        given = [name for name in _GENERATION_OPTIONS if getattr(args, name) is not None]
+        given = [name for name in (*_GENERATION_OPTIONS, "setups") if getattr(args, name) is not None]
         if given:  # the file fixes them: silently ignoring them would run other episodes than asked for
             flags = ", ".join("--" + name.replace("_", "-") for name in given)
             raise ValueError(
@@ -171,7 +187,9 @@ def _run_evaluate(args: argparse.Namespace) -> int:
             )
         episode_set = load_episode_set(args.episodes)
     else:
-        episode_set = make_protocol_episodes(args.protocol, *_generation(args), workers=args.workers)
+        episode_set = make_protocol_episodes(
+            args.protocol, *_generation(args), workers=args.workers, setups=args.setups
+        )
     result = evaluate(
         args.method,
         episode_set,
@@ -183,6 +201,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         maps_per_setup=args.maps,
         videos_per_setup=args.videos,
         cluster=args.cluster_by,
+        device=args.device,
         progress=not args.no_progress,
         resume=not args.fresh,
     )
@@ -202,7 +221,9 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes, save_episode_set
 
     out = _output_file(args.make_out, "--out")
-    episode_set = make_protocol_episodes(args.make_protocol, *_generation(args), workers=args.make_workers)
+    episode_set = make_protocol_episodes(
+        args.make_protocol, *_generation(args), workers=args.make_workers, setups=args.setups
+    )
     if out.exists():  # the same episodes again is fine; anything else would be lost
         try:
             same = load_episode_set(out).content_hash() == episode_set.content_hash()

@@ -336,10 +336,22 @@ def make_protocol_episodes(
     seed: int = 0,
     max_steps: int = MAX_EPISODE_STEPS,
     workers: int = 1,
+    setups: Sequence[str] | None = None,
 ) -> EpisodeSet:
-    """:func:`make_episode_set` for a named protocol (see :func:`protocol_setups`)."""
+    """:func:`make_episode_set` for a named protocol (see :func:`protocol_setups`), or for only the setups it
+    names in ``setups`` (e.g. ``["7.5m-2r", "12.5m-4r"]`` of ``table1``; ValueError for a name the protocol
+    lacks). A setup's episodes do not depend on which other setups are made."""
+    chosen = protocol_setups(protocol)
+    if setups is not None:
+        names = [s.name for s in chosen]
+        unknown = [name for name in setups if name not in names]
+        if unknown or not setups:
+            raise ValueError(
+                f"setups {list(setups)!r}: expected a non-empty list of setups of protocol {protocol!r}: {names}"
+            )
+        chosen = [s for s in chosen if s.name in setups]
     return make_episode_set(
-        protocol_setups(protocol),
+        chosen,
         trials_per_setup,
         trials_per_world,
         seed,

@@ -45,6 +45,7 @@ import numpy as np
 
 from navformer_rl import __version__
 from navformer_rl.checks import check_int
+from navformer_rl.devices import check_device, resolve_device
 from navformer_rl.durable import atomic_write_text, folder_lock
 from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker, check_cluster
@@ -72,6 +73,8 @@ class PolicySpec:
         method: one of :data:`METHODS`.
         checkpoint: run dir / checkpoint folder / ``model.safetensors`` for ``navformer`` and ``dt``.
         seed: base seed of stochastic policies (VRW, FCA's noise); each episode adds its own seed.
+        device: where ``navformer`` / ``dt`` run their model (``cpu``, ``cuda``, ``cuda:N``, ``auto``); the
+            other methods have no model and ignore it.
     """
 
     method: str
@@ -80,15 +83,22 @@ class PolicySpec:
     factory: Callable[[], Any] | None = None
     """For your own policy: a picklable zero-argument callable (e.g. a module-level function) returning a
     ``TensorDictModuleBase`` that writes ``("agents", "action")``; ``method`` is then its label."""
+    device: str = "cpu"
 
     def validate(self, label: str | None = None) -> dict[str, Any]:
         """Check the method, (by loading it) the checkpoint, and that ``label`` (default: the method) names no
         training ablation the checkpoint was not trained with (:func:`label_ablation_problem`; ValueError);
         returns a description for ``run.json`` (``model_config``, ``checkpoint_sha256`` and the checkpoint's
         training ``ablation`` for ``navformer`` / ``dt``)."""
+        check_device(self.device, "device (--device)")
         if self.factory is not None:
             if self.checkpoint is not None:
                 raise ValueError("a policy factory takes no checkpoint; load it inside the factory")
+            if self.device != "cpu":
+                raise ValueError(
+                    f"device={self.device!r} with a policy factory: your factory places its own model (e.g. "
+                    "return NavFormerPolicy(model.to('cuda'))); leave device at 'cpu'"
+                )
             # your own policy: nothing to check a label against
             return {
                 "factory": f"{getattr(self.factory, '__module__', '?')}.{getattr(self.factory, '__qualname__', self.factory)}"
@@ -104,7 +114,7 @@ class PolicySpec:
                 )
             from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
 
-            _, config = self.build_with_config()
+            _, config = self._load_checkpoint()  # on the CPU: this process only checks it
             weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
             description = {
                 "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
@@ -124,18 +134,21 @@ class PolicySpec:
             raise ValueError(problem)
         return description
 
+    def _load_checkpoint(self):
+        """``(NavFormerPolicy on the CPU, NavFormerConfig)`` of ``navformer`` / ``dt``."""
+        from navformer_rl.baselines.dt import load_dt_policy
+        from navformer_rl.baselines.navformer import load_navformer_policy
+
+        load = load_navformer_policy if self.method == "navformer" else load_dt_policy
+        return load(self.checkpoint)
+
     def build_with_config(self):
-        """``(policy, model config or None)``."""
+        """``(policy, model config or None)``; a ``navformer`` / ``dt`` policy's model on :attr:`device`."""
         if self.factory is not None:
             return self.factory(), None
-        if self.method == "navformer":
-            from navformer_rl.baselines.navformer import load_navformer_policy
-
-            return load_navformer_policy(self.checkpoint)
-        if self.method == "dt":
-            from navformer_rl.baselines.dt import load_dt_policy
-
-            return load_dt_policy(self.checkpoint)
+        if self.method in CHECKPOINT_METHODS:
+            policy, config = self._load_checkpoint()
+            return policy.to(resolve_device(self.device)), config
         if self.method == "vrw":
             from navformer_rl.baselines.random_walk import RandomWalkPolicy
 
@@ -270,6 +283,7 @@ def evaluate(
     video_fps: float = 10.0,
     confidence: float = 0.95,
     cluster: str = "trial",
+    device: str = "cpu",
     progress: bool = True,
     resume: bool = True,
 ) -> EvaluationResult:
@@ -299,6 +313,10 @@ def evaluate(
         cluster: what the intervals resample: whole trials (``"trial"``, intervals for these mazes) or whole
             mazes (``"world"``, also the variation between mazes; needs 6 mazes per setup at 95 %), see
             :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`.
+        device: where ``navformer`` / ``dt`` run their model in every worker: ``cpu`` (default), ``cuda``,
+            ``cuda:N`` or ``auto`` (ValueError for a device torch cannot use here). Episodes still simulate
+            and render on the CPU; results on a GPU differ from the CPU's in the last float bits, so resuming
+            reuses only episodes computed on the same kind of device. The other methods ignore it.
         progress: show a tqdm progress bar.
         resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
             the same method (your own policy: the same factory), label, checkpoint weights, seed, trial length, video_fps and package version (an
@@ -330,7 +348,7 @@ def evaluate(
         # one concrete checkpoint folder for the checks, run.json and every worker, even while the run
         # directory is still training and a newer checkpoint appears mid-evaluation
         checkpoint = resolve_checkpoint(checkpoint)
-    spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory)
+    spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory, device)
     label = label or method
     description = spec.validate(label)
     out_dir = Path(out_dir)
@@ -352,6 +370,11 @@ def evaluate(
         }
         if "factory" in description:  # your own policy: its module.qualname, not only its label
             identity["factory"] = description["factory"]
+        model_device = (
+            resolve_device(device).type if method in CHECKPOINT_METHODS and factory is None else None
+        )
+        if model_device not in (None, "cpu"):  # CPU results keep the keys they had before this option
+            identity["device"] = model_device
         tasks = _make_tasks(
             episode_set, out_dir, label, maps_per_setup, videos_per_setup, video_fps, identity
         )
@@ -390,6 +413,7 @@ def evaluate(
             },
             "confidence": confidence,
             "cluster": cluster,
+            "device": model_device,
             **_timing(outputs, computed, time.perf_counter() - invoked),
             "package_version": __version__,
             "files": files,

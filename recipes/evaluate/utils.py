@@ -31,17 +31,18 @@ null gets."""
 
 def check_policy(cfg: DictConfig) -> None:
     """Refuse (ValueError) an unknown method, a missing or unreadable checkpoint, a label naming a training
-    ablation the checkpoint was not trained with, or an unknown ``cluster``; the recipe calls it first, before
+    ablation the checkpoint was not trained with, an unknown ``cluster`` or an unusable ``device``; the recipe calls it first, before
     it prints the output folder and generates episodes (``PolicySpec.validate`` loads the checkpoint)."""
     check_cluster(str(cfg.cluster))
-    PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed)).validate(cfg.label)
+    PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed), device=str(cfg.device)).validate(cfg.label)
 
 
 def make_episode_set(cfg: DictConfig) -> EpisodeSet:
     """The episode set: ``cfg.episodes`` (a file) if given, else the episodes of ``cfg.protocol``."""
     generation = {name: cfg[name] for name in GENERATION_DEFAULTS}
+    setups = None if cfg.setups is None else [str(name) for name in cfg.setups]
     if cfg.episodes:
-        given = [name for name, value in generation.items() if value is not None]
+        given = [name for name, value in {**generation, "setups": setups}.items() if value is not None]
         if given:
             raise ValueError(
                 f"{', '.join(given)}: only with `protocol`; the episode file {cfg.episodes} fixes its trials, "
@@ -49,7 +50,7 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
             )
         return load_episode_set(cfg.episodes)
     values = [int(GENERATION_DEFAULTS[n] if v is None else v) for n, v in generation.items()]
-    return make_protocol_episodes(cfg.protocol, *values, workers=int(cfg.workers))
+    return make_protocol_episodes(cfg.protocol, *values, workers=int(cfg.workers), setups=setups)
 
 
 def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult:
@@ -65,6 +66,7 @@ def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult
         maps_per_setup=int(cfg.maps_per_setup),
         videos_per_setup=int(cfg.videos_per_setup),
         cluster=str(cfg.cluster),
+        device=str(cfg.device),
         progress=bool(cfg.progress),
         resume=bool(cfg.resume),
     )

@@ -43,6 +43,7 @@ def main(cfg) -> None:
             pbar.update(1)
             pbar.set_postfix(loss=f"{metrics['loss']:.4f}", fps=f"{metrics['frames_per_s']:.0f}")
         pbar.close()
+        trainer.close()  # the thread that draws batches ahead (data.prefetch)
         print(f"run directory: {trainer.run_dir}")
 
 

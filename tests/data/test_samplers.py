@@ -198,7 +198,7 @@ def test_reused_buffers_grow_to_the_batch_and_never_past_the_context(e_dataset):
     batcher = ds.trajectory_batcher(4, context_steps=40, seed=0)
     for _ in range(6):
         batch = batcher.sample()
-        rows = batcher._buffers[("pixels",)].shape[0]
+        rows = batcher._buffer_sets[0][("pixels",)].shape[0]
         assert batch["mask"].numel() <= rows <= 4 * 40
 
 

@@ -74,6 +74,24 @@ def test_cli_errors(tmp_path):
         _run(["evaluate", "--method", "random", "--protocol", "smoke", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="--episodes FILE or --protocol"):
         _run(["evaluate", "--method", "vrw", "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="--setups: only with --protocol"):
+        _run(
+            [
+                "evaluate",
+                "--method",
+                "vrw",
+                "--episodes",
+                "x.json",
+                "--setups",
+                "7.5m-2r",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+    with pytest.raises(ValueError, match=r"device \(--device\)='tpu': expected one of"):
+        _run(
+            ["evaluate", "--method", "vrw", "--protocol", "smoke", "--device", "tpu", "--out", str(tmp_path)]
+        )
     with pytest.raises(ValueError, match="unknown protocol"):
         _run(["evaluate", "make-episodes", "--protocol", "table2", "--out", str(tmp_path / "x.json")])
     bad = tmp_path / "bad.json"

@@ -151,6 +151,23 @@ def test_protocols():
         protocol_setups("table9")
 
 
+def test_a_protocols_setups_can_be_chosen_and_keep_their_episodes():
+    from navformer_rl.evaluation.episodes import make_protocol_episodes
+
+    common = dict(trials_per_setup=1, seed=3, max_steps=20)
+    chosen = make_protocol_episodes("table1", **common, setups=["12.5m-4r", "7.5m-2r"])
+    assert chosen.setups == ["7.5m-2r", "12.5m-4r"]  # the protocol's order
+    alone = make_protocol_episodes("table4", **common)  # table4's one setup is table1's 12.5m-4r
+    assert chosen.episodes[1].starts == alone.episodes[0].starts
+    assert chosen.episodes[1].targets == alone.episodes[0].targets
+    with pytest.raises(
+        ValueError, match=r"setups \['7.5m-3r'\]: expected a non-empty list of setups of protocol"
+    ):
+        make_protocol_episodes("table1", **common, setups=["7.5m-3r"])
+    with pytest.raises(ValueError, match="non-empty"):
+        make_protocol_episodes("table1", **common, setups=[])
+
+
 def test_same_size_and_robot_count_share_episodes_across_protocols():
     seen, unseen = protocol_setups("table3")
     a = make_episode_set([seen], trials_per_setup=1, seed=0)

@@ -254,3 +254,47 @@ def test_a_folder_reused_for_other_episodes_keeps_only_this_runs_files(tmp_path,
     assert not list((out / "videos").glob("*.mp4"))
     assert sorted(p.name for p in (out / "per_episode").glob("*.json")) == ["other_7.5m-2r_w00t00.json"]
     assert result.files["maps"] == ["maps/other_7.5m-2r_w00t00.png"]
+
+
+def test_the_model_device_is_checked_before_any_episode(tmp_path, tiny_episodes, checkpoints, monkeypatch):
+    import torch
+
+    args = dict(checkpoint=checkpoints["navformer"], progress=False)
+    with pytest.raises(
+        ValueError, match=r"device \(--device\)='gpu': expected one of \['auto', 'cpu', 'cuda'\]"
+    ):
+        evaluate("navformer", tiny_episodes, tmp_path / "x", device="gpu", **args)
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device \\(--device\\)=cuda but torch sees no CUDA device"):
+            evaluate("navformer", tiny_episodes, tmp_path / "x", device="cuda", **args)
+    # a GPU number beyond those present (one GPU pretended)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    with pytest.raises(ValueError, match=r"cuda:1: torch sees 1 CUDA device\(s\), numbered from 0"):
+        evaluate("navformer", tiny_episodes, tmp_path / "x", device="cuda:1", **args)
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="your factory places its own model"):
+        evaluate(_standing, tiny_episodes, tmp_path / "x", device="auto", progress=False)
+    assert not (tmp_path / "x").exists()
+
+
+def _standing():
+    from navformer_rl.baselines import RandomWalkPolicy
+
+    return RandomWalkPolicy()
+
+
+def test_the_policy_runs_where_the_device_says(tiny_episodes, checkpoints, tmp_path):
+    spec = PolicySpec("navformer", str(checkpoints["navformer"]), device="auto")
+    policy, _ = spec.build_with_config()
+    assert policy.device.type == "cpu"  # auto on a machine without CUDA
+    common = dict(checkpoint=checkpoints["dt"], maps_per_setup=0, videos_per_setup=0, progress=False)
+    first = evaluate("dt", tiny_episodes, tmp_path / "dt", **common)
+    # "auto" resolving to the CPU reuses the CPU results: their resume keys did not change
+    again = evaluate("dt", tiny_episodes, tmp_path / "dt", device="auto", **common)
+    assert again.episodes_computed == 0 and again.records == first.records
+    assert json.loads((tmp_path / "dt" / "run.json").read_text())["device"] == "cpu"
+    vrw = evaluate(
+        "vrw", tiny_episodes, tmp_path / "vrw", maps_per_setup=0, videos_per_setup=0, progress=False
+    )
+    assert json.loads((vrw.out_dir / "run.json").read_text())["device"] is None  # no model to place

@@ -64,6 +64,12 @@ def test_recipe_generation_keys_default_to_the_paper_and_are_refused_beside_a_fi
     cfg.max_steps = 50
     with pytest.raises(ValueError, match="max_steps: only with `protocol`"):
         utils.make_episode_set(cfg)
+    cfg.max_steps, cfg.setups = None, ["7.5m-2r"]
+    with pytest.raises(ValueError, match="setups: only with `protocol`"):
+        utils.make_episode_set(cfg)
+    cfg.episodes, cfg.protocol, cfg.trials_per_setup, cfg.max_steps = None, "table1", 1, 7
+    cfg.setups = ["12.5m-2r", "7.5m-2r"]
+    assert utils.make_episode_set(cfg).setups == ["7.5m-2r", "12.5m-2r"]
 
 
 def test_recipe_prints_how_to_resume_its_output_folder(tmp_path):

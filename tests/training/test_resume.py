@@ -83,6 +83,26 @@ def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_tra
     }
 
 
+def test_drawing_batches_ahead_changes_nothing_but_the_wait(tiny_config, tmp_path):
+    """data.prefetch draws the same batches: the same losses and weights; a run without it resumes a run
+    with it (its checkpoint holds the samplers' state of the batches trained on, not of the one drawn ahead)."""
+    common = ["optim.iterations=4", "checkpoint.keep_last=0"]
+    plain = train(tiny_config(*common, "data.prefetch=false", f"output_dir={tmp_path / 'plain'}"))
+    ahead_dir = tmp_path / "ahead"
+    crash_after_checkpoint(tiny_config(*common, "checkpoint.interval=3", f"output_dir={ahead_dir}"))
+    resumed = train(
+        tiny_config(
+            *common, "checkpoint.interval=3", "resume=true", "data.prefetch=false", f"output_dir={ahead_dir}"
+        )
+    )
+    assert resumed.iterations == 4
+    for name in ("loss", "loss_dt", "loss_byol"):
+        assert scalars(plain.run_dir, name) == scalars(ahead_dir, name), name
+    wa, wb = weights(plain.run_dir, 4), weights(ahead_dir, 4)
+    assert all(torch.equal(wa[key], wb[key]) for key in wa)
+    assert load_resume_state(plain.checkpoint)["cross_task"]["iteration"] == 4
+
+
 @pytest.mark.parametrize("dtype, scaled", [(None, False), ("bfloat16", False), ("float16", True)])
 def test_loss_scaling_only_under_float16(tiny_config, dtype, scaled):
     overrides = [] if dtype is None else [f"model.autocast_dtype={dtype}"]
