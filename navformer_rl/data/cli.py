@@ -53,6 +53,13 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=None,
         help="override the size: trajectories for e/ca, worlds for ssl (not with 'all')",
     )
+    parser.add_argument(
+        "--action-noise",
+        type=float,
+        default=None,
+        help="e / ca: std of Gaussian noise on the executed normalised actions, labels stay the expert's "
+        "(DART; not in the paper; default 0)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run_collect)
     return parser
@@ -72,11 +79,19 @@ def run_collect(args: argparse.Namespace) -> int:
         if args.kind == "all":
             if args.n is not None:
                 raise ValueError("--n applies to one dataset kind, not to 'all'")
-            jobs = [(kind, args.out / kind.value, {}) for kind in DatasetKind]
+            noise = {} if args.action_noise is None else {"action_noise": args.action_noise}
+            jobs = [
+                (kind, args.out / kind.value, {} if kind is DatasetKind.SSL else noise)
+                for kind in DatasetKind
+            ]
         else:
             kind = DatasetKind.parse(args.kind)
             field = "n_worlds" if kind is DatasetKind.SSL else "n_trajectories"
             jobs = [(kind, args.out, {} if args.n is None else {field: args.n})]
+            if args.action_noise is not None:
+                if kind is DatasetKind.SSL:
+                    raise ValueError("--action-noise applies to e and ca (D_ssl has no actions)")
+                jobs[0][2]["action_noise"] = args.action_noise
         for kind, out, overrides in jobs:
             settings = settings_for(kind, args.scale, args.seed, **overrides)
             path = collect(kind, out, settings, workers=workers, progress=not args.no_progress)

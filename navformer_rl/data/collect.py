@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
+from navformer_rl.checks import check_number
 from navformer_rl.constants import MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.data.schema import TASK_ID, DatasetKind, ssl_rows, trajectory_rows
 from navformer_rl.data.writer import CODE_KEY, DatasetWriter, folder_lock, write_shard
@@ -57,6 +58,9 @@ class ExplorationSettings:
     max_steps: int = MAX_EPISODE_STEPS
     robot: str = "jackal"
     seed: int = 0
+    action_noise: float = 0.0
+    """Std of the Gaussian noise added to the *executed* normalised actions; the stored labels stay the
+    expert's (DART, Laskey et al. 2017; not in the paper). 0 (default) records the plain expert."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,8 @@ class CollisionAvoidanceSettings:
     max_steps: int = MAX_EPISODE_STEPS
     robot: str = "jackal"
     seed: int = 0
+    action_noise: float = 0.0
+    """As in :class:`ExplorationSettings` (every robot's executed actions are perturbed)."""
 
 
 @dataclass(frozen=True)
@@ -109,7 +115,15 @@ def settings_for(kind: DatasetKind | str, scale: str = "small", seed: int = 0, *
     unknown = set(overrides) - {f.name for f in dataclasses.fields(base)}
     if unknown:
         raise ValueError(f"unknown {kind.value} collection setting(s) {sorted(unknown)}")
+    if "action_noise" in overrides:
+        check_number(overrides["action_noise"], f"{kind.value} action_noise", at_least=0.0, at_most=1.0)
     return dataclasses.replace(base, seed=seed, **overrides)
+
+
+def noise_generator(seed: int, kind: DatasetKind, unit: int, index: int = 0) -> np.random.Generator:
+    """The generator of the action noise of item ``index`` of unit ``unit`` (apart from the world's and the
+    expert's streams, so noise 0 leaves every other draw as it was)."""
+    return np.random.default_rng(np.random.SeedSequence([unit_seed(seed, kind, unit, index), 0xDA27]))
 
 
 def unit_seed(seed: int, kind: DatasetKind, unit: int, index: int = 0) -> int:
@@ -156,7 +170,15 @@ def _reached(sim, world) -> np.ndarray:
     return d <= SUCCESS_RADIUS
 
 
-def run_episode(world, sim, expert, max_steps: int, record: bool = True) -> list[RobotTrajectory]:
+def run_episode(
+    world,
+    sim,
+    expert,
+    max_steps: int,
+    record: bool = True,
+    action_noise: float = 0.0,
+    noise_rng: np.random.Generator | None = None,
+) -> list[RobotTrajectory]:
     """Drive every robot of ``sim`` with ``expert`` until each reached its target or ``max_steps``.
 
     ``expert`` follows ``navformer_rl.experts.policies``: ``act(sim, active) -> float32 [R, 2]`` and a bool
@@ -164,11 +186,17 @@ def run_episode(world, sim, expert, max_steps: int, record: bool = True) -> list
     moves them; a robot that ends the step within ``SUCCESS_RADIUS`` of its target finishes its trajectory
     (reward 1 on that step) and stays in place; one the expert flags ``failed`` ends as a failure.
 
+    With ``action_noise`` > 0 the simulator executes ``clip(a_t + N(0, action_noise^2), -1, 1)`` (drawn from
+    ``noise_rng``) while a_t stays the recorded label (DART): the data then holds states off the expert's
+    own path, each labelled with the expert's correction.
+
     The cameras run after the episode, and only for robots that succeeded: every robot is put back at its
     pose of step t and o_t is rendered (the scene is then exactly as it was at t), so failed episodes cost no
     rendering. ``record=False`` skips the cameras altogether (to time the planners alone). Returns one
     :class:`RobotTrajectory` per robot.
     """
+    if action_noise > 0.0 and noise_rng is None:
+        raise ValueError(f"action_noise={action_noise} needs a noise_rng (numpy Generator)")
     R = sim.n_robots
     trajs = [RobotTrajectory([], [], [], []) for _ in range(R)]
     active = ~_reached(sim, world)
@@ -179,7 +207,11 @@ def run_episode(world, sim, expert, max_steps: int, record: bool = True) -> list
         poses = sim.poses
         history.append((poses, active.copy()))
         actions = np.asarray(expert.act(sim, active), dtype=np.float32).reshape(R, 2)
-        contacts = sim.step(np.where(active[:, None], actions, 0.0), active)
+        executed = actions
+        if action_noise > 0.0:
+            noise = noise_rng.normal(0.0, action_noise, size=(R, 2)).astype(np.float32)
+            executed = np.clip(actions + noise, -1.0, 1.0)
+        contacts = sim.step(np.where(active[:, None], executed, 0.0), active)
         reached = _reached(sim, world)
         failed = np.asarray(expert.failed, dtype=bool).reshape(R)
         for i in np.flatnonzero(active):
@@ -258,7 +290,8 @@ def _exploration_unit(settings: ExplorationSettings, unit: int, by_item: dict[st
         try:
             expert = ExplorationExpert()
             expert.reset(world, sim, rng)
-            (traj,) = run_episode(world, sim, expert, settings.max_steps)
+            noise = noise_generator(settings.seed, DatasetKind.EXPLORATION, unit, k)
+            (traj,) = run_episode(world, sim, expert, settings.max_steps, True, settings.action_noise, noise)
         finally:
             sim.close()
         counters["attempted"] += 1
@@ -301,7 +334,8 @@ def _collision_avoidance_unit(
     try:
         expert = NHORCAExpert()
         expert.reset(world, sim, rng)
-        trajs = run_episode(world, sim, expert, settings.max_steps)
+        noise = noise_generator(settings.seed, DatasetKind.COLLISION_AVOIDANCE, unit)
+        trajs = run_episode(world, sim, expert, settings.max_steps, True, settings.action_noise, noise)
     finally:
         sim.close()
     rows, targets = [], []

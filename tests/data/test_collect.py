@@ -64,6 +64,20 @@ def test_tiny_collision_avoidance_collection(tmp_path):
     assert counts["robot_steps"] >= counts["rows"]
 
 
+def test_noisy_collision_avoidance_collection_records_its_noise(tmp_path):
+    s = settings_for("ca", "small", seed=1, n_trajectories=3, other_robots=(2, 2), action_noise=0.2)
+    ds = open_dataset(collect("ca", tmp_path / "ca", s, workers=1, progress=False), kind="ca")
+    assert ds.num_trajectories == 3 and ds.metadata["settings"]["action_noise"] == 0.2
+    _check_trajectories(ds, task=1)
+    plain = settings_for("ca", "small", seed=1, n_trajectories=3, other_robots=(2, 2))
+    quiet = open_dataset(collect("ca", tmp_path / "quiet", plain, workers=1, progress=False))
+    # the same arenas and starts, other paths
+    assert torch.equal(ds.targets.as_subclass(torch.Tensor), quiet.targets.as_subclass(torch.Tensor))
+    assert not torch.equal(
+        ds.rows["action"][:20].as_subclass(torch.Tensor), quiet.rows["action"][:20].as_subclass(torch.Tensor)
+    )
+
+
 def test_counts_describe_the_stored_trajectories_only(tmp_path):
     """The dataset ends after the first trajectory of a 2-episode unit: the metadata counts the attempts up
     to it (as the dataset card's success rate does), not the unit's second episode."""
@@ -287,3 +301,47 @@ def test_overfull_ssl_worlds_complete_deterministically(tmp_path, folder_bytes):
     assert "one robot fewer" in ds.metadata["robot_placement"]
     again = collect("ssl", tmp_path / "again", s, workers=1, progress=False)
     assert folder_bytes(again) == folder_bytes(ref)
+
+
+class _ConstantExpert:
+    """Drives straight ahead at half speed, never fails."""
+
+    def __init__(self, n):
+        self.failed = np.zeros(n, dtype=bool)
+
+    def act(self, sim, active):
+        return np.tile(np.float32([0.5, 0.0]), (sim.n_robots, 1))
+
+
+def test_action_noise_perturbs_the_executed_actions_and_keeps_the_labels(capsys):
+    """DART: the simulator drives clip(a + noise); the stored action is the expert's a."""
+    from navformer_rl.envs.robots import JACKAL
+    from navformer_rl.envs.sim import Simulator
+    from navformer_rl.envs.world import WorldConfig, generate_world
+
+    world = generate_world(WorldConfig(size=12.5, kind="arena", n_robots=1, robot_radius=JACKAL.radius), 3)
+
+    def drive(noise, seed=0):
+        sim = Simulator(world, JACKAL)
+        try:
+            (traj,) = collect_module.run_episode(
+                world, sim, _ConstantExpert(1), 6, False, noise, np.random.default_rng(seed)
+            )
+        finally:
+            sim.close()
+        return traj
+
+    plain, noisy, again = drive(0.0), drive(0.3), drive(0.3)
+    assert all(np.array_equal(a, [0.5, 0.0]) for a in noisy.actions)  # labels: the expert's actions
+    headings = [p[2] for p in noisy.poses]
+    assert len(set(np.round(headings, 6))) > 1  # the executed turn rates were perturbed
+    assert len({round(float(p[2]), 6) for p in plain.poses}) == 1  # without noise: straight ahead
+    assert all(np.array_equal(a, b) for a, b in zip(noisy.poses, again.poses))  # seeded
+    with pytest.raises(ValueError, match="needs a noise_rng"):
+        collect_module.run_episode(world, None, _ConstantExpert(1), 6, False, 0.3)
+    with pytest.raises(ValueError, match=r"e action_noise must be .*<= 1"):
+        settings_for("e", action_noise=2.0)
+    from navformer_rl.data.cli import main
+
+    assert main(["collect", "ssl", "--out", "/tmp/never", "--action-noise", "0.1"]) == 2
+    assert "--action-noise applies to e and ca" in capsys.readouterr().err
