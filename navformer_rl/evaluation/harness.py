@@ -316,7 +316,8 @@ def evaluate(
         device: where ``navformer`` / ``dt`` run their model in every worker: ``cpu`` (default), ``cuda``,
             ``cuda:N`` or ``auto`` (ValueError for a device torch cannot use here). Episodes still simulate
             and render on the CPU; results on a GPU differ from the CPU's in the last float bits, so resuming
-            reuses only episodes computed on the same kind of device. The other methods ignore it.
+            reuses only episodes computed on the same kind of device. The other methods have no model to place
+            (an unusable device is refused for them too).
         progress: show a tqdm progress bar.
         resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
             the same method (your own policy: the same factory), label, checkpoint weights, seed, trial length, video_fps and package version (an
