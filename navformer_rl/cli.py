@@ -1,8 +1,9 @@
-"""The ``navformer`` command: ``demo``, ``world-demo``, ``collect``, ``train``, ``evaluate``.
+"""The ``navformer`` command: ``demo``, ``world-demo``, ``collect``, ``train``, ``validate``, ``evaluate``.
 
 Each subcommand is a thin layer over a library function; its parser lives next to that function
 (``register(subparsers)`` in ``navformer_rl.data.cli``, ``navformer_rl.training_cli``,
-``navformer_rl.evaluation.cli``, ``navformer_rl.demo``). Heavy imports happen only when a subcommand runs.
+``navformer_rl.validation_cli``, ``navformer_rl.evaluation.cli``, ``navformer_rl.demo``). Heavy imports
+happen only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
 set ``NAVFORMER_DEBUG=1`` to see the traceback.
@@ -23,6 +24,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.demo",
     "navformer_rl.data.cli",
     "navformer_rl.training_cli",
+    "navformer_rl.validation_cli",
     "navformer_rl.evaluation.cli",
 )
 

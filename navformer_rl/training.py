@@ -43,6 +43,12 @@ from navformer_rl.checks import check_int, check_number
 from navformer_rl.data.prefetch import Prefetcher
 from navformer_rl.devices import check_device, resolve_device
 from navformer_rl.durable import atomic_write_text
+from navformer_rl.validation import (
+    PATH_KEYS,
+    ValidationConfig,
+    make_validator,
+    validate_validation_config,
+)
 
 ABLATIONS: dict[str, str] = {
     "none": "NavFormer as in the paper",
@@ -87,6 +93,7 @@ RESUME_MAY_CHANGE = frozenset(
         "data.collision_path",
         "data.ssl_path",
         "data.prefetch",
+        "validation",
     }
 )
 """Settings a resumed run may change; any other difference from the checkpoint's config is refused."""
@@ -188,7 +195,8 @@ class TrainConfig:
     """Everything :func:`train` needs. Defaults are the paper's (§IV, §VI).
 
     Attributes:
-        data / ssl / optim / logger / checkpoint: see the section classes.
+        data / ssl / optim / logger / checkpoint / validation: see the section classes
+            (:class:`~navformer_rl.validation.ValidationConfig` for the last).
         model: overrides of ``NavFormerConfig`` fields (architecture and perf levers: ``autocast_dtype``,
             ``channels_last``, ``encoder_micro_batch``), applied on top of the ablation's model.
         ablation: one of :data:`ABLATIONS`.
@@ -208,6 +216,7 @@ class TrainConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    validation: ValidationConfig = field(default_factory=ValidationConfig)
     seed: int = 0
     device: str = "auto"
     output_dir: str = "runs/navformer"
@@ -236,6 +245,7 @@ _SECTIONS = {
     "optim": OptimConfig,
     "logger": LoggerConfig,
     "checkpoint": CheckpointConfig,
+    "validation": ValidationConfig,
 }
 
 
@@ -471,6 +481,7 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
     check_int(cfg.checkpoint.interval, "checkpoint.interval")
     if cfg.checkpoint.keep_last < 0:
         raise ValueError(f"checkpoint.keep_last={cfg.checkpoint.keep_last}: expected >= 0 (0 keeps all)")
+    validate_validation_config(cfg.validation)
     check_number(cfg.ssl.tau_base, "ssl.tau_base", at_least=0.5, at_most=1)
     check_int(cfg.ssl.projection_dim, "ssl.projection_dim")
     check_int(cfg.ssl.hidden_dim, "ssl.hidden_dim")
@@ -605,9 +616,13 @@ class Trainer:
         scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
         log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
+        validator: :class:`~navformer_rl.validation.Validator` of the held-out sets, or None
+            (:meth:`validation_due`, :meth:`validate`).
     """
 
-    def __init__(self, cfg: TrainConfig, *, datasets: dict[str, Any]) -> None:
+    def __init__(
+        self, cfg: TrainConfig, *, datasets: dict[str, Any], validation_datasets: dict[str, Any] | None = None
+    ) -> None:
         from torchrl.objectives import SoftUpdate
 
         from navformer_rl.data import CrossTaskSampler
@@ -671,6 +686,9 @@ class Trainer:
         )
         self.logger = None
         self.log_window = LogWindow()
+        self.validator = make_validator(
+            cfg.validation, validation_datasets or {}, datasets, context, keys=TRAJECTORY_KEYS
+        )
 
     # -- construction helpers -------------------------------------------------------------------------
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
@@ -804,6 +822,19 @@ class Trainer:
             loss_dt += weighted.detach()
         return loss_dt, loss_byol, byol_out
 
+    # -- validation -----------------------------------------------------------------------------------
+    def validation_due(self) -> bool:
+        """Whether the iteration just completed is one to validate (``validation.interval``, the last one)."""
+        return self.validator is not None and self.validator.due(self.iteration, self.cfg.optim.iterations)
+
+    def validate(self) -> dict[str, float]:
+        """The teacher-forced action loss on every validation set: ``{"validation/loss_dt_<task>": float,
+        "validation/train_loss_dt_<task>": float}`` (eval mode; the training's RNG states are left as they
+        were). Empty without validation sets."""
+        if self.validator is None:
+            return {}
+        return self.validator(self.dt_loss, self.model, self.device)
+
     # -- logging --------------------------------------------------------------------------------------
     def make_logger(self):
         """TorchRL logger of ``cfg.logger.backend`` writing under ``<run_dir>/logs`` (None for ``none``)."""
@@ -830,14 +861,16 @@ class Trainer:
         self.log(self.log_window.pop_row())
         return True
 
-    def log(self, metrics: Mapping[str, float]) -> None:
-        """Write ``metrics`` (plus ``timeit`` averages as ``time/<name>``) at the current iteration."""
+    def log(self, metrics: Mapping[str, float], timings: bool = True) -> None:
+        """Write ``metrics`` (plus, with ``timings``, ``timeit`` averages as ``time/<name>``) at the current
+        iteration."""
         from torchrl._utils import timeit
 
         if self.logger is None:
             return
         row = dict(metrics)
-        row.update(timeit.todict(prefix="time"))
+        if timings:
+            row.update(timeit.todict(prefix="time"))
         self.logger.log_metrics(row, step=self.iteration)
 
     # -- checkpoints ----------------------------------------------------------------------------------
@@ -905,8 +938,6 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
     A dataset smaller than one batch is refused with the batch-size key to lower and the largest value that
     fits (every such dataset in one message, so that a single edit of the command line fixes them all).
     """
-    from navformer_rl.data import open_dataset
-
     wanted = {
         "e": (cfg.uses_exploration, "exploration_path", "exploration_batch_trajs"),
         "ca": (cfg.uses_collision, "collision_path", "collision_batch_trajs"),
@@ -918,12 +949,7 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
         if not used:
             continue
         path = getattr(cfg.data, key)
-        if not Path(path).exists():
-            raise FileNotFoundError(f"data.{key}={path!r} does not exist")
-        try:
-            dataset = open_dataset(path, kind=kind)
-        except (ValueError, FileNotFoundError) as err:
-            raise type(err)(f"data.{key}: {err}") from None
+        dataset = _open_dataset(path, kind, f"data.{key}")
         available = dataset.num_trajectories if kind != "ssl" else len(dataset)
         batch = getattr(cfg.data, batch_key)
         if batch > available:
@@ -955,6 +981,28 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
     return datasets
 
 
+def open_validation_datasets(cfg: TrainConfig) -> dict[str, Any]:
+    """Open (and validate) the held-out datasets of ``cfg.validation`` (``{}`` when validation is off)."""
+    if not cfg.validation.enabled:
+        return {}
+    return {
+        kind: _open_dataset(path, kind, f"validation.{PATH_KEYS[kind]}")
+        for kind, path in cfg.validation.held_out_paths().items()
+    }
+
+
+def _open_dataset(path: str, kind: str, key: str) -> Any:
+    """``open_dataset(path, kind)`` with errors that name the config ``key``."""
+    from navformer_rl.data import open_dataset
+
+    if not Path(path).exists():
+        raise FileNotFoundError(f"{key}={path!r} does not exist")
+    try:
+        return open_dataset(path, kind=kind)
+    except (ValueError, FileNotFoundError) as err:
+        raise type(err)(f"{key}: {err}") from None
+
+
 def _largest_batch(cfg: TrainConfig, kind: str, available: int) -> int | None:
     """The largest valid batch size of dataset ``kind`` holding ``available`` items (None when none is).
 
@@ -966,38 +1014,18 @@ def _largest_batch(cfg: TrainConfig, kind: str, available: int) -> int | None:
     return fits if fits > 0 else None
 
 
-def check_datasets_fit_model(cfg: TrainConfig, datasets: Mapping[str, Any]) -> None:
-    """Raise ``ValueError`` when the model of ``cfg`` cannot read ``datasets`` (opened by :func:`open_datasets`).
+def check_datasets_fit_model(cfg: TrainConfig, datasets: Mapping[str, Any], section: str = "data") -> None:
+    """Raise ``ValueError`` when the model of ``cfg`` cannot read ``datasets`` (opened by :func:`open_datasets`,
+    or by :func:`open_validation_datasets` with ``section="validation"``: the config section that errors name).
 
     Checked: image size and action width (every dataset's images are ``image_size`` square; trajectory
     actions are ``action_dim`` wide) and the timestep table (the longest trajectory's last step must be
-    ``< model.max_timestep``). Without this check a mismatch would surface as a shape error in the first
-    iteration, or - for the timestep - only once a long trajectory is drawn, possibly hours into a run.
+    ``< model.max_timestep``): :func:`navformer_rl.data.fit.check_model_reads`.
     """
-    model = model_config(cfg)
-    image_shape = (model.image_size, model.image_size, 3)
-    for kind, dataset in datasets.items():
-        key = DATASET_KEYS[kind]
-        for name in ("pixels", "pixels_static", "pixels_dynamic"):
-            if name in dataset.rows.keys() and tuple(dataset.rows[name].shape[1:]) != image_shape:
-                raise ValueError(
-                    f"data.{key}: images are {tuple(dataset.rows[name].shape[1:])}, but model.image_size="
-                    f"{model.image_size} expects {image_shape}"
-                )
-        if dataset.episodes is None:
-            continue
-        if dataset.rows["action"].shape[-1] != model.action_dim:
-            raise ValueError(
-                f"data.{key}: actions have {dataset.rows['action'].shape[-1]} dimensions, but "
-                f"model.action_dim={model.action_dim}"
-            )
-        longest = int(dataset.episodes.length.max())
-        if longest > model.max_timestep:
-            raise ValueError(
-                f"data.{key}: its longest trajectory has {longest} steps, but model.max_timestep="
-                f"{model.max_timestep} embeds timesteps 0..{model.max_timestep - 1}; raise model.max_timestep "
-                f"to at least {longest}"
-            )
+    from navformer_rl.data.fit import check_model_reads
+
+    names = {kind: f"{section}.{DATASET_KEYS[kind]}" for kind in datasets}
+    check_model_reads(model_config(cfg), datasets, names, tunable=True)
 
 
 def build_trainer(cfg: TrainConfig) -> Trainer:
@@ -1025,7 +1053,9 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
             ) from None
     datasets = open_datasets(cfg)
     check_datasets_fit_model(cfg, datasets)
-    trainer = Trainer(cfg, datasets=datasets)
+    validation_datasets = open_validation_datasets(cfg)
+    check_datasets_fit_model(cfg, validation_datasets, section="validation")
+    trainer = Trainer(cfg, datasets=datasets, validation_datasets=validation_datasets)
     if latest is not None:
         trainer.restore(latest)
     if trainer.iteration > cfg.optim.iterations:
@@ -1073,6 +1103,9 @@ def train(cfg: TrainConfig) -> TrainResult:
         while trainer.iteration < total:
             metrics = trainer.step()
             trainer.record(metrics)
+            if trainer.validation_due():
+                with timeit("validation"):
+                    trainer.log(trainer.validate(), timings=False)
             if trainer.iteration % cfg.checkpoint.interval == 0 or trainer.iteration == total:
                 last_checkpoint = trainer.save_checkpoint()
             bar.update(1)

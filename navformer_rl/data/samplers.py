@@ -346,8 +346,17 @@ class TrajectoryBatcher:
         return buffer
 
     def sample(self) -> TensorDict:
-        draw = self.sampler.draw()
+        """The next batch of the sampler's draws (see the class docstring for keys and shapes)."""
+        return self.gather(self.sampler.draw())
+
+    def gather(self, draw: TrajectoryDraw) -> TensorDict:
+        """The batch of the windows in ``draw`` (at most the sampler's ``num_trajectories`` of them), e.g. a
+        fixed draw kept for validation; the same keys, shapes and buffer reuse as :meth:`sample`."""
         N, T = draw.index.shape
+        if N > self.sampler.num_trajectories:
+            raise ValueError(
+                f"the draw holds {N} trajectories, more than this batcher's {self.sampler.num_trajectories}"
+            )
         flat = draw.index.reshape(-1)
         turn, self._turn = self._turn, (self._turn + 1) % len(self._buffer_sets)
         buffers = self._buffer_sets[turn]

@@ -37,6 +37,9 @@ def main(cfg) -> None:
             # sample (D_e | D_ca) + D_ssl -> L_DT + L_BYOL -> backward -> AdamW / Adam -> EMA
             metrics = trainer.step()
             log_metrics(trainer, metrics)
+            if trainer.validation_due():  # eval-mode L_DT on held-out D_e / D_ca (validation.* paths)
+                with timeit("validation"):
+                    trainer.log(trainer.validate(), timings=False)
             if trainer.iteration % train_cfg.checkpoint.interval == 0 or trainer.iteration == iterations:
                 with timeit("checkpoint"):
                     trainer.save_checkpoint()
