@@ -169,6 +169,11 @@ def test_the_training_comparison_follows_the_data_the_ablation_trains_on(tiny_co
         "loss_dt_exploration",
         "train_loss_dt_collision_avoidance",
     ]
+    # the training comparison scores min(training_trajectories, dataset) windows: all 8 tiny D_ca ones
+    assert len(trainer.validator.sets["train_loss_dt_collision_avoidance"]) == 8
+    assert len(trainer.validator.sets["loss_dt_collision_avoidance"]) == 3
+    fewer = build_trainer(tiny_config(*validation_overrides(held_out, "validation.training_trajectories=2")))
+    assert len(fewer.validator.sets["train_loss_dt_exploration"]) == 2
     only_ca = build_trainer(
         tiny_config(f"validation.collision_path={held_out['ca']}", "validation.compare_training=false")
     )
@@ -185,6 +190,7 @@ def test_the_training_comparison_follows_the_data_the_ablation_trains_on(tiny_co
         (["validation.interval=-1"], ValueError, "validation.interval must be an integer >= 0"),
         (["validation.batch_trajs=0"], ValueError, "validation.batch_trajs must be an integer >= 1"),
         (["validation.max_trajectories=0"], ValueError, "validation.max_trajectories must be"),
+        (["validation.training_trajectories=0"], ValueError, "validation.training_trajectories must be"),
         (["validation.seed=-3"], ValueError, "validation.seed must be a non-negative integer"),
         (["validation.shuffle=true"], ValueError, "validation.shuffle"),
     ],
