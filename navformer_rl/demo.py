@@ -2,8 +2,10 @@
 
 ``run_demo`` is the whole NavFormer pipeline at a small scale, in one run folder:
 
-1. collect D_e, D_ca and D_ssl with the experts (``<out>/data/{e,ca,ssl}``; resumable);
-2. train NavFormer and the DT baseline on them (``<out>/train/{navformer,dt}``; checkpoints);
+1. collect D_e, D_ca and D_ssl with the experts (``<out>/data/{e,ca,ssl}``), and small held-out D_e / D_ca
+   from other mazes (``<out>/data/held_out_{e,ca}``; resumable);
+2. train NavFormer and the DT baseline on them (``<out>/train/{navformer,dt}``; checkpoints), scoring the
+   action loss on the held-out trajectories as they train (``validation.*``);
 3. evaluate NavFormer, DT, VRW and FCA on the same fixed episodes (``<out>/eval/<method>``);
 4. write ``<out>/report.md`` with tables (the paper's numbers beside ours), plots, maps and videos.
 
@@ -34,6 +36,8 @@ from navformer_rl import cli_args
 from navformer_rl.durable import atomic_write_text
 
 BASELINES = ("vrw", "fca")
+HELD_OUT_SEED_OFFSET = 1000
+"""The held-out D_e / D_ca are collected with ``seed + HELD_OUT_SEED_OFFSET``: mazes the training never saw."""
 TRAINED_METHODS = ("navformer", "dt")
 STAGE_TIMES_FILENAME = "stage_times.json"
 """File of the run folder keeping the seconds that computed each stage's result (:class:`StageTimes`)."""
@@ -50,6 +54,7 @@ class DemoConfig:
         workers: processes for collection and evaluation.
         exploration_trajectories, collision_trajectories: D_e / D_ca trajectories (paper: 3,496 / 7,467).
         ssl_worlds, ssl_pairs_per_world: D_ssl size (paper: 1,000 x 98).
+        held_out_exploration, held_out_collision: held-out D_e / D_ca trajectories for validation (0: none).
         iterations: training iterations of NavFormer and of DT (paper: 10,000).
         exploration_batch, collision_batch, ssl_batch: trajectories / pairs per iteration (paper: 25/150/512).
         setups: evaluation protocol (a name of ``navformer_rl.evaluation.episodes.PROTOCOLS``).
@@ -65,6 +70,8 @@ class DemoConfig:
     collision_trajectories: int = 96
     ssl_worlds: int = 8
     ssl_pairs_per_world: int = 64
+    held_out_exploration: int = 16
+    held_out_collision: int = 32
     iterations: int = 200
     exploration_batch: int = 8
     collision_batch: int = 24
@@ -86,6 +93,8 @@ class DemoConfig:
                 "collision_trajectories": 12,
                 "ssl_worlds": 2,
                 "ssl_pairs_per_world": 32,
+                "held_out_exploration": 2,
+                "held_out_collision": 4,
                 "iterations": 20,
                 "exploration_batch": 4,
                 "collision_batch": 8,
@@ -110,6 +119,10 @@ class DemoConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"demo setting {name}={value!r}: expected a positive integer")
+        for name in ("held_out_exploration", "held_out_collision"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"demo setting {name}={value!r}: expected an integer >= 0 (0: none)")
         unknown = sorted(set(self.methods) - set(TRAINED_METHODS + BASELINES))
         if unknown or not self.methods:
             raise ValueError(
@@ -129,7 +142,10 @@ class DemoConfig:
 
 
 def collect_stage(cfg: DemoConfig, progress: bool = True) -> dict[str, Path]:
-    """Stage 1: the three datasets under ``<out>/data`` (resumes a partial collection)."""
+    """Stage 1: the datasets under ``<out>/data`` (resumes a partial collection).
+
+    Returns ``{name: folder}``: ``e``, ``ca``, ``ssl`` and, unless their size is 0, ``held_out_e`` /
+    ``held_out_ca`` (collected with ``seed + HELD_OUT_SEED_OFFSET``)."""
     from navformer_rl.data.collect import collect, settings_for
     from navformer_rl.data.schema import DatasetKind
 
@@ -139,12 +155,20 @@ def collect_stage(cfg: DemoConfig, progress: bool = True) -> dict[str, Path]:
         DatasetKind.COLLISION_AVOIDANCE: {"n_trajectories": cfg.collision_trajectories},
         DatasetKind.SSL: {"n_worlds": cfg.ssl_worlds, "pairs_per_world": cfg.ssl_pairs_per_world},
     }
+    jobs = [(kind.value, kind, cfg.seed, overrides) for kind, overrides in sizes.items()]
+    held_out = {
+        DatasetKind.EXPLORATION: cfg.held_out_exploration,
+        DatasetKind.COLLISION_AVOIDANCE: cfg.held_out_collision,
+    }
+    jobs += [
+        (f"held_out_{kind.value}", kind, cfg.seed + HELD_OUT_SEED_OFFSET, {"n_trajectories": n})
+        for kind, n in held_out.items()
+        if n > 0
+    ]
     paths = {}
-    for kind, overrides in sizes.items():
-        settings = settings_for(kind, "small", cfg.seed, **overrides)
-        paths[kind.value] = collect(
-            kind, data_dir / kind.value, settings, workers=cfg.workers, progress=progress
-        )
+    for name, kind, seed, overrides in jobs:
+        settings = settings_for(kind, "small", seed, **overrides)
+        paths[name] = collect(kind, data_dir / name, settings, workers=cfg.workers, progress=progress)
     return paths
 
 
@@ -170,7 +194,11 @@ def train_stage(cfg: DemoConfig, data: dict[str, Path], method: str, progress: b
         "model.autocast_dtype=bfloat16",
         "model.encoder_micro_batch=512",
         f"logger.progress={str(progress).lower()}",
+        f"validation.interval={max(1, cfg.iterations // 4)}",
     ]
+    for kind, key in (("e", "exploration_path"), ("ca", "collision_path")):
+        if f"held_out_{kind}" in data:
+            overrides.append(f"validation.{key}={data[f'held_out_{kind}']}")
     result = train(load_train_config(overrides))
     return result.run_dir
 
@@ -274,13 +302,12 @@ def _digest(parts: list[str]) -> str:
 
 
 def _collect_fingerprint(cfg: DemoConfig) -> str | None:
-    """The collection's state: the three datasets' ``metadata.json`` (status, settings, counts)."""
-    from navformer_rl.data.schema import DatasetKind
+    """The collection's state: the datasets' ``metadata.json`` (status, settings, counts)."""
     from navformer_rl.data.writer import METADATA_FILE
 
     texts = []
-    for kind in (DatasetKind.EXPLORATION, DatasetKind.COLLISION_AVOIDANCE, DatasetKind.SSL):
-        path = cfg.out_dir / "data" / kind.value / METADATA_FILE
+    for name in ("e", "ca", "ssl", "held_out_e", "held_out_ca"):
+        path = cfg.out_dir / "data" / name / METADATA_FILE
         try:  # bytes: a damaged file is the collection's to report (it names the file and the fix)
             texts.append(hashlib.sha256(path.read_bytes()).hexdigest())
         except FileNotFoundError:
@@ -321,7 +348,7 @@ def run_demo(cfg: DemoConfig, progress: bool = True, log: Callable[[str], None] 
     cfg.out_dir.mkdir(parents=True, exist_ok=True)
     clock = StageTimes(cfg.out_dir)
 
-    log(f"[1/4] collecting D_e, D_ca, D_ssl into {cfg.out_dir / 'data'}")
+    log(f"[1/4] collecting D_e, D_ca, D_ssl and held-out D_e, D_ca into {cfg.out_dir / 'data'}")
     data = clock.run("collect", lambda: _collect_fingerprint(cfg), lambda: collect_stage(cfg, progress))
 
     train_dirs: dict[str, Path] = {}

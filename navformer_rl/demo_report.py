@@ -34,9 +34,16 @@ def _dataset_section(data: dict[str, Path], report_dir: Path) -> list[str]:
         dataset = open_dataset(path)
         trajectories = dataset.num_trajectories if dataset.episodes is not None else "-"
         lines.append(f"| {name} | {len(dataset)} | {trajectories} | `{os.path.relpath(path, report_dir)}` |")
+        if name.startswith("held_out_"):
+            continue  # they look like the training data; the table shows their size
         sheet = save_png(sample_sheet(dataset, n=2, frames=6), report_dir / "figures" / f"samples_{name}.png")
         sheets.append((name, sheet))
     lines.append("")
+    if any(name.startswith("held_out_") for name in data):
+        lines.append(
+            "`held_out_e` / `held_out_ca` come from other mazes (another collection seed). The models never train "
+            "on them; they measure how well the action loss carries over to new mazes (see Training).\n"
+        )
     for name, sheet in sheets:
         caption = (
             "pairs (o^s, o^d): the same pose without and with the other robots"
@@ -71,12 +78,13 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
         scalars = sorted((run_dir / "logs").glob("*/scalars"))
         plotted = False
         for folder in scalars:
-            for name in ("loss_dt", "loss_byol", "loss"):
+            for name in ("loss_dt", "loss_byol", "loss", *VALIDATION_CURVES):
                 path = folder / f"{name}.csv"
                 if path.is_file():
                     steps, values = _read_scalar(path)
                     if steps:
-                        ax.plot(steps, values, label=name)
+                        style = {"marker": "o", "linestyle": "--"} if name.startswith("validation/") else {}
+                        ax.plot(steps, values, label=VALIDATION_CURVES.get(name, name), **style)
                         plotted = True
         ax.set_title(method)
         ax.set_xlabel("iteration")
@@ -90,7 +98,52 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
     fig.savefig(figure, dpi=110)
     plt.close(fig)
     lines += ["", f"![training losses]({os.path.relpath(figure, report_dir)})\n"]
-    return lines
+    return lines + _validation_table(train_dirs)
+
+
+VALIDATION_CURVES = {
+    "validation/loss_dt_exploration": "loss_dt, held-out D_e (eval mode)",
+    "validation/loss_dt_collision_avoidance": "loss_dt, held-out D_ca (eval mode)",
+}
+"""The held-out curves drawn beside the training losses, and their legend labels."""
+VALIDATION_COLUMNS = {
+    "train_loss_dt_exploration": "D_e, training data",
+    "loss_dt_exploration": "D_e, held-out mazes",
+    "train_loss_dt_collision_avoidance": "D_ca, training data",
+    "loss_dt_collision_avoidance": "D_ca, held-out mazes",
+}
+"""The ``validation/`` metrics of the report's table and their column titles."""
+
+
+def _validation_table(train_dirs: dict[str, Path]) -> list[str]:
+    """Eval-mode eq. 10 at each model's last validation: training data beside held-out mazes."""
+    rows = []
+    for method, run_dir in train_dirs.items():
+        last: dict[str, tuple[float, float]] = {}
+        for folder in sorted((run_dir / "logs").glob("*/scalars/validation")):
+            for name in VALIDATION_COLUMNS:
+                path = folder / f"{name}.csv"
+                if path.is_file():
+                    steps, values = _read_scalar(path)
+                    if steps:
+                        last[name] = (steps[-1], values[-1])
+        if last:
+            iteration = int(max(step for step, _ in last.values()))
+            cells = [f"{last[name][1]:.3f}" if name in last else "-" for name in VALIDATION_COLUMNS]
+            rows.append(f"| {method} | {iteration} | " + " | ".join(cells) + " |")
+    if not rows:
+        return []
+    return [
+        "Action loss (eq. 10, eval mode) at the last validation, on windows of the training data and on the "
+        "held-out trajectories from other mazes (`validation/*` in each run's logs; docs/training.md):\n",
+        "| model | iteration | " + " | ".join(VALIDATION_COLUMNS.values()) + " |",
+        "|---|---|" + "---|" * len(VALIDATION_COLUMNS),
+        *rows,
+        "",
+        "A held-out loss well above the training one means the model fits the mazes it was trained on better "
+        "than new ones: at this demo's scale (a few dozen trajectories) expect a wide gap. These sets hold a "
+        "few dozen trajectories, so their means are good to a few tens of percent.\n",
+    ]
 
 
 def timings_markdown(timings: dict[str, tuple[float | None, float]]) -> list[str]:

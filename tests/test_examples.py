@@ -41,7 +41,7 @@ def test_custom_policy_example_is_evaluated(tmp_path):
 def test_cli_lists_every_subcommand():
     out = run("-m", "navformer_rl.cli", "--help")
     assert out.returncode == 0
-    for command in ("demo", "world-demo", "collect", "train", "evaluate"):
+    for command in ("demo", "world-demo", "collect", "train", "validate", "evaluate"):
         assert command in out.stdout
 
 

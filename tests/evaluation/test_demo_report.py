@@ -170,3 +170,32 @@ def test_a_failing_time_file_does_not_hide_the_stages_error(tmp_path, clock, mon
     monkeypatch.setattr(demo, "write_json", no_disk)
     with pytest.raises(ValueError, match="the stage's own error"):
         StageTimes(tmp_path).run("collect", lambda: None, fails)
+
+
+def test_the_training_section_tables_the_last_validation_of_each_model(tmp_path):
+    from navformer_rl.demo_report import _training_section
+
+    logged = {
+        "navformer": {"loss_dt_exploration": [(5, 0.5), (10, 0.4)], "train_loss_dt_exploration": [(10, 0.1)]},
+        "dt": {},  # trained without held-out data: no row
+    }
+    train_dirs = {}
+    for method, metrics in logged.items():
+        scalars = tmp_path / method / "logs" / "navformer" / "scalars"
+        (scalars / "validation").mkdir(parents=True)
+        (scalars / "loss_dt.csv").write_text("1,1.0\n10,0.2\n")
+        for name, rows in metrics.items():
+            (scalars / "validation" / f"{name}.csv").write_text("".join(f"{s},{v}\n" for s, v in rows))
+        train_dirs[method] = tmp_path / method
+    text = "\n".join(_training_section(train_dirs, tmp_path))
+    assert "| model | iteration | D_e, training data | D_e, held-out mazes | D_ca, training data |" in text
+    assert "| navformer | 10 | 0.100 | 0.400 | - | - |" in text
+    assert "| dt |" not in text
+    assert (tmp_path / "figures" / "training_losses.png").is_file()
+
+
+@pytest.mark.parametrize("value", [-1, 1.5, True])
+def test_held_out_sizes_must_be_counts(tmp_path, value):
+    with pytest.raises(ValueError, match=r"held_out_collision=.*expected an integer >= 0 \(0: none\)"):
+        DemoConfig.preset("quick", out_dir=tmp_path, held_out_collision=value).validate()
+    DemoConfig.preset("quick", out_dir=tmp_path, held_out_collision=0).validate()
