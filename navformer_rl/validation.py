@@ -117,9 +117,9 @@ class FixedTrajectoryBatches:
         total = dataset.num_trajectories
         count = total if max_trajectories is None else min(int(max_trajectories), total)
         whole = TrajectorySampler(total, context_steps, seed=seed, episodes=dataset.episodes).draw()
-        self.index = whole.index[:count]
-        self.mask = whole.mask[:count]
-        self.trajectory = whole.trajectory[:count]
+        self.index = whole.index[:count].clone()  # not a view: the whole dataset's draw is freed
+        self.mask = whole.mask[:count].clone()
+        self.trajectory = whole.trajectory[:count].clone()
         self.batch_trajs = min(int(batch_trajs), count)
         self._batcher = dataset.trajectory_batcher(
             self.batch_trajs, context_steps, seed=seed, keys=keys, reuse_buffers=False
