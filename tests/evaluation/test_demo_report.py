@@ -199,3 +199,42 @@ def test_held_out_sizes_must_be_counts(tmp_path, value):
     with pytest.raises(ValueError, match=r"held_out_collision=.*expected an integer >= 0 \(0: none\)"):
         DemoConfig.preset("quick", out_dir=tmp_path, held_out_collision=value).validate()
     DemoConfig.preset("quick", out_dir=tmp_path, held_out_collision=0).validate()
+
+
+def test_held_out_sets_come_from_other_mazes_and_validate_the_training(tmp_path, monkeypatch):
+    """collect_stage adds held-out D_e / D_ca collected with another seed (none when their size is 0);
+    train_stage scores them through validation.* every quarter of the run."""
+    import navformer_rl.data.collect as collect_module
+    import navformer_rl.training as training_module
+
+    calls = []
+
+    def fake_collect(kind, out, settings, workers, progress):
+        calls.append((kind.value, out.name, settings.seed, getattr(settings, "n_trajectories", None)))
+        return out
+
+    monkeypatch.setattr(collect_module, "collect", fake_collect)
+    cfg = DemoConfig.preset("quick", out_dir=tmp_path, seed=3)
+    data = demo.collect_stage(cfg, progress=False)
+    assert sorted(data) == ["ca", "e", "held_out_ca", "held_out_e", "ssl"]
+    held = {name: (kind, seed, n) for kind, name, seed, n in calls if name.startswith("held_out_")}
+    assert held == {"held_out_e": ("e", 1003, 2), "held_out_ca": ("ca", 1003, 4)}
+    assert {seed for _, name, seed, _ in calls if not name.startswith("held_out_")} == {3}
+
+    configs = []
+    monkeypatch.setattr(
+        training_module, "train", lambda cfg: configs.append(cfg) or type("R", (), {"run_dir": None})
+    )
+    demo.train_stage(cfg, data, "navformer", progress=False)
+    validation = configs[-1].validation
+    assert (
+        validation.exploration_path == str(data["held_out_e"]) and validation.interval == cfg.iterations // 4
+    )
+    assert validation.collision_path == str(data["held_out_ca"])
+
+    calls.clear()
+    without = DemoConfig.preset("quick", out_dir=tmp_path, held_out_exploration=0, held_out_collision=0)
+    data = demo.collect_stage(without, progress=False)
+    assert sorted(data) == ["ca", "e", "ssl"] and len(calls) == 3
+    demo.train_stage(without, data, "dt", progress=False)
+    assert configs[-1].validation.exploration_path is None and not configs[-1].validation.enabled
