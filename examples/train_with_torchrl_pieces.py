@@ -3,7 +3,8 @@
 Builds tiny synthetic datasets in the real on-disk format (swap in folders from ``navformer collect``), then
 wires the pieces by hand: trajectory batchers alternating D_e / D_ca (``CrossTaskSampler``), the model as a
 ``TensorDictModule`` (``make_navformer_actor``), the DT loss (eq. 10, ``NavFormerLoss``), BYOL on D_ssl
-(eqs. 6-8, ``BYOLLoss`` + TorchRL ``SoftUpdate``), summed as in eq. 11.
+(eqs. 6-8, ``BYOLLoss`` + TorchRL ``SoftUpdate``), summed as in eq. 11. Then scores the model on held-out
+trajectories (eq. 10 in eval mode on fixed windows: ``FixedTrajectoryBatches`` + ``teacher_forced_loss``).
 
 Run: ``.venv/bin/python examples/train_with_torchrl_pieces.py --iterations 20``
 """
@@ -21,13 +22,17 @@ from navformer_rl.data import CrossTaskSampler, open_dataset
 from navformer_rl.data.synthetic import make_synthetic_dataset
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import BYOLLoss, BYOLTauSchedule, NavFormerLoss
+from navformer_rl.validation import FixedTrajectoryBatches, evaluation_mode, teacher_forced_loss
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--iterations", type=int, default=20)
     parser.add_argument(
-        "--data", type=Path, default=None, help="folder with e/, ca/, ssl/ (default: synthetic)"
+        "--data",
+        type=Path,
+        default=None,
+        help="folder with e/, ca/, ssl/ and optionally held_out_e/ (default: synthetic)",
     )
     args = parser.parse_args()
     if args.data is not None:
@@ -36,6 +41,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="navformer-example-") as tmp:  # removed afterwards
         for kind, n in (("e", 12), ("ca", 24), ("ssl", 64)):
             make_synthetic_dataset(Path(tmp) / kind, kind, n, min_len=8, max_len=40, seed=1)
+        make_synthetic_dataset(Path(tmp) / "held_out_e", "e", 6, min_len=8, max_len=40, seed=2)
         train(Path(tmp), args.iterations)
 
 
@@ -71,6 +77,12 @@ def train(root: Path, iterations: int) -> None:
         updater.step()  # EMA target of BYOL
         tau.step()
         print(f"{iteration:3d} {task:>19}  L_DT {loss_dt.item():.4f}  L_BYOL {loss_byol.item():.4f}")
+
+    # eq. 10 on trajectories the model never saw: eval mode (no dropout), one fixed window per trajectory
+    if (root / "held_out_e").is_dir():
+        held_out = FixedTrajectoryBatches(open_dataset(root / "held_out_e"), 8, context_steps=256, seed=0)
+        with evaluation_mode(model):
+            print(f"held-out D_e L_DT {teacher_forced_loss(dt_loss, held_out, torch.device('cpu')):.4f}")
 
 
 if __name__ == "__main__":

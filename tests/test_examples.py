@@ -23,9 +23,10 @@ def run(*args: str, timeout: int = 300) -> subprocess.CompletedProcess:
 def test_training_example_runs_and_alternates_tasks():
     out = run("examples/train_with_torchrl_pieces.py", "--iterations", "2")
     assert out.returncode == 0, out.stderr
-    lines = [line.split() for line in out.stdout.splitlines() if line.strip()]
-    assert [line[1] for line in lines] == ["exploration", "collision_avoidance"]
-    assert all(float(line[3]) > 0 and float(line[5]) > 0 for line in lines)
+    *iterations, held_out = [line.split() for line in out.stdout.splitlines() if line.strip()]
+    assert [line[1] for line in iterations] == ["exploration", "collision_avoidance"]
+    assert all(float(line[3]) > 0 and float(line[5]) > 0 for line in iterations)
+    assert held_out[:3] == ["held-out", "D_e", "L_DT"] and float(held_out[3]) > 0
 
 
 def test_custom_policy_example_is_evaluated(tmp_path):
