@@ -137,11 +137,14 @@ class DataConfig:
 @dataclass
 class SSLConfig:
     """BYOL settings (eqs. 6-8). ``projection_dim`` / ``hidden_dim``: projector and predictor MLP sizes;
-    ``tau_base``: EMA rate at iteration 0, raised to 1 by BYOL's cosine schedule over the run."""
+    ``tau_base``: EMA rate at iteration 0, raised to 1 by BYOL's cosine schedule over the run;
+    ``loss_weight``: w in L = L_DT + w L_BYOL (eq. 11 has w = 1; BYOL's loss is ~15x L_DT in the medium run
+    of docs/results.md, so with ``encoder_training=joint`` its gradient dominates the shared encoders)."""
 
     projection_dim: int = 128
     hidden_dim: int = 512
     tau_base: float = 0.996
+    loss_weight: float = 1.0
 
 
 @dataclass
@@ -483,6 +486,7 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
         raise ValueError(f"checkpoint.keep_last={cfg.checkpoint.keep_last}: expected >= 0 (0 keeps all)")
     validate_validation_config(cfg.validation)
     check_number(cfg.ssl.tau_base, "ssl.tau_base", at_least=0.5, at_most=1)
+    check_number(cfg.ssl.loss_weight, "ssl.loss_weight", greater_than=0)
     check_int(cfg.ssl.projection_dim, "ssl.projection_dim")
     check_int(cfg.ssl.hidden_dim, "ssl.hidden_dim")
     for key, instead in MODEL_KEYS_SET_ELSEWHERE.items():
@@ -790,7 +794,7 @@ class Trainer:
         }
         total = float(loss_dt)
         if byol_out is not None:
-            total += float(loss_byol.detach())
+            total += float(loss_byol.detach())  # weighted: loss = L_DT + w L_BYOL
             metrics.update({k: float(v.detach()) for k, v in byol_out.items()})
             metrics["tau"] = float(tau)
             metrics["lr_dve"] = self.optimizers["dve"].param_groups[0]["lr"]
@@ -807,6 +811,8 @@ class Trainer:
         chunks = self.cfg.optim.trajectory_chunks
         byol_out = self.byol_loss(pairs) if pairs is not None else None
         loss_byol = byol_out["loss_byol"] if byol_out is not None else None
+        if loss_byol is not None and self.cfg.ssl.loss_weight != 1.0:
+            loss_byol = loss_byol * self.cfg.ssl.loss_weight  # logged unweighted (byol_out)
         if chunks == 1:
             loss_dt = self.dt_loss(batch)["loss_dt"]
             self.scaler.scale(loss_dt if loss_byol is None else loss_dt + loss_byol).backward()

@@ -99,3 +99,35 @@ def test_trajectory_chunks_give_the_whole_batch_gradient(tiny_config, tmp_path):
     assert results[2][0] == pytest.approx(results[1][0], rel=1e-6)
     for key, value in results[1][1].items():
         torch.testing.assert_close(results[2][1][key], value, rtol=1e-5, atol=1e-6)
+
+
+def test_byol_loss_weight_scales_byols_share_of_the_gradient(tiny_config, tmp_path):
+    """Known answer: L = L_DT + w L_BYOL, so every gradient is g_DT + w g_BYOL. Over the same batches and
+    dropout masks, g_BYOL = (g(1) - g(0.5)) / 0.5, and then g(0.1) must equal g(1) - 0.9 g_BYOL."""
+    grads, metrics = {}, {}
+    for weight in (1.0, 0.5, 0.1):
+        trainer = build_trainer(
+            tiny_config(
+                f"ssl.loss_weight={weight}", "optim.iterations=1", f"output_dir={tmp_path / str(weight)}"
+            )
+        )
+        task, batch, pairs = trainer.batches.next(draw_ahead=False)
+        loss_dt, loss_byol, out = trainer._forward_backward(batch, pairs)
+        grads[weight] = {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
+        metrics[weight] = (float(loss_dt), float(out["loss_byol"].detach()), float(loss_byol.detach()))
+        trainer.close()
+    # the logged BYOL loss is unweighted; the one summed into L is weighted
+    assert metrics[0.5][1] == pytest.approx(metrics[1.0][1], rel=1e-6)
+    assert metrics[0.5][2] == pytest.approx(0.5 * metrics[1.0][1], rel=1e-6)
+    byol_share = {n: (grads[1.0][n] - grads[0.5][n]) / 0.5 for n in grads[1.0]}
+    encoder = "static_encoder"
+    assert any(
+        encoder in n and byol_share[n].abs().max() > 0 for n in byol_share
+    )  # BYOL reaches the encoders
+    for name, g in grads[0.1].items():
+        torch.testing.assert_close(g, grads[1.0][name] - 0.9 * byol_share[name], rtol=1e-4, atol=1e-6)
+
+
+def test_byol_loss_weight_must_be_positive(tiny_config):
+    with pytest.raises(ValueError, match="ssl.loss_weight"):
+        build_trainer(tiny_config("ssl.loss_weight=0"))
