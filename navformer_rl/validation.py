@@ -248,7 +248,8 @@ def score_checkpoints(
     """The teacher-forced action loss (eq. 10, eval mode) of trained checkpoints on trajectory datasets.
 
     The offline form of the trainer's validation (``navformer validate``): score checkpoints of one run at
-    several iterations, or of several runs, on the same windows (fixed by ``seed``, as ``validation.seed``).
+    several iterations, or of several runs, on the same windows (fixed by ``seed``, as ``validation.seed``;
+    each window at most the model's context, ``NavFormerConfig.window_steps`` steps, as in training).
 
     Args:
         checkpoints: checkpoint paths in any form :func:`~navformer_rl.checkpoint.resolve_checkpoint` takes.
@@ -287,9 +288,10 @@ def score_checkpoints(
     names = {kind: f"{kind} dataset {str(path)!r}" for kind, path in datasets.items()}
     folders = [ckpt.resolve_checkpoint(path) for path in checkpoints]
     models = [ckpt.load_policy_model(folder) for folder in folders]  # every checkpoint checked first
+    for config, _ in models:
+        check_model_reads(config, opened, names, tunable=False)
     rows = []
     for folder, (config, model) in zip(folders, models, strict=True):
-        check_model_reads(config, opened, names, tunable=False)
         model.to(torch_device)
         loss = NavFormerLoss(make_navformer_actor(model))
         row: dict[str, Any] = {
