@@ -73,7 +73,7 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
     lines = ["## Training\n"]
     if not train_dirs:
         return lines + ["No model was trained in this run.\n"]
-    fig, axes = plt.subplots(1, len(train_dirs), figsize=(5 * len(train_dirs), 3.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(train_dirs), figsize=(5 * len(train_dirs), 4.2), squeeze=False)
     for ax, (method, run_dir) in zip(axes[0], train_dirs.items()):
         scalars = sorted((run_dir / "logs").glob("*/scalars"))
         plotted = False
@@ -89,8 +89,8 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
         ax.set_title(method)
         ax.set_xlabel("iteration")
         ax.set_yscale("log")
-        if plotted:
-            ax.legend()
+        if plotted:  # below the axes: the curves fill the plot
+            ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
         lines.append(f"- **{method}**: run folder `{os.path.relpath(run_dir, report_dir)}`")
     fig.tight_layout()
     figure = report_dir / "figures" / "training_losses.png"

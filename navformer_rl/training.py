@@ -541,6 +541,17 @@ def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def _with_defaults(defaults: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` with every section key it lacks taken from ``defaults`` (``model`` overrides as they are)."""
+    merged = dict(defaults)
+    for key, value in values.items():
+        if isinstance(value, Mapping) and isinstance(defaults.get(key), Mapping) and key != "model":
+            merged[key] = _with_defaults(defaults[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
 def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     flat: dict[str, Any] = {}
     for key, value in values.items():
@@ -913,7 +924,9 @@ class Trainer:
     def restore(self, folder: Path) -> None:
         """Load a checkpoint written by :meth:`save_checkpoint` into this (freshly built) trainer."""
         header = ckpt.read_checkpoint_config(folder)
-        before, now = _comparable(header["train_config"]), _comparable(self.cfg.to_dict())
+        # a key the checkpoint lacks came after it was written; the run had that key's default
+        saved = _with_defaults(TrainConfig().to_dict(), header["train_config"])
+        before, now = _comparable(saved), _comparable(self.cfg.to_dict())
         changed = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
         if changed:
             raise ValueError(

@@ -192,3 +192,22 @@ def test_rng_restore_sets_the_states_of_the_gpus_it_sees(monkeypatch):
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 4)
     restore_rng_state(state)
     assert restored == [(0, 0), (1, 1)]
+
+
+def test_a_checkpoint_from_before_a_new_key_resumes_with_that_keys_default(tiny_config, tmp_path):
+    """A key added to the config after a checkpoint was written (here ssl.loss_weight) counts as its
+    default when resuming; a checkpoint that recorded another value is still refused."""
+    import json
+
+    run = tmp_path / "run"
+    first = train(tiny_config("optim.iterations=2", f"output_dir={run}"))
+    header_path = first.checkpoint / "config.json"
+    header = json.loads(header_path.read_text())
+    del header["train_config"]["ssl"]["loss_weight"]  # as written by the version before the key existed
+    header_path.write_text(json.dumps(header))
+    assert train(tiny_config("optim.iterations=3", f"output_dir={run}", "resume=true")).iterations == 3
+
+    other = tmp_path / "other"
+    train(tiny_config("optim.iterations=2", f"output_dir={other}", "ssl.loss_weight=0.5"))
+    with pytest.raises(ValueError, match=r"differs in \['ssl.loss_weight'\]"):
+        train(tiny_config("optim.iterations=3", f"output_dir={other}", "resume=true"))
