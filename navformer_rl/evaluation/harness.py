@@ -23,6 +23,11 @@ every robot driven by the evaluated method (paper §VII.A), measures each robot-
 Episodes run in ``workers`` spawned processes (one env per robot line-up and one policy per process);
 each episode's result depends only on the episode (its world, layout and seed) and the method, never on
 which worker ran it or in which order, so any worker count gives the same records.
+
+This module orchestrates: it checks the arguments, makes the tasks, reuses stored episode results, runs
+the rest (here or in the worker pool), removes stale outputs and writes the files above. The policy recipe
+and its checks live in :mod:`navformer_rl.evaluation.policy_spec`, the episode loop and its visuals in
+:mod:`navformer_rl.evaluation.runner`.
 """
 
 from __future__ import annotations
@@ -41,218 +46,50 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from navformer_rl import __version__
 from navformer_rl.checks import check_int
-from navformer_rl.devices import check_device, resolve_device
+from navformer_rl.devices import resolve_device
 from navformer_rl.durable import atomic_write_text, folder_lock
-from navformer_rl.evaluation.episodes import Episode, EpisodeSet, load_episode_set, save_episode_set
-from navformer_rl.evaluation.measures import RobotTrial, TrialTracker, check_cluster
-from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, label_ablation
+from navformer_rl.evaluation.episodes import EpisodeSet, load_episode_set, save_episode_set
+from navformer_rl.evaluation.measures import RobotTrial, check_cluster
+from navformer_rl.evaluation.policy_spec import (
+    CHECKPOINT_METHODS,
+    METHODS,
+    PolicySpec,
+    checkpoint_ablation,
+    label_ablation_problem,
+)
+from navformer_rl.evaluation.runner import (
+    EpisodeRunner,
+    EpisodeTask,
+    _file_stem,
+    _init_worker,
+    _run_in_worker,
+    _timed_run,
+    make_eval_env,
+)
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
-from navformer_rl.evaluation.video import MAP_PNG_PX, compose_frame, draw_map, save_map_png
-from navformer_rl.mp4 import Mp4Writer, ffmpeg_executable
+from navformer_rl.mp4 import ffmpeg_executable
 
-METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
-"""Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
-CHECKPOINT_METHODS = ("navformer", "dt")
+__all__ = [
+    "LOCK_FILENAME",
+    "PARTIAL_DIRNAME",
+    "EvaluationResult",
+    "evaluate",
+    # re-exported: defined here before the policy recipe and the episode runner got their own modules,
+    # and still imported from here (CLI, report, recipes, tests)
+    "METHODS",
+    "EpisodeTask",
+    "PolicySpec",
+    "checkpoint_ablation",
+    "label_ablation_problem",
+    "make_eval_env",
+]
+
 LOCK_FILENAME = ".evaluate.lock"
 """Held (``flock`` + pid) in the output folder while an evaluation writes there: a second one is refused."""
 PARTIAL_DIRNAME = "per_episode"
 """Sub-folder of the output folder holding one result file per finished episode (for resuming)."""
-TRAIN_CONFIG_FILENAME = "train_config.json"
-"""The resolved training configuration a training run writes into its run directory."""
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    """A picklable recipe for an evaluation policy, built once in every worker.
-
-    Attributes:
-        method: one of :data:`METHODS`.
-        checkpoint: run dir / checkpoint folder / ``model.safetensors`` for ``navformer`` and ``dt``.
-        seed: base seed of stochastic policies (VRW, FCA's noise); each episode adds its own seed.
-        device: where ``navformer`` / ``dt`` run their model (``cpu``, ``cuda``, ``cuda:N``, ``auto``); the
-            other methods have no model and ignore it.
-    """
-
-    method: str
-    checkpoint: str | None = None
-    seed: int = 0
-    factory: Callable[[], Any] | None = None
-    """For your own policy: a picklable zero-argument callable (e.g. a module-level function) returning a
-    ``TensorDictModuleBase`` that writes ``("agents", "action")``; ``method`` is then its label."""
-    device: str = "cpu"
-
-    def validate(self, label: str | None = None) -> dict[str, Any]:
-        """Check the method, (by loading it) the checkpoint, and that ``label`` (default: the method) names no
-        training ablation the checkpoint was not trained with (:func:`label_ablation_problem`; ValueError);
-        returns a description for ``run.json`` (``model_config``, ``checkpoint_sha256`` and the checkpoint's
-        training ``ablation`` for ``navformer`` / ``dt``)."""
-        check_device(self.device, "device (--device)")
-        if self.factory is not None:
-            if self.checkpoint is not None:
-                raise ValueError("a policy factory takes no checkpoint; load it inside the factory")
-            if self.device != "cpu":
-                raise ValueError(
-                    f"device={self.device!r} with a policy factory: your factory places its own model (e.g. "
-                    "return NavFormerPolicy(model.to('cuda'))); leave device at 'cpu'"
-                )
-            # your own policy: nothing to check a label against
-            return {
-                "factory": f"{getattr(self.factory, '__module__', '?')}.{getattr(self.factory, '__qualname__', self.factory)}"
-            }
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
-        description: dict[str, Any] = {}
-        if self.method in CHECKPOINT_METHODS:
-            if self.checkpoint is None:
-                raise ValueError(
-                    f"method {self.method!r} needs a checkpoint: a run directory or checkpoint folder "
-                    "(CLI --checkpoint PATH, recipe checkpoint=PATH)"
-                )
-            from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
-
-            _, config = self._load_checkpoint()  # on the CPU: this process only checks it
-            weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
-            description = {
-                "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
-                "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
-                "ablation": checkpoint_ablation(self.checkpoint),
-            }
-        elif self.checkpoint is not None:
-            raise ValueError(f"method {self.method!r} takes no checkpoint (got {self.checkpoint!r})")
-        problem = label_ablation_problem(
-            label or self.method,
-            self.method,
-            description.get("ablation"),
-            description.get("model_config"),
-            self.checkpoint,
-        )
-        if problem is not None:
-            raise ValueError(problem)
-        return description
-
-    def _load_checkpoint(self):
-        """``(NavFormerPolicy on the CPU, NavFormerConfig)`` of ``navformer`` / ``dt``."""
-        from navformer_rl.baselines.dt import load_dt_policy
-        from navformer_rl.baselines.navformer import load_navformer_policy
-
-        load = load_navformer_policy if self.method == "navformer" else load_dt_policy
-        return load(self.checkpoint)
-
-    def build_with_config(self):
-        """``(policy, model config or None)``; a ``navformer`` / ``dt`` policy's model on :attr:`device`."""
-        if self.factory is not None:
-            return self.factory(), None
-        if self.method in CHECKPOINT_METHODS:
-            policy, config = self._load_checkpoint()
-            return policy.to(resolve_device(self.device)), config
-        if self.method == "vrw":
-            from navformer_rl.baselines.random_walk import RandomWalkPolicy
-
-            return RandomWalkPolicy(seed=self.seed), None
-        if self.method == "fca":
-            from navformer_rl.baselines.fca import FCAPolicy
-
-            return FCAPolicy(), None
-        raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
-
-
-def checkpoint_ablation(checkpoint: str | os.PathLike) -> str | None:
-    """The training ablation (``TrainConfig.ablation``: ``none``, ``no_thsc``, ..., ``dt``) a checkpoint was
-    trained with: from the training config stored in its ``config.json``, else from the run directory's
-    ``train_config.json``; None when neither records it (a checkpoint written by hand)."""
-    from navformer_rl.checkpoint import CHECKPOINTS_DIRNAME, read_checkpoint_config, resolve_checkpoint
-
-    train_config = read_checkpoint_config(checkpoint).get("train_config")
-    ablation = train_config.get("ablation") if isinstance(train_config, dict) else None
-    folder = resolve_checkpoint(checkpoint)
-    run_config = folder.parent.parent / TRAIN_CONFIG_FILENAME
-    if ablation is None and folder.parent.name == CHECKPOINTS_DIRNAME and run_config.is_file():
-        try:
-            ablation = json.loads(run_config.read_text()).get("ablation")
-        except (ValueError, AttributeError):
-            ablation = None
-    return ablation if isinstance(ablation, str) else None
-
-
-ARCHITECTURE_FIELDS = ("encoder", "use_static_encoder", "use_general_encoder", "thsc")
-"""The ``NavFormerConfig`` fields a model-level ablation changes (checked when a checkpoint does not record
-its training ablation)."""
-
-
-def label_ablation_problem(
-    label: str,
-    method: str,
-    ablation: str | None,
-    model_config: dict[str, Any] | None,
-    checkpoint: str | os.PathLike | None = None,
-) -> str | None:
-    """Why ``label`` misnames the evaluated model, or None when it does not.
-
-    A label that names a training ablation (:func:`~navformer_rl.evaluation.paper_results.label_ablation`:
-    ``navformer-no_thsc``) is compared in reports with that ablation's Table IV row, so it must be a
-    ``navformer`` / ``dt`` checkpoint trained with that ablation: ``ablation`` (the checkpoint's
-    ``TrainConfig.ablation``) must be the named one; when the checkpoint does not record it, its
-    ``model_config`` must at least have that ablation's architecture (:data:`ARCHITECTURE_FIELDS`). Labels
-    that name no ablation (``navformer-seed1``) are free. A label that starts with another method's name
-    (``--method vrw --label navformer``) is refused too: reports take the paper column from that name.
-    """
-    prefix = label.lower().split("-")[0].split("_")[0]
-    if prefix in METHODS and prefix != method:
-        return (
-            f"the label {label!r} names the method {prefix!r} (reports compare it with that method's paper "
-            f"numbers), but the evaluated method is {method!r}; choose a label that starts with {method!r} "
-            "or names no method"
-        )
-    named = label_ablation(label)
-    if named is None:
-        return None
-    row = ABLATION_TO_TABLE4[named]
-    claim = f"the label {label!r} names the training ablation {named!r} (compared with Table IV's {row!r})"
-    fix = (
-        f"evaluate the checkpoint trained with ablation={named}, or choose a label that names no ablation "
-        "(e.g. navformer-seed1)"
-    )
-    where = f"checkpoint {checkpoint}" if checkpoint is not None else "the checkpoint"
-    if ablation is not None:
-        if ablation != named:
-            return f"{claim}, but {where} was trained with ablation={ablation}; {fix}"
-        return None
-    if model_config is None:
-        return None
-    from navformer_rl.training import TrainConfig
-    from navformer_rl.training import model_config as ablation_model
-
-    expected = ablation_model(TrainConfig(ablation=named))
-    differ = {
-        name: (model_config.get(name), getattr(expected, name))
-        for name in ARCHITECTURE_FIELDS
-        if model_config.get(name) != getattr(expected, name)
-    }
-    if differ:
-        return (
-            f"{claim}, but {where} records no training ablation and its model lacks that ablation's "
-            f"architecture ((checkpoint, {named}): {differ}); {fix}"
-        )
-    return None
-
-
-@dataclass(frozen=True)
-class EpisodeTask:
-    """One unit of work: an episode, what to visualise, where to write visuals."""
-
-    index: int
-    episode: dict[str, Any]
-    save_map: bool
-    save_video: bool
-    out_dir: str
-    label: str
-    key: str
-    """Identifies the work (method, checkpoint, seed, episode, visuals): a stored result with this key is
-    reused on resume."""
 
 
 @dataclass
@@ -657,192 +494,3 @@ def _run_tasks(
     finally:
         bar.close()
     return [r for r in results if r is not None], len(todo)
-
-
-def _timed_run(runner: EpisodeRunner, task: EpisodeTask) -> dict[str, Any]:
-    """``runner.run(task)`` with ``seconds``: how long the episode took in this process."""
-    started = time.perf_counter()
-    output = runner.run(task)
-    output["seconds"] = round(time.perf_counter() - started, 3)
-    return output
-
-
-_WORKER_RUNNER: EpisodeRunner | None = None
-
-
-def _init_worker(spec: PolicySpec, max_steps: int, video_fps: float) -> None:
-    global _WORKER_RUNNER
-    import torch
-
-    torch.set_num_threads(1)
-    _WORKER_RUNNER = EpisodeRunner(spec, max_steps, video_fps)
-
-
-def _run_in_worker(task: EpisodeTask) -> dict[str, Any]:
-    if _WORKER_RUNNER is None:
-        raise RuntimeError("evaluation worker used before its initialiser ran")
-    return _timed_run(_WORKER_RUNNER, task)
-
-
-class EpisodeRunner:
-    """Runs episodes one at a time: one policy, one ``MultiRobotNavEnv`` per robot line-up (cached).
-
-    Args:
-        spec: the policy recipe.
-        max_steps: trial length (500 in the paper).
-        video_fps: frames per second of recorded videos.
-    """
-
-    def __init__(self, spec: PolicySpec, max_steps: int, video_fps: float = 10.0) -> None:
-        self.spec = spec
-        self.policy, _ = spec.build_with_config()
-        self.max_steps = int(max_steps)
-        self.video_fps = float(video_fps)
-        self._envs: dict[tuple[str, ...], Any] = {}
-
-    def close(self) -> None:
-        for env in self._envs.values():
-            env.close()
-        self._envs.clear()
-
-    def _env(self, robots: tuple[str, ...]):
-        if robots not in self._envs:
-            self._envs[robots] = make_eval_env(robots, self.max_steps)
-        return self._envs[robots]
-
-    def run(self, task: EpisodeTask) -> dict[str, Any]:
-        """Run one episode; returns ``{"records": [RobotTrial], "maps": [...], "videos": [...]}``."""
-        import torch
-
-        episode = Episode.from_json(task.episode)
-        env = self._env(episode.robots)
-        env.set_next_episode(episode.world_spec())
-        with torch.no_grad():
-            td = env.reset()
-            world = env.world
-            episode.check_world(world)
-            specs = list(env.simulator.robot_specs)
-            if hasattr(self.policy, "bind"):
-                self.policy.bind(env, episode.seed ^ self.spec.seed)
-            poses = td.get(("privileged", "pose")).numpy().astype(np.float64)
-            tracker = TrialTracker(poses[:, :2])
-            keep_path = task.save_map or task.save_video
-            paths = [[p[:2].copy()] for p in poses] if keep_path else None
-            name = _file_stem(episode.episode_id)
-            video = (
-                # one encoder thread: episodes already run in parallel processes
-                Mp4Writer(Path(task.out_dir) / "videos" / f"{name}.mp4", self.video_fps, threads=1)
-                if task.save_video
-                else None
-            )
-            title = f"{task.label} | {episode.episode_id} | {episode.size:g} m, {episode.n_robots} robots"
-            try:
-                if video is not None:
-                    video.write(self._frame(world, paths, poses, specs, td, tracker, title, 0))
-                for t in range(1, self.max_steps + 1):
-                    td = self.policy(td)
-                    td = env.step(td)
-                    nxt = td.get("next")
-                    poses = nxt.get(("privileged", "pose")).numpy().astype(np.float64)
-                    collided = nxt.get(("agents", "collision")).numpy().reshape(-1)
-                    success = nxt.get(("privileged", "success")).numpy().reshape(-1)
-                    was_active = tracker.active.copy()
-                    # the arc length driven on this step: |executed linear velocity| * dt
-                    driven = np.abs(nxt.get(("privileged", "velocity"))[:, 0].numpy()) * env.simulator.dt
-                    tracker.update(poses[:, :2], collided, success, driven)
-                    if paths is not None:
-                        for i in np.flatnonzero(was_active):
-                            paths[i].append(poses[i, :2].copy())
-                    if video is not None:
-                        video.write(self._frame(world, paths, poses, specs, nxt, tracker, title, t))
-                    if bool(nxt.get("done").any()):
-                        break
-                    td = _next_input(td)
-            except BaseException:
-                if video is not None:
-                    video.abort()
-                raise
-            videos = [str(video.close().relative_to(task.out_dir))] if video is not None else []
-        maps = []
-        if task.save_map:
-            image = draw_map(world, [np.array(p) for p in paths], poses, specs, side=MAP_PNG_PX)
-            outcome = ", ".join(
-                f"{i}:{'ok' if ok else 'fail'}" + ("" if measured else " (obstacle)")
-                for i, (ok, measured) in enumerate(zip(tracker.success, episode.measured))
-            )
-            path = save_map_png(image, Path(task.out_dir) / "maps" / f"{name}.png", f"{title} | {outcome}")
-            maps.append(str(path.relative_to(task.out_dir)))
-        final_distance = np.hypot(*(poses[:, :2] - world.target_positions.astype(np.float64)).T)
-        records = robot_trials(task.label, episode, tracker, final_distance)
-        return {"records": records, "maps": maps, "videos": videos}
-
-    @staticmethod
-    def _frame(world, paths, poses, specs, td, tracker, title, t) -> np.ndarray:
-        from navformer_rl.envs.topdown import ROBOT_COLORS
-
-        cameras = td.get(("agents", "pixels")).numpy()
-        targets = td.get(("agents", "target_pixels")).numpy()
-        collided = td.get(("agents", "collision")).numpy().reshape(-1)
-        distance = np.hypot(*(poses[:, :2] - world.target_positions).T)
-        status = []
-        for i in range(len(poses)):
-            if tracker.success[i]:
-                status.append(f"found target at step {tracker.success_step[i]}")
-            else:
-                status.append(
-                    f"{distance[i]:.1f} m to go, {tracker.collisions[i]} coll."
-                    + (" HIT" if collided[i] else "")
-                )
-        map_image = draw_map(world, [np.array(p) for p in paths], poses, specs)
-        if len({spec.name for spec in specs}) > 1:  # mixed line-up (Table III): name each robot's style
-            status = [f"{spec.name}, {text}" for spec, text in zip(specs, status)]
-        return compose_frame(map_image, cameras, targets, ROBOT_COLORS, status, f"{title} | step {t}")
-
-
-def robot_trials(
-    label: str, episode: Episode, tracker: TrialTracker, final_distance: np.ndarray
-) -> list[RobotTrial]:
-    """One :class:`RobotTrial` per robot of a finished ``episode`` from its ``tracker`` (p, N_c, N_e,
-    success) and ``final_distance`` float ``[R]`` (metres to the target at the end); ℓ comes from the
-    episode."""
-    return [
-        RobotTrial(
-            method=label,
-            episode_id=episode.episode_id,
-            setup=episode.setup,
-            size=episode.size,
-            n_robots=episode.n_robots,
-            world_seed=episode.world_seed,
-            trial=episode.trial,
-            robot=i,
-            robot_style=episode.robots[i],
-            measured=episode.measured[i],
-            success=bool(tracker.success[i]),
-            success_step=int(tracker.success_step[i]) if tracker.success[i] else None,
-            steps=int(tracker.steps[i]),
-            collisions=int(tracker.collisions[i]),
-            path_length=round(float(tracker.path_length[i]), 6),
-            shortest_path=episode.shortest_paths[i],
-            shortest_path_to_disc=episode.shortest_paths_to_disc[i],
-            final_distance=round(float(final_distance[i]), 6),
-        )
-        for i in range(episode.n_robots)
-    ]
-
-
-def make_eval_env(robots: tuple[str, ...], max_steps: int):
-    """A ``MultiRobotNavEnv`` for the robot styles ``robots`` (one per robot) and trial length ``max_steps``."""
-    from navformer_rl.envs.multi_robot import MultiRobotNavEnv
-
-    return MultiRobotNavEnv(robots=list(robots), max_steps=max_steps)
-
-
-def _next_input(td):
-    """The next policy input: ``td["next"]`` with the rewards kept (NavFormer's R-hat reads them)."""
-    from torchrl.envs.utils import step_mdp
-
-    return step_mdp(td, exclude_reward=False)
-
-
-def _file_stem(episode_id: str) -> str:
-    return episode_id.replace("/", "_").replace(" ", "_")

@@ -1,0 +1,273 @@
+"""The training configuration: ``TrainConfig`` and its sections (the layout of ``train.yaml``), the
+ablations, the static checks of a configuration (:func:`validate_config`) and the ``NavFormerConfig`` it
+builds (:func:`model_config`).
+
+Plain dataclasses, no hydra; :mod:`~navformer_rl.training.config_io` reads them from YAML, dicts and
+``key=value`` overrides.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from navformer_rl.checks import check_int, check_number
+from navformer_rl.devices import check_device
+from navformer_rl.validation import ValidationConfig, validate_validation_config
+
+if TYPE_CHECKING:
+    from navformer_rl.modules import NavFormerConfig
+
+ABLATIONS: dict[str, str] = {
+    "none": "NavFormer as in the paper",
+    "no_ssl": "w/o SSL: trained with L_DT only (no BYOL, no D_ssl)",
+    "no_thsc": "w/o THSC: the action head reads h^ca_{o,t} only",
+    "no_de": "w/o tau^e: L_DT on D_ca trajectories only",
+    "no_dca": "w/o tau^ca: L_DT on D_e trajectories only",
+    "no_fs": "w/o f_s: no static encoder (and no static BYOL)",
+    "no_fg": "w/o f_g: no general encoder (target image through f_s)",
+    "resnet18": "w ResNet18: a single, randomly initialised ResNet18 replaces the DVE",
+    "dt": "DT baseline: single encoder, no THSC, trained with eq. 10 only",
+}
+"""Every value of ``TrainConfig.ablation``: the rows of paper Table IV plus the DT baseline (Table I)."""
+
+_MODEL_ABLATION = {
+    "none": "navformer",
+    "no_ssl": "navformer",
+    "no_de": "navformer",
+    "no_dca": "navformer",
+    "no_thsc": "no_thsc",
+    "no_fs": "no_static_encoder",
+    "no_fg": "no_general_encoder",
+    "resnet18": "resnet18",
+    "dt": "dt",
+}
+_NO_SSL = frozenset({"no_ssl", "dt"})
+_NO_EXPLORATION = frozenset({"no_de"})
+_NO_COLLISION = frozenset({"no_dca"})
+
+ENCODER_TRAINING = ("joint", "frozen")
+LOGGER_BACKENDS = ("csv", "tensorboard", "none")
+MODEL_KEYS_SET_ELSEWHERE = {"detach_encoders": "encoder_training=frozen"}
+
+
+@dataclass
+class DataConfig:
+    """Datasets and batch shapes (paper §VI).
+
+    Attributes:
+        exploration_path / collision_path / ssl_path: dataset folders of D_e, D_ca, D_ssl (absolute paths
+            recommended; the hydra recipe changes directory). A path may be None only when the ablation does
+            not use that dataset.
+        exploration_batch_trajs / collision_batch_trajs: trajectories per batch (25 / 150).
+        ssl_batch_pairs: D_ssl image pairs per batch (512).
+        context_steps: longest trajectory window in steps; None = what fits the model's context
+            (``NavFormerConfig.window_steps`` = 1024 // 4 = 256 steps). Longer trajectories are cut to a window
+            at a random offset.
+        prefetch: draw the next iteration's batches in a background thread while this one trains
+            (:class:`~navformer_rl.data.prefetch.Prefetcher`; the same batches, so the same losses). On CUDA the
+            batches are also gathered into page-locked memory, so their copies to the GPU are asynchronous.
+    """
+
+    exploration_path: str | None = None
+    collision_path: str | None = None
+    ssl_path: str | None = None
+    exploration_batch_trajs: int = 25
+    collision_batch_trajs: int = 150
+    ssl_batch_pairs: int = 512
+    context_steps: int | None = None
+    prefetch: bool = True
+
+
+@dataclass
+class SSLConfig:
+    """BYOL settings (eqs. 6-8). ``projection_dim`` / ``hidden_dim``: projector and predictor MLP sizes;
+    ``tau_base``: EMA rate at iteration 0, raised to 1 by BYOL's cosine schedule over the run;
+    ``loss_weight``: w in L = L_DT + w L_BYOL (eq. 11 has w = 1; BYOL's loss is ~15x L_DT in the medium run
+    of docs/results.md, so with ``encoder_training=joint`` its gradient dominates the shared encoders)."""
+
+    projection_dim: int = 128
+    hidden_dim: int = 512
+    tau_base: float = 0.996
+    loss_weight: float = 1.0
+
+
+@dataclass
+class OptimConfig:
+    """Optimisers (paper §VI): AdamW for NavFormer, Adam for the DVE (BYOL) parameters.
+
+    Attributes:
+        iterations: training iterations (10,000).
+        lr / weight_decay: AdamW on the NavFormer parameters (2e-4 / 1e-4); includes the encoders when
+            ``encoder_training=joint``.
+        dve_lr / dve_weight_decay: Adam on the BYOL projectors and predictors, plus the encoders when
+            ``encoder_training=frozen`` (paper: "0.0004 for the learning rate and weight decay").
+        clip_grad_norm: max global gradient norm per optimiser, or None (the paper clips nothing).
+        trajectory_chunks: split each trajectory batch into this many equal chunks, backpropagated one after
+            the other (memory lever; the gradient equals the whole batch's exactly: each chunk's loss is
+            weighted by its share of valid steps). Must divide both trajectory batch sizes.
+    """
+
+    iterations: int = 10_000
+    lr: float = 2e-4
+    weight_decay: float = 1e-4
+    dve_lr: float = 4e-4
+    dve_weight_decay: float = 4e-4
+    clip_grad_norm: float | None = None
+    trajectory_chunks: int = 1
+
+
+@dataclass
+class LoggerConfig:
+    """``backend``: ``csv`` (TorchRL ``CSVLogger``), ``tensorboard`` (needs the ``tensorboard`` package) or
+    ``none``; scalars go to ``<run_dir>/logs/<exp_name>``. ``log_interval``: iterations between log writes.
+    ``progress``: tqdm progress bar."""
+
+    backend: str = "csv"
+    exp_name: str = "navformer"
+    log_interval: int = 1
+    progress: bool = True
+
+
+@dataclass
+class CheckpointConfig:
+    """``interval``: iterations between checkpoints (a final one is always written);
+    ``keep_last``: how many checkpoint folders to keep (0 = all)."""
+
+    interval: int = 500
+    keep_last: int = 3
+
+
+@dataclass
+class TrainConfig:
+    """Everything :func:`train` needs. Defaults are the paper's (§IV, §VI).
+
+    Attributes:
+        data / ssl / optim / logger / checkpoint / validation: see the section classes
+            (:class:`~navformer_rl.validation.ValidationConfig` for the last).
+        model: overrides of ``NavFormerConfig`` fields (architecture and perf levers: ``autocast_dtype``,
+            ``channels_last``, ``encoder_micro_batch``), applied on top of the ablation's model.
+        ablation: one of :data:`ABLATIONS`.
+        encoder_training: ``joint`` - L = L_BYOL + L_DT trains the encoders (eq. 11, the paper);
+            ``frozen`` - L_DT does not reach the encoders, which learn from BYOL only.
+        seed: seeds torch, numpy, python and every sampler.
+        device: ``auto`` (CUDA when available), ``cpu``, ``cuda`` or ``cuda:N``.
+        output_dir: the run directory (checkpoints, logs, config).
+        resume: continue from the run directory's latest checkpoint (start fresh when it has none).
+    """
+
+    data: DataConfig = field(default_factory=DataConfig)
+    model: dict[str, Any] = field(default_factory=dict)
+    ablation: str = "none"
+    encoder_training: str = "joint"
+    ssl: SSLConfig = field(default_factory=SSLConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    validation: ValidationConfig = field(default_factory=ValidationConfig)
+    seed: int = 0
+    device: str = "auto"
+    output_dir: str = "runs/navformer"
+    resume: bool = False
+
+    @property
+    def uses_ssl(self) -> bool:
+        return self.ablation not in _NO_SSL
+
+    @property
+    def uses_exploration(self) -> bool:
+        return self.ablation not in _NO_EXPLORATION
+
+    @property
+    def uses_collision(self) -> bool:
+        return self.ablation not in _NO_COLLISION
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-serialisable dict (the layout of ``train.yaml``)."""
+        return dataclasses.asdict(self)
+
+
+def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
+    """Static checks of ``cfg`` (no file is opened); :func:`build_trainer` also checks the datasets.
+
+    ``require_data=False`` skips the check that the data paths the ablation needs are set (for printing
+    or composing a configuration before the datasets exist).
+    """
+    if cfg.ablation not in ABLATIONS:
+        raise ValueError(f"unknown ablation {cfg.ablation!r}; expected one of {list(ABLATIONS)}")
+    if cfg.encoder_training not in ENCODER_TRAINING:
+        raise ValueError(
+            f"encoder_training={cfg.encoder_training!r}: expected one of {list(ENCODER_TRAINING)}"
+        )
+    if cfg.encoder_training == "frozen" and not cfg.uses_ssl:
+        raise ValueError(
+            f"encoder_training=frozen with ablation={cfg.ablation!r}: without BYOL nothing would train the "
+            "encoders; use encoder_training=joint"
+        )
+    if cfg.logger.backend not in LOGGER_BACKENDS:
+        raise ValueError(f"logger.backend={cfg.logger.backend!r}: expected one of {list(LOGGER_BACKENDS)}")
+    check_device(cfg.device)
+    for name in ("exploration_batch_trajs", "collision_batch_trajs", "ssl_batch_pairs"):
+        check_int(getattr(cfg.data, name), f"data.{name}")
+    if cfg.data.ssl_batch_pairs < 2 and cfg.uses_ssl:
+        raise ValueError(
+            f"data.ssl_batch_pairs={cfg.data.ssl_batch_pairs}: BYOL's BatchNorm needs at least 2 pairs"
+        )
+    if cfg.data.context_steps is not None:
+        check_int(cfg.data.context_steps, "data.context_steps")
+    for name in ("iterations", "trajectory_chunks"):
+        check_int(getattr(cfg.optim, name), f"optim.{name}")
+    for name in ("exploration_batch_trajs", "collision_batch_trajs"):
+        size = getattr(cfg.data, name)
+        if size % cfg.optim.trajectory_chunks:
+            raise ValueError(
+                f"data.{name}={size} is not divisible by optim.trajectory_chunks={cfg.optim.trajectory_chunks}"
+            )
+    for name in ("lr", "weight_decay", "dve_lr", "dve_weight_decay"):
+        check_number(getattr(cfg.optim, name), f"optim.{name}", at_least=0)
+    if cfg.optim.lr == 0 or (cfg.uses_ssl and cfg.optim.dve_lr == 0):
+        raise ValueError("optim.lr / optim.dve_lr must be > 0")
+    if cfg.optim.clip_grad_norm is not None and not cfg.optim.clip_grad_norm > 0:
+        raise ValueError(f"optim.clip_grad_norm={cfg.optim.clip_grad_norm!r}: expected None or a number > 0")
+    check_int(cfg.logger.log_interval, "logger.log_interval")
+    check_int(cfg.checkpoint.interval, "checkpoint.interval")
+    if cfg.checkpoint.keep_last < 0:
+        raise ValueError(f"checkpoint.keep_last={cfg.checkpoint.keep_last}: expected >= 0 (0 keeps all)")
+    validate_validation_config(cfg.validation)
+    check_number(cfg.ssl.tau_base, "ssl.tau_base", at_least=0.5, at_most=1)
+    check_number(cfg.ssl.loss_weight, "ssl.loss_weight", greater_than=0)
+    check_int(cfg.ssl.projection_dim, "ssl.projection_dim")
+    check_int(cfg.ssl.hidden_dim, "ssl.hidden_dim")
+    for key, instead in MODEL_KEYS_SET_ELSEWHERE.items():
+        if key in cfg.model:
+            raise ValueError(f"model.{key} is set by the training config; use {instead}")
+    needed = {
+        "data.exploration_path": (cfg.uses_exploration, cfg.data.exploration_path, "D_e"),
+        "data.collision_path": (cfg.uses_collision, cfg.data.collision_path, "D_ca"),
+        "data.ssl_path": (cfg.uses_ssl, cfg.data.ssl_path, "D_ssl"),
+    }
+    for key, (used, path, name) in needed.items():
+        if require_data and used and not path:
+            raise ValueError(f"{key} is not set, but ablation={cfg.ablation!r} trains on {name}")
+    model = model_config(cfg)  # NavFormerConfig validates its own fields
+    if cfg.data.context_steps is not None and cfg.data.context_steps > model.window_steps:
+        raise ValueError(
+            f"data.context_steps={cfg.data.context_steps} needs {cfg.data.context_steps * model.tokens_per_step} "
+            f"tokens; the model's context of {model.context_tokens} tokens holds at most {model.window_steps} steps"
+        )
+
+
+def model_config(cfg: TrainConfig) -> NavFormerConfig:
+    """The ``NavFormerConfig`` of ``cfg``: the ablation's model, ``cfg.model`` overrides, encoder mode."""
+    from navformer_rl.modules import NavFormerConfig
+
+    known = {f.name for f in dataclasses.fields(NavFormerConfig)}
+    unknown = sorted(set(cfg.model) - known)
+    if unknown:
+        raise ValueError(
+            f"unknown model keys {[f'model.{k}' for k in unknown]}; NavFormerConfig has {sorted(known)}"
+        )
+    changes = dict(cfg.model)
+    changes["detach_encoders"] = cfg.encoder_training == "frozen"
+    return NavFormerConfig.ablation(_MODEL_ABLATION[cfg.ablation], **changes)

@@ -1,0 +1,112 @@
+"""The datasets of a training run: :func:`open_datasets` (D_e, D_ca, D_ssl as the ablation needs them),
+:func:`open_validation_datasets` (the held-out sets) and :func:`check_datasets_fit_model` (the configured
+model can read them). Errors name the config key to change.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from navformer_rl.training.config import TrainConfig, model_config
+from navformer_rl.validation import PATH_KEYS
+
+DATASET_KEYS = {"e": "exploration_path", "ca": "collision_path", "ssl": "ssl_path"}
+"""The config key (under ``data.``) of each dataset kind."""
+
+
+def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
+    """Open (and validate: schema version, kind, file sizes) the datasets the configuration uses.
+
+    A dataset smaller than one batch is refused with the batch-size key to lower and the largest value that
+    fits (every such dataset in one message, so that a single edit of the command line fixes them all).
+    """
+    wanted = {
+        "e": (cfg.uses_exploration, "exploration_path", "exploration_batch_trajs"),
+        "ca": (cfg.uses_collision, "collision_path", "collision_batch_trajs"),
+        "ssl": (cfg.uses_ssl, "ssl_path", "ssl_batch_pairs"),
+    }
+    datasets = {}
+    too_small: list[tuple[str, str, int | None]] = []
+    for kind, (used, key, batch_key) in wanted.items():
+        if not used:
+            continue
+        path = getattr(cfg.data, key)
+        dataset = _open_dataset(path, kind, f"data.{key}")
+        available = dataset.num_trajectories if kind != "ssl" else len(dataset)
+        batch = getattr(cfg.data, batch_key)
+        if batch > available:
+            unit = "pairs" if kind == "ssl" else "trajectories"
+            problem = (
+                f"data.{key}={path!r} holds {available} {unit}, fewer than one batch of "
+                f"data.{batch_key}={batch}"
+            )
+            too_small.append((problem, f"data.{batch_key}", _largest_batch(cfg, kind, available)))
+        datasets[kind] = dataset
+    if too_small:
+        fixes = " ".join(f"{key}={fits}" for _, key, fits in too_small if fits is not None)
+        hopeless = [key for _, key, fits in too_small if fits is None]
+        chunks = cfg.optim.trajectory_chunks
+        if hopeless:
+            advice = f"no value of {' / '.join(hopeless)} fits this little data: collect more data"
+            if chunks > 1 and any(key != "data.ssl_batch_pairs" for key in hopeless):
+                advice += f" or lower optim.trajectory_chunks={chunks}"
+            advice += f" (and add {fixes})" if fixes else ""
+        else:
+            if len(too_small) == 1:
+                largest = "the largest batch size that fits"
+                largest += f" and is a multiple of optim.trajectory_chunks={chunks}" if chunks > 1 else ""
+            else:
+                largest = "the largest batch sizes that fit"
+                largest += f" and are multiples of optim.trajectory_chunks={chunks}" if chunks > 1 else ""
+            advice = f"add {fixes} ({largest}) or collect more data"
+        raise ValueError("; ".join([*(problem for problem, _, _ in too_small), advice]))
+    return datasets
+
+
+def open_validation_datasets(cfg: TrainConfig) -> dict[str, Any]:
+    """Open (and validate) the held-out datasets of ``cfg.validation`` (``{}`` when validation is off)."""
+    if not cfg.validation.enabled:
+        return {}
+    return {
+        kind: _open_dataset(path, kind, f"validation.{PATH_KEYS[kind]}")
+        for kind, path in cfg.validation.held_out_paths().items()
+    }
+
+
+def _open_dataset(path: str, kind: str, key: str) -> Any:
+    """``open_dataset(path, kind)`` with errors that name the config ``key``."""
+    from navformer_rl.data import open_dataset
+
+    if not Path(path).exists():
+        raise FileNotFoundError(f"{key}={path!r} does not exist")
+    try:
+        return open_dataset(path, kind=kind)
+    except (ValueError, FileNotFoundError) as err:
+        raise type(err)(f"{key}: {err}") from None
+
+
+def _largest_batch(cfg: TrainConfig, kind: str, available: int) -> int | None:
+    """The largest valid batch size of dataset ``kind`` holding ``available`` items (None when none is).
+
+    Trajectory batches must divide by ``optim.trajectory_chunks``; BYOL needs at least 2 pairs.
+    """
+    if kind == "ssl":
+        return available if available >= 2 else None
+    fits = available - available % cfg.optim.trajectory_chunks
+    return fits if fits > 0 else None
+
+
+def check_datasets_fit_model(cfg: TrainConfig, datasets: Mapping[str, Any], section: str = "data") -> None:
+    """Raise ``ValueError`` when the model of ``cfg`` cannot read ``datasets`` (opened by :func:`open_datasets`,
+    or by :func:`open_validation_datasets` with ``section="validation"``: the config section that errors name).
+
+    Checked: image size and action width (every dataset's images are ``image_size`` square; trajectory
+    actions are ``action_dim`` wide) and the timestep table (the longest trajectory's last step must be
+    ``< model.max_timestep``): :func:`navformer_rl.data.fit.check_model_reads`.
+    """
+    from navformer_rl.data.fit import check_model_reads
+
+    names = {kind: f"{section}.{DATASET_KEYS[kind]}" for kind in datasets}
+    check_model_reads(model_config(cfg), datasets, names, tunable=True)

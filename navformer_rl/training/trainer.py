@@ -1,0 +1,421 @@
+"""One built training run, :class:`Trainer`: samplers, model, losses, optimisers, logger and validator;
+one iteration (``step``), logging, and checkpoints that resume bit-identically (``save_checkpoint``,
+``restore``). Built by :func:`navformer_rl.training.build_trainer`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import random
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from navformer_rl import checkpoint as ckpt
+from navformer_rl.data.prefetch import Prefetcher
+from navformer_rl.devices import resolve_device
+from navformer_rl.training.config import TrainConfig, model_config
+from navformer_rl.training.log_window import LogWindow
+from navformer_rl.validation import make_validator
+
+if TYPE_CHECKING:
+    from torchrl.record.loggers import Logger
+
+RESUME_MAY_CHANGE = frozenset(
+    {
+        "resume",
+        "device",
+        "output_dir",
+        "logger",
+        "checkpoint",
+        "optim.iterations",
+        "data.exploration_path",
+        "data.collision_path",
+        "data.ssl_path",
+        "data.prefetch",
+        "validation",
+    }
+)
+"""Settings a resumed run may change; any other difference from the checkpoint's config is refused."""
+TRAJECTORY_KEYS = [("pixels",), ("action",), ("return_to_go",), ("step",)]
+"""Keys gathered from D_e / D_ca per step (plus ``mask`` and ``target_pixels`` added by the batcher)."""
+BATCH_KEYS = ["pixels", "action", "return_to_go", "step", "mask", "target_pixels"]
+"""What an iteration takes from a trajectory batch to the device."""
+
+
+def _seed_everything(seed: int) -> None:
+    """Seed Python's, NumPy's and torch's global generators from one ``seed``."""
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def _with_defaults(defaults: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` with every section key it lacks taken from ``defaults`` (``model`` overrides as they are)."""
+    merged = dict(defaults)
+    for key, value in values.items():
+        if isinstance(value, Mapping) and isinstance(defaults.get(key), Mapping) and key != "model":
+            merged[key] = _with_defaults(defaults[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``values`` flattened to dotted keys (``model`` overrides kept whole), less :data:`RESUME_MAY_CHANGE`."""
+    flat: dict[str, Any] = {}
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and key != "model":
+            flat.update(_comparable(value, f"{name}."))
+        else:
+            flat[name] = value
+    return {
+        k: v
+        for k, v in flat.items()
+        if k not in RESUME_MAY_CHANGE and k.split(".")[0] not in RESUME_MAY_CHANGE
+    }
+
+
+class Trainer:
+    """The built training run. Use :func:`build_trainer`; then ``step()`` per iteration.
+
+    Attributes:
+        cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
+        model: ``NavFormerModel``.  dt_loss: ``NavFormerLoss``.  byol_loss: ``BYOLLoss`` or None (no SSL).
+        cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
+        batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
+            (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
+        optimizers: ``{"navformer": AdamW, "dve": Adam}`` ("dve" absent without SSL).
+        scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
+        iteration: completed iterations.  logger: TorchRL logger or None.
+        log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
+        validator: :class:`~navformer_rl.validation.Validator` of the held-out sets, or None
+            (:meth:`validation_due`, :meth:`validate`).
+    """
+
+    def __init__(
+        self, cfg: TrainConfig, *, datasets: dict[str, Any], validation_datasets: dict[str, Any] | None = None
+    ) -> None:
+        from torchrl.objectives import SoftUpdate
+
+        from navformer_rl.data import CrossTaskSampler
+        from navformer_rl.modules import NavFormerModel, make_navformer_actor
+        from navformer_rl.objectives import BYOLLoss, BYOLTauSchedule, NavFormerLoss
+
+        self.cfg = cfg
+        self.run_dir = Path(cfg.output_dir)
+        self.device = resolve_device(cfg.device)
+        self.model_config = model_config(cfg)
+        self.iteration = 0
+        _seed_everything(cfg.seed)
+
+        context = cfg.data.context_steps or self.model_config.window_steps
+        # prefetching trains on one batch while the next is gathered: two buffer sets per batcher
+        buffers = {"buffer_sets": 2 if cfg.data.prefetch else 1, "pin_memory": self.device.type == "cuda"}
+        batchers = {}
+        for task, key, size, seed_offset in (
+            ("exploration", "e", cfg.data.exploration_batch_trajs, 1),
+            ("collision_avoidance", "ca", cfg.data.collision_batch_trajs, 2),
+        ):
+            dataset = datasets.get(key)
+            batchers[task] = (
+                None
+                if dataset is None
+                else dataset.trajectory_batcher(
+                    size, context, seed=cfg.seed + seed_offset, keys=TRAJECTORY_KEYS, **buffers
+                )
+            )
+        self.cross_task = CrossTaskSampler(batchers["exploration"], batchers["collision_avoidance"])
+        self.pairs = (
+            datasets["ssl"].pair_batcher(cfg.data.ssl_batch_pairs, seed=cfg.seed + 3, **buffers)
+            if cfg.uses_ssl
+            else None
+        )
+        self.batches = Prefetcher(
+            self._draw_batches, self._sampler_state, self._load_sampler_state, enabled=cfg.data.prefetch
+        )
+
+        self.model = NavFormerModel(self.model_config).to(self.device)
+        self.model.train()
+        self.dt_loss = NavFormerLoss(make_navformer_actor(self.model))
+        self.byol_loss = None
+        self.updater = None
+        self.tau_schedule = None
+        if cfg.uses_ssl:
+            self.byol_loss = BYOLLoss(
+                self.model.static_encoder,
+                self.model.general_encoder,
+                projection_dim=cfg.ssl.projection_dim,
+                hidden_dim=cfg.ssl.hidden_dim,
+                seed=cfg.seed + 4,
+                autocast_dtype=self.model_config.autocast_dtype,
+            ).to(self.device)
+            self.updater = SoftUpdate(self.byol_loss, eps=cfg.ssl.tau_base)
+            self.tau_schedule = BYOLTauSchedule(self.updater, cfg.optim.iterations, cfg.ssl.tau_base)
+        self.optimizers = self._make_optimizers()
+        # float16 autocast needs loss scaling (its gradients underflow); disabled, the scaler is a no-op
+        self.scaler = torch.amp.GradScaler(
+            self.device.type, enabled=self.model_config.autocast_dtype == "float16"
+        )
+        self.logger = None
+        self.log_window = LogWindow()
+        self.validator = make_validator(
+            cfg.validation, validation_datasets or {}, datasets, context, keys=TRAJECTORY_KEYS
+        )
+
+    # -- construction helpers -------------------------------------------------------------------------
+    def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
+        """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint)."""
+        encoders = [m for _, m in self.model.observation_encoders()]
+        encoder_ids = {id(p) for enc in encoders for p in enc.parameters()}
+        model_params = [p for p in self.model.parameters() if p.requires_grad]
+        frozen = self.cfg.encoder_training == "frozen"
+        navformer = [p for p in model_params if not (frozen and id(p) in encoder_ids)]
+        groups = {"navformer": navformer}
+        if self.byol_loss is not None:
+            model_ids = {id(p) for p in model_params}
+            dve = [p for p in self.byol_loss.parameters() if id(p) not in model_ids]
+            if frozen:
+                dve = [p for p in model_params if id(p) in encoder_ids] + dve
+            groups["dve"] = dve
+        return groups
+
+    def _make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        groups = self.parameter_groups()
+        optim = self.cfg.optim
+        optimizers: dict[str, torch.optim.Optimizer] = {
+            "navformer": torch.optim.AdamW(groups["navformer"], lr=optim.lr, weight_decay=optim.weight_decay)
+        }
+        if "dve" in groups:
+            optimizers["dve"] = torch.optim.Adam(
+                groups["dve"], lr=optim.dve_lr, weight_decay=optim.dve_weight_decay
+            )
+        return optimizers
+
+    # -- batches --------------------------------------------------------------------------------------
+    def _draw_batches(self) -> tuple[str, Any, Any]:
+        """One iteration's ``(task, trajectory batch [N] with BATCH_KEYS, D_ssl pairs [B] or None)``."""
+        task, batch = self.cross_task.sample()
+        pairs = self.pairs.sample() if self.pairs is not None else None
+        return task, batch.select(*BATCH_KEYS), pairs
+
+    def _sampler_state(self) -> dict[str, Any]:
+        """The samplers' positions and RNG states (``cross_task`` and, with SSL, ``pairs``) for a checkpoint."""
+        state = {"cross_task": self.cross_task.state_dict()}
+        if self.pairs is not None:
+            state["pairs"] = self.pairs.state_dict()
+        return state
+
+    def _load_sampler_state(self, state: Mapping[str, Any]) -> None:
+        self.cross_task.load_state_dict(state["cross_task"])
+        if self.pairs is not None:
+            self.pairs.load_state_dict(state["pairs"])
+
+    def close(self) -> None:
+        """Stop drawing batches ahead (the samplers keep the state of the batches handed out)."""
+        self.batches.close()
+
+    # -- one iteration --------------------------------------------------------------------------------
+    def step(self) -> dict[str, float]:
+        """Run one training iteration (eq. 11) and return its metrics as floats.
+
+        Keys: ``loss`` (L), ``loss_dt``, ``loss_dt_<task>`` (task of this iteration), ``loss_byol``,
+        ``loss_byol_<encoder>``, ``projection_std_<encoder>``, ``tau``, ``lr``, ``lr_dve``, ``frames``
+        (valid trajectory steps + 2 x pairs), ``frames_per_s``, ``iteration_s``.
+        """
+        from torchrl._utils import timeit
+
+        sync = self.device.type == "cuda"  # time the GPU work of each phase, not its launches
+        start = time.perf_counter()
+        with timeit("sample", sync=sync):  # with data.prefetch: the wait for the batches drawn ahead
+            task, batch, pairs = self.batches.next(draw_ahead=self.iteration + 1 < self.cfg.optim.iterations)
+            batch = batch.to(self.device, non_blocking=True)
+            pairs = pairs.to(self.device, non_blocking=True) if pairs is not None else None
+        for optimizer in self.optimizers.values():
+            optimizer.zero_grad(set_to_none=True)
+        with timeit("forward_backward", sync=sync):
+            loss_dt, loss_byol, byol_out = self._forward_backward(batch, pairs)
+        with timeit("optimizer", sync=sync):
+            if self.cfg.optim.clip_grad_norm is not None:
+                for optimizer in self.optimizers.values():
+                    self.scaler.unscale_(optimizer)
+                    params = [p for g in optimizer.param_groups for p in g["params"]]
+                    torch.nn.utils.clip_grad_norm_(params, self.cfg.optim.clip_grad_norm)
+            for optimizer in self.optimizers.values():
+                self.scaler.step(optimizer)  # skipped (float16 only) when a gradient overflowed
+            self.scaler.update()
+            tau = None
+            if self.updater is not None:
+                tau = self.updater.eps
+                self.updater.step()
+                self.tau_schedule.step()
+        self.iteration += 1
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)  # the timing covers the queued GPU work
+        elapsed = time.perf_counter() - start
+        frames = int(batch["mask"].sum()) + (2 * pairs.shape[0] if pairs is not None else 0)
+        metrics = {
+            "loss_dt": float(loss_dt),
+            f"loss_dt_{task}": float(loss_dt),
+            "lr": self.optimizers["navformer"].param_groups[0]["lr"],
+            "frames": float(frames),
+            "frames_per_s": frames / elapsed,
+            "iteration_s": elapsed,
+        }
+        total = float(loss_dt)
+        if byol_out is not None:
+            total += float(loss_byol.detach())  # weighted: loss = L_DT + w L_BYOL
+            metrics.update({k: float(v.detach()) for k, v in byol_out.items()})
+            metrics["tau"] = float(tau)
+            metrics["lr_dve"] = self.optimizers["dve"].param_groups[0]["lr"]
+        metrics["loss"] = total
+        if not math.isfinite(total):
+            raise FloatingPointError(f"iteration {self.iteration}: the loss is {total} (metrics {metrics})")
+        return metrics
+
+    def _forward_backward(
+        self, batch: TensorDict, pairs: TensorDict | None
+    ) -> tuple[torch.Tensor, torch.Tensor | None, TensorDict | None]:
+        """L = L_DT + L_BYOL, one backward (or one per trajectory chunk, weighted to the same gradient).
+
+        Every backward goes through ``self.scaler`` (loss scaling under float16 autocast, else unchanged).
+        Returns ``(loss_dt, loss_byol, byol_out)``: the detached DT loss, BYOL's weighted loss (None without
+        SSL) and the BYOL loss module's output TensorDict (None without SSL).
+        """
+        chunks = self.cfg.optim.trajectory_chunks
+        byol_out = self.byol_loss(pairs) if pairs is not None else None
+        loss_byol = byol_out["loss_byol"] if byol_out is not None else None
+        if loss_byol is not None and self.cfg.ssl.loss_weight != 1.0:
+            loss_byol = loss_byol * self.cfg.ssl.loss_weight  # logged unweighted (byol_out)
+        if chunks == 1:
+            loss_dt = self.dt_loss(batch)["loss_dt"]
+            self.scaler.scale(loss_dt if loss_byol is None else loss_dt + loss_byol).backward()
+            return loss_dt.detach(), loss_byol, byol_out
+        if loss_byol is not None:
+            self.scaler.scale(loss_byol).backward()
+        valid_total = batch["mask"].sum().clamp_min(1)
+        loss_dt = torch.zeros((), device=self.device)
+        for part in batch.split(batch.shape[0] // chunks):
+            # masked mean of the chunk x its share of the valid steps = its part of the batch's masked mean
+            weighted = self.dt_loss(part)["loss_dt"] * (part["mask"].sum() / valid_total)
+            self.scaler.scale(weighted).backward()
+            loss_dt += weighted.detach()
+        return loss_dt, loss_byol, byol_out
+
+    # -- validation -----------------------------------------------------------------------------------
+    def validation_due(self) -> bool:
+        """Whether the iteration just completed is one to validate (``validation.interval``, the last one)."""
+        return self.validator is not None and self.validator.due(self.iteration, self.cfg.optim.iterations)
+
+    def validate(self) -> dict[str, float]:
+        """The teacher-forced action loss on every validation set: ``{"validation/loss_dt_<task>": float,
+        "validation/train_loss_dt_<task>": float}`` (eval mode; the training's RNG states are left as they
+        were). Empty without validation sets."""
+        if self.validator is None:
+            return {}
+        return self.validator(self.dt_loss, self.model, self.device)
+
+    # -- logging --------------------------------------------------------------------------------------
+    def make_logger(self) -> Logger | None:
+        """TorchRL logger of ``cfg.logger.backend`` writing under ``<run_dir>/logs`` (None for ``none``)."""
+        backend = self.cfg.logger.backend
+        log_dir = str(self.run_dir / "logs")
+        if backend == "csv":
+            from torchrl.record.loggers.csv import CSVLogger
+
+            return CSVLogger(self.cfg.logger.exp_name, log_dir=log_dir, video_format="pt")
+        if backend == "tensorboard":
+            from torchrl.record.loggers.tensorboard import TensorboardLogger
+
+            return TensorboardLogger(self.cfg.logger.exp_name, log_dir=log_dir)
+        return None
+
+    def record(self, metrics: Mapping[str, float]) -> bool:
+        """Add this iteration's ``metrics`` to :attr:`log_window` and, when the iteration is a multiple of
+        ``logger.log_interval`` or the last one, :meth:`log` the window's summary. Returns True when a row was
+        written."""
+        self.log_window.add(metrics)
+        due = self.iteration % self.cfg.logger.log_interval == 0
+        if not (due or self.iteration == self.cfg.optim.iterations):
+            return False
+        self.log(self.log_window.pop_row())
+        return True
+
+    def log(self, metrics: Mapping[str, float], timings: bool = True) -> None:
+        """Write ``metrics`` (plus, with ``timings``, ``timeit`` averages as ``time/<name>``) at the current
+        iteration."""
+        from torchrl._utils import timeit
+
+        if self.logger is None:
+            return
+        row = dict(metrics)
+        if timings:
+            row.update(timeit.todict(prefix="time"))
+        self.logger.log_metrics(row, step=self.iteration)
+
+    # -- checkpoints ----------------------------------------------------------------------------------
+    def resume_state(self) -> dict[str, Any]:
+        """Everything beyond the model weights that a bit-identical continuation needs (plain containers)."""
+        state: dict[str, Any] = {
+            "iteration": self.iteration,
+            "optimizers": {name: opt.state_dict() for name, opt in self.optimizers.items()},
+            "rng": ckpt.capture_rng_state(),
+            "log_window": self.log_window.state_dict(),
+        }
+        if self.scaler.is_enabled():
+            state["grad_scaler"] = self.scaler.state_dict()
+        if self.byol_loss is not None:
+            state["byol"] = self.byol_loss.state_dict()
+            state["byol_augmentation"] = self.byol_loss.augmentation.rng_state()
+            state["tau_schedule"] = self.tau_schedule.state_dict()
+        # after the batches handed out, not after one drawn ahead: a resumed run draws the next one again
+        state.update(self.batches.state_dict())
+        return state
+
+    def save_checkpoint(self) -> Path:
+        """Write the run part and the resume part at the current iteration (atomic)."""
+        return ckpt.save_checkpoint(
+            self.run_dir,
+            self.iteration,
+            model_state=self.model.state_dict(),
+            model_config=dataclasses.asdict(self.model_config),
+            train_config=self.cfg.to_dict(),
+            resume_state=self.resume_state(),
+            keep_last=self.cfg.checkpoint.keep_last,
+        )
+
+    def restore(self, folder: Path) -> None:
+        """Load a checkpoint written by :meth:`save_checkpoint` into this (freshly built) trainer."""
+        header = ckpt.read_checkpoint_config(folder)
+        # a key the checkpoint lacks came after it was written; the run had that key's default
+        saved = _with_defaults(TrainConfig().to_dict(), header["train_config"])
+        before, now = _comparable(saved), _comparable(self.cfg.to_dict())
+        changed = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
+        if changed:
+            raise ValueError(
+                f"cannot resume {folder}: the configuration differs in {changed} "
+                f"(checkpoint: {[before.get(k) for k in changed]}, now: {[now.get(k) for k in changed]})"
+            )
+        _, weights = ckpt.load_model_state(folder)
+        ckpt.load_model_weights(self.model, weights, folder)
+        state = ckpt.load_resume_state(folder)
+        for name, optimizer in self.optimizers.items():
+            optimizer.load_state_dict(state["optimizers"][name])
+        self.batches.load_state_dict({k: state[k] for k in ("cross_task", "pairs") if k in state})
+        if self.scaler.is_enabled():
+            self.scaler.load_state_dict(state["grad_scaler"])
+        if self.byol_loss is not None:
+            self.byol_loss.load_state_dict(state["byol"])
+            self.byol_loss.augmentation.set_rng_state(state["byol_augmentation"])
+            self.tau_schedule.load_state_dict(state["tau_schedule"])
+        ckpt.restore_rng_state(state["rng"])
+        if "log_window" in state:  # absent from checkpoints of earlier versions: their window starts empty
+            self.log_window.load_state_dict(state["log_window"])
+        self.iteration = int(state["iteration"])
