@@ -1,4 +1,4 @@
-"""``navformer evaluate``: run a method on an episode set; ``evaluate make-episodes`` / ``evaluate report``.
+"""``navformer evaluate``: run a method on an episode set; ``evaluate make-episodes`` / ``report`` / ``seeds``.
 
 Examples::
 
@@ -6,11 +6,13 @@ Examples::
     navformer evaluate --method navformer --checkpoint runs/train --episodes table1.json --out runs/eval/nf
     navformer evaluate make-episodes --protocol table1 --out table1.json
     navformer evaluate report runs/eval/vrw runs/eval/fca runs/eval/nf --out runs/eval/README.md
+    navformer evaluate seeds --group navformer runs/eval/nf_s0 runs/eval/nf_s1 --group dt runs/eval/dt_s0
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from navformer_rl import cli_args
@@ -71,7 +73,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     parser.set_defaults(run=_run_evaluate)
 
-    commands = parser.add_subparsers(dest="evaluate_command", metavar="{make-episodes,report}")
+    commands = parser.add_subparsers(dest="evaluate_command", metavar="{make-episodes,report,seeds}")
     make = commands.add_parser(
         "make-episodes",
         help="write a fixed, versioned episode-set file",
@@ -101,6 +103,31 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     report.add_argument("--title", default="NavFormer evaluation")
     _add_cluster_option(report, None)
     report.set_defaults(run=_run_report)
+
+    seeds = commands.add_parser(
+        "seeds",
+        help="SR / SPL / CR over training seeds: per seed, mean ± std, pooled",
+        description="Summarise evaluation folders of several trained seeds per configuration: each seed's "
+        "SR, the mean ± standard deviation over seeds of SR / SPL / CR, and the pooled SR / CR with "
+        "trial-clustered intervals. Every folder must have run the same episode set.",
+    )
+    seeds.add_argument(
+        "--group",
+        dest="seed_groups",
+        nargs="+",
+        action="append",
+        required=True,
+        metavar=("NAME", "FOLDER"),
+        help="a configuration's name, then its evaluation folders (one per trained seed); repeat per group",
+    )
+    seeds.add_argument(
+        "--out", dest="seeds_out", type=Path, help="also write the markdown table to this file"
+    )
+    seeds.add_argument(
+        "--json", dest="seeds_json", action="store_true", help="print JSON instead of markdown"
+    )
+    _add_cluster_option(seeds, "trial")
+    seeds.set_defaults(run=_run_seeds)
     return parser
 
 
@@ -235,6 +262,29 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
             )
     path = save_episode_set(episode_set, out)
     print(f"wrote {len(episode_set)} episodes ({', '.join(episode_set.setups)}) to {path}")
+    return 0
+
+
+def _run_seeds(args: argparse.Namespace) -> int:
+    from navformer_rl.durable import atomic_write_text
+    from navformer_rl.evaluation.seeds import seed_table_markdown, summarize_seed_groups
+
+    groups: dict[str, list[Path]] = {}
+    for name, *folders in args.seed_groups:
+        if not folders:
+            raise ValueError(f"--group {name}: give the group's evaluation folders after its name")
+        if name in groups:
+            raise ValueError(f"--group {name} is given twice; give each group's folders once")
+        groups[name] = [Path(folder) for folder in folders]
+    out = _output_file(args.seeds_out, "--out") if args.seeds_out is not None else None
+    summaries = summarize_seed_groups(groups, cluster=args.cluster_by)
+    table = seed_table_markdown(summaries)
+    if out is not None:
+        atomic_write_text(out, table)
+    if args.seeds_json:
+        print(json.dumps([s.to_dict() for s in summaries], indent=2))
+    else:
+        print(table, end="")
     return 0
 
 
