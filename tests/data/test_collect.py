@@ -21,7 +21,31 @@ from navformer_rl.data.collect import collect, settings_for
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _check_trajectories(ds, task):
+def _stored_target_names(ds, task, settings):
+    """``(shape, colour)`` of each stored trajectory's target, found by its position among the targets of
+    the dataset's units' worlds (regenerated from the seeded settings: cheap, nothing simulated)."""
+    names = {}
+    for unit in range(ds.metadata["counts"]["units"]):
+        if task == 0:
+            episodes = range(settings.episodes_per_unit)
+            worlds = [collect_module.exploration_world(settings, unit, k)[0] for k in episodes]
+        else:
+            worlds = [collect_module.collision_avoidance_world(settings, unit)[0]]
+        for world in worlds:
+            for target in world.targets:
+                position = tuple(np.float32(target.position).tolist())
+                names.setdefault(position, set()).add((target.shape, target.color))
+    stored = []
+    for start in ds.episodes.start.tolist():
+        position = tuple(ds.rows["privileged", "target_position"][start].numpy().tolist())
+        (name,) = names[position]  # a target of one of the units' worlds, unambiguous
+        stored.append(name)
+    return stored
+
+
+def _check_trajectories(ds, task, settings):
+    from navformer_rl.envs.target_image import render_target_image
+
     rows, ep = ds.rows, ds.episodes
     assert (rows["task"] == task).all()
     ends = ep.start + ep.length - 1
@@ -39,13 +63,21 @@ def _check_trajectories(ds, task):
     # frames are real camera images, target images differ between different targets
     assert rows["pixels"].float().std() > 10
     assert ds.targets.shape == (len(ep), 84, 84, 3)
+    assert ep.target_id.tolist() == list(range(len(ep)))  # one target image per trajectory, in order
+    names = _stored_target_names(ds, task, settings)
+    images = [ds.targets[i].numpy() for i in range(len(ep))]
+    for name, image in zip(names, images, strict=True):
+        assert np.array_equal(image, render_target_image(*name)), name  # the image of its own target
+    for i in range(len(ep)):
+        for j in range(i):
+            assert np.array_equal(images[i], images[j]) == (names[i] == names[j]), (names[i], names[j])
 
 
 def test_tiny_exploration_collection(tmp_path):
     s = settings_for("e", "small", seed=0, n_trajectories=2, episodes_per_unit=1, world_sizes=(5.0,))
     ds = open_dataset(collect("e", tmp_path / "e", s, workers=1, progress=False), kind="e")
     assert ds.num_trajectories == 2
-    _check_trajectories(ds, task=0)
+    _check_trajectories(ds, task=0, settings=s)
     meta = ds.metadata
     assert meta["settings"]["world_sizes"] == [5.0] and meta["counts"]["attempted"] >= 2
     assert meta["seeds"]["base"] == 0
@@ -55,7 +87,7 @@ def test_tiny_collision_avoidance_collection(tmp_path):
     s = settings_for("ca", "small", seed=1, n_trajectories=4, other_robots=(2, 3))
     ds = open_dataset(collect("ca", tmp_path / "ca", s, workers=1, progress=False), kind="ca")
     assert ds.num_trajectories == 4
-    _check_trajectories(ds, task=1)
+    _check_trajectories(ds, task=1, settings=s)
     # several robots of one arena episode: distinct targets, each trajectory with its own image
     assert len({ds.targets[i].numpy().tobytes() for i in range(4)}) >= 3
     # the counts describe the robots up to the last stored trajectory, not the whole last episode
@@ -68,7 +100,7 @@ def test_noisy_collision_avoidance_collection_records_its_noise(tmp_path):
     s = settings_for("ca", "small", seed=1, n_trajectories=3, other_robots=(2, 2), action_noise=0.2)
     ds = open_dataset(collect("ca", tmp_path / "ca", s, workers=1, progress=False), kind="ca")
     assert ds.num_trajectories == 3 and ds.metadata["settings"]["action_noise"] == 0.2
-    _check_trajectories(ds, task=1)
+    _check_trajectories(ds, task=1, settings=s)
     plain = settings_for("ca", "small", seed=1, n_trajectories=3, other_robots=(2, 2))
     quiet = open_dataset(collect("ca", tmp_path / "quiet", plain, workers=1, progress=False))
     # the same arenas and starts, other paths
@@ -182,23 +214,64 @@ def test_collection_is_deterministic_and_resumes_identically(tmp_path, folder_by
     assert folder_bytes(resumed) == folder_bytes(ref)
 
 
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (an exited, not yet reaped zombie does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def _wait_until(condition, seconds: float, poll: float = 0.05) -> bool:
+    """Poll ``condition`` until it holds or ``seconds`` (a generous deadline, not a timing check) passed."""
+    deadline = time.monotonic() + seconds
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(poll)
+    return True
+
+
 @pytest.mark.slow
 def test_killed_cli_process_resumes_to_identical_dataset(tmp_path, folder_bytes):
     """SIGKILL a real `collect` process with 2 workers after its first shard; rerun; compare bytes."""
+    import json
+
     cmd = [sys.executable, "-m", "navformer_rl.data.cli", "collect", "e", "--n", "6", "--seed", "3"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     out = tmp_path / "killed"
     proc = subprocess.Popen([*cmd, "--out", str(out), "--workers", "2", "--no-progress"], cwd=REPO, env=env)
-    deadline = time.time() + 240
-    while not list((out / "shards").glob("unit-*")) and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-    assert proc.poll() is None, "collection finished before it could be killed"
-    workers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
-    assert workers
-    proc.send_signal(signal.SIGKILL)  # the parent only: its workers must notice and exit by themselves
-    proc.wait()
-    time.sleep(4)
-    assert not [pid for pid in workers if Path(f"/proc/{pid}").exists()], "orphaned collection workers"
+    workers: list[int] = []
+
+    def shards():
+        return list((out / "shards").glob("unit-*"))
+
+    try:
+        assert _wait_until(lambda: shards() or proc.poll() is not None, 300), "no shard written"
+        # freeze the collection (parent, then its workers) so the state checked below is the one killed
+        proc.send_signal(signal.SIGSTOP)
+        children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout
+        workers += [int(pid) for pid in children.split()]
+        for pid in workers:
+            os.kill(pid, signal.SIGSTOP)
+        # the first shard is committed, the dataset is not complete: the kill lands mid-collection
+        assert proc.poll() is None, "collection finished before it could be killed"
+        assert shards() and len(workers) >= 2
+        assert json.loads((out / "metadata.json").read_text()).get("status") != "complete"
+        assert not (out / "consolidated").exists()
+        proc.send_signal(signal.SIGKILL)  # the parent only: its workers must notice and exit by themselves
+        proc.wait()
+        for pid in workers:
+            os.kill(pid, signal.SIGCONT)
+        assert _wait_until(lambda: not any(_alive(pid) for pid in workers), 60), "orphaned collection workers"
+    finally:  # after a failed check: leave nothing of this collection running
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for pid in workers:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
     subprocess.run(
         [*cmd, "--out", str(out), "--workers", "2", "--no-progress"], cwd=REPO, env=env, check=True
     )
@@ -266,11 +339,16 @@ def test_deferred_rendering_equals_live_cameras():
     world, sim, expert = episode()
     trajs = collect_module.run_episode(world, sim, expert, 200)
     sim.close()
+    assert world.n_robots == 3 and len(trajs) == world.n_robots  # the ego robot and its 2 others
     assert all(t.succeeded for t in trajs)
+    compared = 0
     for i, traj in enumerate(trajs):
-        assert len(traj.frames) == len(traj.actions)
+        assert len(traj.frames) == len(traj.actions) > 0
         for t, frame in enumerate(traj.frames):
             assert np.array_equal(frame, live[t][i])
+            compared += 1
+    assert compared == sum(len(t.frames) for t in trajs) > 0
+    assert len(live) == max(len(t.frames) for t in trajs)  # live ran until the last robot arrived
 
 
 def test_paper_ssl_unit_that_overfills_its_maze_gets_fewer_robots():

@@ -247,9 +247,16 @@ def _cut_unit_writer(root):
 def test_counts_cover_only_the_items_taken(tmp_path):
     root = _cut_unit_writer(tmp_path / "d").finalize()
     counts = json.loads((root / "metadata.json").read_text())["counts"]
+    # the rows of the trajectories taken: all 4 of unit 0 and the first of unit 1 (the same seeded units)
+    units = [syn._trajectory_unit(syn.DatasetKind.EXPLORATION, syn._unit_rng(0, u), 4, 2, 4) for u in (0, 1)]
+    lengths = [torch.bincount(rows["episode"]) for rows, _ in units]
+    assert len(lengths[0]) == len(lengths[1]) == 4
+    expected_rows = int(lengths[0].sum() + lengths[1][0])
+    assert expected_rows < int(lengths[0].sum() + lengths[1].sum())  # unit 1 is cut
+    assert len(open_dataset(root)) == expected_rows
     # unit 1 gives its first trajectory: the attempts up to it (one failure, one success), not its 7
     assert counts == {
-        "rows": counts["rows"],
+        "rows": expected_rows,
         "items": 5,
         "units": 2,
         "attempted": 8,

@@ -137,6 +137,9 @@ def test_mixed_robot_styles():
     env = MultiRobotNavEnv(size=5.0, robots=["jackal", "turtlebot3"], seed=1)
     env.reset()
     assert [s.name for s in env.simulator.robot_specs] == ["jackal", "turtlebot3"]
+    # each robot collides with its own style's disc: Jackal 0.30 m, TurtleBot3 0.20 m
+    assert env.simulator.radii.tolist() == [0.30, 0.20]
+    env.close()
 
 
 def test_torchrl_wrapper_of_the_single_robot_env():
@@ -168,7 +171,7 @@ def test_episodes_per_world_and_fixed_episodes():
     td = env.reset()
     assert np.allclose(td["privileged", "pose"].numpy(), first.starts)
     env.reset()  # a fixed episode is not reused implicitly: a new world is drawn
-    assert not np.array_equal(env.world.walls, first.walls) or env.world.seed != first.seed
+    assert env.world.seed != first.seed and not np.array_equal(env.world.walls, first.walls)
 
 
 @pytest.mark.parametrize("seed", [-1, 1.5, "3", True])
@@ -229,8 +232,17 @@ def test_step_without_a_valid_action_raises_value_error():
         with pytest.raises(ValueError, match=message):
             env.step(td)
     td["agents", "action"] = torch.tensor([[5.0, -5.0], [0.0, 0.0]])  # out of range: clipped, not refused
-    env.step(td)
+    pose = env.step(td)["next", "privileged", "pose"]
     env.close()
+    # the refused steps changed nothing, and the clipped action drives as [1, -1] does from the same state
+    same = MultiRobotNavEnv(size=5.0, n_robots=2, seed=0)
+    clipped = same.reset()
+    assert torch.equal(clipped["privileged", "pose"], td["privileged", "pose"])
+    clipped["agents", "action"] = torch.tensor([[1.0, -1.0], [0.0, 0.0]])
+    expected = same.step(clipped)["next", "privileged", "pose"]
+    same.close()
+    assert torch.equal(pose, expected)
+    assert not torch.equal(pose[0], td["privileged", "pose"][0])  # robot 0 did move
 
 
 def test_torchrl_wrapper_refuses_bad_actions_and_seeds():
@@ -248,8 +260,11 @@ def test_torchrl_wrapper_refuses_bad_actions_and_seeds():
         with pytest.raises(ValueError, match=message):
             env.step(td)
     td["action"] = torch.zeros(2)
-    env.step(td)
+    step = env.step(td)["next"]
     env.close()
+    # standing still: the pose is unchanged, and only this valid step advanced the step counter
+    assert torch.equal(step["privileged", "pose"], td["privileged", "pose"])
+    assert td["privileged", "step"].item() == 0 and step["privileged", "step"].item() == 1
 
 
 def test_stepping_an_ended_episode_is_an_error_and_rollouts_still_reset(make_open_world):

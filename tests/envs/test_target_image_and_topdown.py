@@ -71,8 +71,12 @@ def test_topdown_and_frame_refuse_bad_arguments(make_open_world):
     ):
         with pytest.raises(ValueError, match=message):
             draw_topdown(world, **kwargs)
-    flat = draw_topdown(world, trajectories=[np.zeros(4)], poses=np.zeros(3))  # flat rows still work
-    assert flat.shape[2] == 3
+    # flat rows still work: read as the rows they hold (a 2-point path, one pose)
+    path, pose = np.array([1.0, 1.0, 3.0, 2.0]), np.array([2.0, 3.0, 0.5])
+    flat = draw_topdown(world, trajectories=[path], poses=pose)
+    rows = draw_topdown(world, trajectories=[path.reshape(2, 2)], poses=pose.reshape(1, 3))
+    assert flat.shape[2] == 3 and np.array_equal(flat, rows)
+    assert not np.array_equal(flat, draw_topdown(world))  # the path and the robot were drawn
     topdown = draw_topdown(world, px_per_m=20)
     view = np.zeros((84, 84, 3), dtype=np.uint8)
     with pytest.raises(ValueError, match="view_px must be an integer >= 1, got -5"):

@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -23,7 +24,14 @@ def test_registered_env_passes_gymnasium_check_env():
     assert obs["pixels"].shape == (84, 84, 3) and obs["target_pixels"].dtype == np.uint8
     assert info["robot_poses"].shape == (2, 3) and info["shortest_path_length"] > 0
     frame = env.render()
-    assert frame.ndim == 3 and frame.dtype == np.uint8
+    # the 5 m map at 48 px/m with 12 px margins (264 px square), beside a column of two 132 px views
+    assert frame.shape == (264, 264 + 132, 3) and frame.dtype == np.uint8
+    # robot 0's camera view above its target image, each scaled up to 132 px
+    camera, target = (
+        cv2.resize(obs[key], (132, 132), interpolation=cv2.INTER_NEAREST)
+        for key in ("pixels", "target_pixels")
+    )
+    assert np.array_equal(frame[:132, 264:], camera) and np.array_equal(frame[132:, 264:], target)
     env.close()
 
 
@@ -134,6 +142,11 @@ def test_turtlebots_fit_a_world_config_with_their_radius():
         robot_style="turtlebot3", world_config=WorldConfig(size=5.0, n_robots=2, robot_radius=0.2)
     )
     assert env.config.robot_radius == 0.2
+    env.reset(seed=0)
+    # every robot of the episode is a TurtleBot3 with its 0.20 m disc
+    assert [spec.name for spec in env.simulator.robot_specs] == ["turtlebot3", "turtlebot3"]
+    assert env.simulator.radii.tolist() == [0.2, 0.2]
+    env.close()
 
 
 class WrongShapePolicy:

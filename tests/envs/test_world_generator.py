@@ -222,7 +222,27 @@ def test_sample_start_poses_refuses_bad_counts(tiny_maze):
         with pytest.raises(ValueError, match=f"n must be an integer >= 0, got {n!r}"):
             sample_start_poses(tiny_maze, n, rng)
     assert sample_start_poses(tiny_maze, 0, rng).shape == (0, 3)
-    assert sample_start_poses(tiny_maze, np.int64(2), rng).shape == (2, 3)
+    poses = sample_start_poses(tiny_maze, np.int64(2), rng)
+    assert poses.shape == (2, 3) and poses.dtype == np.float32
+    cfg = tiny_maze.config
+    radius = cfg.robot_radius
+    # the two discs keep min_robot_gap between them
+    assert math.dist(poses[0, :2], poses[1, :2]) > 2 * radius + cfg.min_robot_gap
+    for i, (x, y, yaw) in enumerate(poses.astype(np.float64)):
+        assert -math.pi <= yaw <= math.pi
+        assert radius <= x <= tiny_maze.size - radius and radius <= y <= tiny_maze.size - radius
+        for cx, cy, hx, hy in tiny_maze.walls.astype(np.float64):  # clear of every wall box
+            assert math.hypot(max(abs(x - cx) - hx, 0.0), max(abs(y - cy) - hy, 0.0)) >= radius
+        for target in tiny_maze.targets:  # clear of every target's body (sphere or cube)
+            tx, ty = np.asarray(target.position, dtype=np.float64)
+            half = target.half_extent
+            if target.shape == "sphere":
+                assert math.hypot(x - tx, y - ty) >= radius + half
+            else:
+                assert math.hypot(max(abs(x - tx) - half, 0.0), max(abs(y - ty) - half, 0.0)) >= radius
+        # robot i starts more than SUCCESS_RADIUS + start_target_margin from its own target
+        own = np.asarray(tiny_maze.targets[i].position, dtype=np.float64)
+        assert math.hypot(x - own[0], y - own[1]) > SUCCESS_RADIUS + cfg.start_target_margin
 
 
 def test_episode_spec_rebuilds_the_world_with_overrides(tiny_maze):

@@ -153,8 +153,40 @@ def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes, monkeypatch):
     assert (out / "episodes.jsonl").read_text() == first
 
 
-def test_run_json_times_the_computation_not_the_rerun(tmp_path, tiny_episodes):
-    """A rerun that reuses finished episodes reports the time that computed them, not its own ~0 s."""
+class FakeClock:
+    """``time.perf_counter`` of the harness and runner modules; the work it times advances it by hand."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    """Fake time: building a runner takes 0.5 s, an episode 2 s, writing the summary files 0.25 s."""
+    from navformer_rl.evaluation import runner
+
+    fake = FakeClock()
+    monkeypatch.setattr(harness, "time", fake)
+    monkeypatch.setattr(runner, "time", fake)
+
+    def taking(seconds, function):
+        def timed(*args, **kwargs):
+            fake.now += seconds
+            return function(*args, **kwargs)
+
+        return timed
+
+    monkeypatch.setattr(runner.EpisodeRunner, "__init__", taking(0.5, runner.EpisodeRunner.__init__))
+    monkeypatch.setattr(runner.EpisodeRunner, "run", taking(2.0, runner.EpisodeRunner.run))
+    monkeypatch.setattr(harness, "write_summary_files", taking(0.25, harness.write_summary_files))
+    return fake
+
+
+def test_run_json_times_the_computation_not_the_rerun(tmp_path, tiny_episodes, clock):
+    """A rerun that reuses finished episodes reports the time that computed them, not its own."""
     from navformer_rl.evaluation.report import write_report
 
     out = tmp_path / "timed"
@@ -162,18 +194,19 @@ def test_run_json_times_the_computation_not_the_rerun(tmp_path, tiny_episodes):
     evaluate("vrw", tiny_episodes, out, **kwargs)
     first = json.loads((out / "run.json").read_text())
     stored = {p.name: json.loads(p.read_text()) for p in sorted((out / "per_episode").glob("*.json"))}
-    assert first["seconds"] == round(sum(d["wall_seconds"] for d in stored.values()), 3) > 0
-    assert first["episode_seconds"] == round(sum(d["seconds"] for d in stored.values()), 3) > 0
-    assert first["seconds"] <= first["invocation_seconds"]
+    # each episode ran 2 s; the wall time from the start also holds the runner's 0.5 s build (first episode)
+    assert len(stored) == 2 and all(d["seconds"] == 2.0 for d in stored.values())
+    assert sorted(d["wall_seconds"] for d in stored.values()) == [2.0, 2.5]
+    assert (first["seconds"], first["episode_seconds"], first["invocation_seconds"]) == (4.5, 4.0, 4.75)
     assert (first["episodes_computed"], first["episodes_reused"]) == (2, 0)
 
     result = evaluate("vrw", tiny_episodes, out, **kwargs)
     rerun = json.loads((out / "run.json").read_text())
-    assert (rerun["seconds"], rerun["episode_seconds"]) == (first["seconds"], first["episode_seconds"])
+    assert (rerun["seconds"], rerun["episode_seconds"]) == (4.5, 4.0)
     assert (rerun["episodes_computed"], rerun["episodes_reused"]) == (0, 2)
-    assert result.episodes_computed == 0 and result.seconds == first["seconds"]
-    # the rerun's own time runs from the call: it writes the tables and the plot (tens of ms), not ~0
-    assert rerun["invocation_seconds"] >= 0.01
+    assert result.episodes_computed == 0 and result.seconds == 4.5
+    # the rerun's own time runs from the call: it builds no runner, runs no episode, writes the summary
+    assert rerun["invocation_seconds"] == 0.25
 
     # one episode reused (with a marked time), one recomputed: their times add up
     reused, redone = (out / "per_episode" / name for name in stored)
@@ -183,7 +216,8 @@ def test_run_json_times_the_computation_not_the_rerun(tmp_path, tiny_episodes):
     redone.unlink()
     evaluate("vrw", tiny_episodes, out, **kwargs)
     third = json.loads((out / "run.json").read_text())
-    assert third["seconds"] == round(1000.0 + json.loads(redone.read_text())["wall_seconds"], 3)
+    assert json.loads(redone.read_text())["wall_seconds"] == 2.5  # runner build + episode
+    assert (third["seconds"], third["invocation_seconds"]) == (1002.5, 2.75)
     assert (third["episodes_computed"], third["episodes_reused"]) == (1, 1)
     report = write_report([out], tmp_path / "report.md").read_text()
     assert f"| - | - | {third['seconds']:.0f} |" in report  # checkpoint, ablation, seconds
@@ -281,10 +315,14 @@ driving_policy.__name__ = "standing_policy"  # the same label as standing_policy
 def test_resume_tells_apart_your_own_policies_that_share_a_label(tmp_path, tiny_episodes):
     out = tmp_path / "mine"
     common = dict(maps_per_setup=0, videos_per_setup=0, progress=False)
+    trials = sum(episode.n_robots for episode in tiny_episodes.episodes)
+    assert (len(tiny_episodes), trials) == (2, 4)  # two episodes of two robots
     standing = evaluate(standing_policy, tiny_episodes, out, **common)
+    assert len(standing.records) == trials and standing.episodes_computed == 2
     assert all(r.path_length == 0.0 for r in standing.records)
     driving = evaluate(driving_policy, tiny_episodes, out, **common)
     assert driving.episodes_computed == len(tiny_episodes)  # not the standing policy's rows
+    assert len(driving.records) == trials
     assert all(r.path_length > 0.0 for r in driving.records)
     assert json.loads((out / "run.json").read_text())["factory"].endswith(".driving_policy")
 

@@ -102,7 +102,9 @@ def test_the_values_of_neighbouring_bars_do_not_overlap(tmp_path, kept_figures):
     plot_setup_bars(summarize_by_setup(_records(NINE, 6)), tmp_path / "bars.png")
     (fig,) = kept_figures
     renderer = fig.canvas.get_renderer()
+    assert len(fig.axes) == 3  # SR, SPL, CR
     for ax in fig.axes:
+        assert len(ax.texts) == len(METHODS) * len(NINE)  # every bar's value is written: 36 per panel
         boxes = sorted((t.get_window_extent(renderer) for t in ax.texts), key=lambda b: b.x0)
         for left, right in zip(boxes, boxes[1:]):
             assert left.x1 <= right.x0 + 0.5  # side by side, never on top of each other

@@ -325,18 +325,53 @@ def test_gradient_reaches_every_parameter_unless_encoders_are_detached(batch_fac
 
 
 # ---------------------------------------------------------------------------------------- ablations
+ABLATION_LAYOUT = {
+    # name: (f_s, f_g, encoder class, THSC)
+    "navformer": (True, True, ConvEncoder, True),
+    "no_thsc": (True, True, ConvEncoder, False),
+    "no_static_encoder": (False, True, ConvEncoder, True),
+    "no_general_encoder": (True, False, ConvEncoder, True),
+    "resnet18": (False, True, ResNet18Encoder, True),  # a single ResNet18 replaces the dual encoder
+    "dt": (False, True, ConvEncoder, False),
+}
+
+
 @pytest.mark.parametrize("name", MODEL_ABLATIONS)
 def test_every_model_ablation_builds_and_runs(batch_factory, name):
+    static, general, encoder_class, thsc = ABLATION_LAYOUT[name]
     torch.manual_seed(0)
     model = NavFormerModel(NavFormerConfig.ablation(name)).eval()
-    batch = batch_factory(2, 3)
+    config, d, steps = model.config, model.config.d_embed, 3
+    assert (config.use_static_encoder, config.use_general_encoder, config.thsc) == (static, general, thsc)
+    assert (model.static_encoder is not None, model.general_encoder is not None) == (static, general)
+    assert all(type(encoder) is encoder_class for _, encoder in model.observation_encoders())
+    # the target image goes through f_g, through f_s when f_g is ablated
+    assert model.target_encoder is (model.general_encoder if general else model.static_encoder)
+    tps = 2 + static + general  # R-hat, one token per encoder, a
+    assert config.tokens_per_step == tps
+    assert model.head.in_features == (2 * d if thsc else d)  # THSC reads [h_g ; h_obs]
+    seen = {}
+    model.transformer.register_forward_hook(lambda m, args, out: seen.update(tokens=args[0], hidden=out[0]))
+    model.head.register_forward_hook(lambda m, args, out: seen.update(head_input=args[0]))
+    # row 1: row 0 with another target image; row 2: row 0's target with other steps (frames, RTG, actions)
+    first, other = batch_factory(1, steps), batch_factory(1, steps, seed=1)
+    batch = {k: torch.cat([first[k], first[k] if k != "target_pixels" else other[k], other[k]]) for k in KEYS}
+    batch["target_pixels"][2] = first["target_pixels"][0]
     out = run(model, batch)
-    assert out.shape == (2, 3, 2) and out.abs().max() <= 1
-    config = model.config
-    assert (model.static_encoder is not None) == config.use_static_encoder
-    assert (model.general_encoder is not None) == config.use_general_encoder
-    if not config.use_general_encoder:
-        assert model.target_encoder is model.static_encoder
+    assert out.shape == (3, steps, 2) and out.abs().max() <= 1
+    # g, then tps tokens a step, without the last step's action
+    assert seen["tokens"].shape == (3, 1 + tps * steps - 1, d)
+    hidden = seen["hidden"]
+    obs_hidden = hidden[:, tps - 1 :: tps]  # step t's last observation token: 1 + t * tps + (tps - 2)
+    assert obs_hidden.shape == (3, steps, d)
+    head_input = torch.cat([hidden[:, :1].expand(-1, steps, -1), obs_hidden], -1) if thsc else obs_hidden
+    assert torch.equal(seen["head_input"], head_input)
+    torch.testing.assert_close(out, torch.tanh(model.head(head_input)))
+    # h_g (what THSC adds to the head) depends on the target image alone: g comes first in causal order
+    torch.testing.assert_close(hidden[2, 0], hidden[0, 0], rtol=0, atol=1e-6)
+    assert not torch.allclose(hidden[1, 0], hidden[0, 0])
+    # the target image is always the first token, so every ablation's actions depend on it
+    assert not torch.allclose(out[1], out[0])
 
 
 def test_bad_inputs_get_value_errors(batch_factory):

@@ -222,7 +222,28 @@ def test_soft_update_can_be_made_after_the_loss_has_run():
     _, loss = make_byol()
     loss(pairs())
     assert not any(p.requires_grad for p in loss.target_online_network_params.values(True, True))
-    SoftUpdate(loss, eps=0.99).step()
+    # TorchRL's eps is BYOL's tau: target <- eps * target + (1 - eps) * online
+    updater = SoftUpdate(loss, eps=0.99)
+    online, target = loss.online_network_params, loss.target_online_network_params
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():  # an optimiser step's worth of change, so that online and target differ
+        for p in online.values(True, True):
+            if p.requires_grad:
+                p.add_(0.1 * torch.randn(p.shape, generator=gen))
+    old_target, old_online = target.detach().clone(), online.detach().clone()
+    updater.step()
+    assert not any(p.requires_grad for p in target.values(True, True))
+    moved = 0
+    for key, p in online.items(True, True):
+        new = target.get(key)
+        if p.requires_grad:  # a parameter: the EMA step
+            expected = 0.99 * old_target.get(key) + 0.01 * old_online.get(key)
+            torch.testing.assert_close(new, expected, rtol=1e-5, atol=1e-6)
+            moved += int(not torch.equal(new, old_target.get(key)))
+        else:  # a buffer (BatchNorm statistics): SoftUpdate leaves it alone
+            assert torch.equal(new, old_target.get(key))
+    assert moved > 0
+    assert (online.detach() == old_online).all()  # the online branch is not touched
 
 
 def test_train_and_eval_reach_the_heads_batchnorm():

@@ -25,7 +25,19 @@ def trained(tiny_config):
     return train(tiny_config("optim.iterations=2", "checkpoint.interval=1", "checkpoint.keep_last=0"))
 
 
-def test_policy_model_loads_from_the_run_part_alone(trained):
+def test_policy_model_loads_from_the_run_part_alone(tiny_config, monkeypatch):
+    from navformer_rl.training import run as run_module
+
+    built = []
+
+    def keep_the_trainer(cfg):
+        built.append(build_trainer(cfg))
+        return built[-1]
+
+    monkeypatch.setattr(run_module, "build_trainer", keep_the_trainer)
+    trained = train(tiny_config("optim.iterations=2", "checkpoint.interval=1", "checkpoint.keep_last=0"))
+    (trainer,) = built
+    assert trained.iterations == 2 and trained.checkpoint.name == "iter_000002"
     folder = trained.checkpoint
     (folder / ckpt.RESUME_FILENAME).unlink()  # an evaluator gets config + weights only
     config, model = ckpt.load_policy_model(trained.run_dir)
@@ -33,8 +45,8 @@ def test_policy_model_loads_from_the_run_part_alone(trained):
     saved = load_file(str(folder / ckpt.WEIGHTS_FILENAME))
     assert model.state_dict().keys() == saved.keys()
     assert all(torch.equal(model.state_dict()[k], saved[k]) for k in saved)
-    # the loaded model predicts: same output as a second load (deterministic in eval mode)
-    _, again = ckpt.load_policy_model(folder / ckpt.WEIGHTS_FILENAME)
+    # the loaded model predicts what the trained model (in memory, after its last step) predicts
+    trained_model = trainer.model.eval()
     g = torch.Generator().manual_seed(0)
     inputs = (
         torch.randint(0, 255, (1, 84, 84, 3), dtype=torch.uint8, generator=g),
@@ -44,7 +56,11 @@ def test_policy_model_loads_from_the_run_part_alone(trained):
         torch.arange(3)[None],
     )
     with torch.no_grad():
-        assert torch.equal(model(*inputs), again(*inputs))
+        expected = trained_model(*inputs)
+        assert torch.equal(model(*inputs), expected)
+        # not what any model predicts: the first checkpoint (one step earlier) predicts otherwise
+        _, earlier = ckpt.load_policy_model(folder.parent / "iter_000001")
+        assert not torch.equal(expected, earlier(*inputs))
     with pytest.raises(FileNotFoundError, match="no resume part"):
         ckpt.load_resume_state(folder)
 

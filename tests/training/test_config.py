@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import re
 import shutil
 import warnings
@@ -191,6 +192,28 @@ def test_bad_configs_fail_before_training(tiny_config, overrides, error, message
     assert not Path(output_dir).exists()  # nothing was written
 
 
+def _resnet18_step(tiny_config, output_dir, *levers):
+    """Metrics and parameter gradients of one training step of the resnet18 ablation (dropout off)."""
+    trainer = build_trainer(
+        tiny_config(
+            "ablation=resnet18", "model.dropout=0.0", "optim.iterations=1", f"output_dir={output_dir}",
+            # few ResNet18 images: windows of 4 steps (a micro-batch of 3 still splits them), 2 pairs
+            "data.context_steps=4", "data.collision_batch_trajs=2", "data.ssl_batch_pairs=2", *levers,
+        )
+    )  # fmt: skip
+    assert trainer.model_config.encoder == "resnet18"
+    try:
+        metrics = trainer.step()
+        grads = {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
+    finally:
+        trainer.close()
+    return metrics, grads
+
+
+_RESNET18_WITHOUT_LEVERS: dict[str, tuple] = {}
+"""The step without levers, computed once for the parametrisations below (same seed, same batches)."""
+
+
 @pytest.mark.parametrize(
     "overrides",
     [
@@ -199,11 +222,23 @@ def test_bad_configs_fail_before_training(tiny_config, overrides, error, message
         ["optim.trajectory_chunks=2", "model.encoder_micro_batch=3"],
     ],
 )
-def test_resnet18_accepts_the_memory_levers(tiny_config, overrides):
-    """ResNet18's GroupNorm normalises each image on its own: chunks and micro-batches are the same maths
-    (``test_trajectory_chunks_give_the_whole_batch_gradient`` checks the update)."""
-    trainer = build_trainer(tiny_config("ablation=resnet18", *overrides))
-    assert trainer.model_config.encoder == "resnet18"
+def test_resnet18_accepts_the_memory_levers(tiny_config, overrides, tmp_path):
+    """ResNet18's GroupNorm normalises each image on its own: chunks and micro-batches are the same maths,
+    so (dropout off, same seed) one training step gives the loss and the gradient of a step without them."""
+    import torch
+
+    metrics, grads = _resnet18_step(tiny_config, tmp_path / "levers", *overrides)
+    if "reference" not in _RESNET18_WITHOUT_LEVERS:
+        _RESNET18_WITHOUT_LEVERS["reference"] = _resnet18_step(tiny_config, tmp_path / "reference")
+    reference, reference_grads = _RESNET18_WITHOUT_LEVERS["reference"]
+    for key in ("loss", "loss_dt", "loss_byol"):
+        assert math.isfinite(metrics[key]) and metrics[key] == pytest.approx(reference[key], rel=1e-5), key
+    assert grads.keys() == reference_grads.keys() and any("general_encoder" in n for n in grads)
+    for name, grad in reference_grads.items():
+        # float32 sums in another order: equal up to 1e-3 of each tensor's largest entry (ResNet18's stem
+        # gradients reach ~20 here; a wrongly weighted chunk would be off by tens of percent)
+        scale = float(grad.abs().max())
+        torch.testing.assert_close(grads[name], grad, rtol=1e-4, atol=1e-3 * scale + 1e-8)
 
 
 def test_a_file_as_output_dir_is_refused(tiny_config, tmp_path):
