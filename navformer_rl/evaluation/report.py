@@ -49,6 +49,7 @@ from navformer_rl.evaluation.tables import (
     interval_method,
     ordered_setups,
     read_records,
+    read_run,
     summarize_by_setup,
     table_markdown,
 )
@@ -337,15 +338,7 @@ def write_report(
     report_dir = out_path.parent
     records, runs, labels = [], [], []
     for folder in map(Path, result_dirs):
-        run_file = folder / "run.json"
-        if not run_file.is_file():
-            raise FileNotFoundError(f"{folder} is not an evaluation folder (no run.json)")
-        try:
-            run = json.loads(run_file.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise ValueError(
-                f"{run_file} is not valid JSON ({error}); rerun `navformer evaluate` there"
-            ) from None
+        run = read_run(folder)
         mine = read_records(folder / "episodes.jsonl")
         if run["label"] in labels:
             first = runs[labels.index(run["label"])][0]

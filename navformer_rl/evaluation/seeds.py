@@ -23,7 +23,6 @@ episode set (``run.json``'s ``content_sha256``), so that the groups face the sam
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
@@ -34,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from navformer_rl.evaluation.measures import MetricSummary, RobotTrial, summarize
-from navformer_rl.evaluation.tables import format_ratio, format_sr, read_records
+from navformer_rl.evaluation.tables import format_ratio, format_sr, read_records, read_run
 
 METRICS: tuple[str, ...] = ("sr", "spl", "cr")
 """The metrics summarised over seeds (see :mod:`navformer_rl.evaluation.measures`)."""
@@ -86,17 +85,10 @@ def _json_ready(value: Any) -> Any:
 
 
 def _read_run(folder: Path) -> dict[str, Any]:
-    run_file = folder / "run.json"
-    if not run_file.is_file():
-        raise FileNotFoundError(f"{folder} is not an evaluation folder (no run.json)")
-    try:
-        run = json.loads(run_file.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ValueError(
-            f"{run_file} is not valid JSON ({error}); rerun `navformer evaluate` there"
-        ) from None
+    """``run.json`` of ``folder``, checked to be an evaluation's (a label and an episode set)."""
+    run = read_run(folder)
     if not isinstance(run, dict) or "episode_set" not in run or "label" not in run:
-        raise ValueError(f"{run_file} is not an evaluation's run.json (no label / episode_set)")
+        raise ValueError(f"{folder / 'run.json'} is not an evaluation's run.json (no label / episode_set)")
     return run
 
 

@@ -10,6 +10,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.measures import (
@@ -55,6 +56,24 @@ def read_records(path: str | os.PathLike) -> list[RobotTrial]:
         except (json.JSONDecodeError, KeyError, TypeError) as error:
             raise ValueError(f"{path}:{number} is not a robot-trial record ({error})") from None
     return records
+
+
+def read_run(folder: str | os.PathLike) -> dict[str, Any]:
+    """The ``run.json`` of an evaluation folder written by ``evaluate``.
+
+    Raises:
+        FileNotFoundError: ``folder`` has no ``run.json``.
+        ValueError: the file is not valid JSON.
+    """
+    run_file = Path(folder) / "run.json"
+    if not run_file.is_file():
+        raise FileNotFoundError(f"{folder} is not an evaluation folder (no run.json)")
+    try:
+        return json.loads(run_file.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(
+            f"{run_file} is not valid JSON ({error}); rerun `navformer evaluate` there"
+        ) from None
 
 
 def records_to_jsonl(records: Sequence[RobotTrial]) -> str:

@@ -59,3 +59,20 @@ def checkpoints(tmp_path_factory):
         "navformer": make_checkpoint(root / "navformer", NavFormerConfig()),
         "dt": make_checkpoint(root / "dt", NavFormerConfig.dt_baseline()),
     }
+
+
+class FakeClock:
+    """Stands in for the ``time`` module of the code under test: ``perf_counter`` returns ``now``, which
+    the test advances by hand."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def fake_clock() -> FakeClock:
+    """A :class:`FakeClock` at 0 s; the test patches it in as the ``time`` of the module it times."""
+    return FakeClock()

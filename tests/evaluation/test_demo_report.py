@@ -9,19 +9,9 @@ from navformer_rl.demo import DemoConfig, StageTimes
 from navformer_rl.demo_report import timings_markdown
 
 
-class FakeClock:
-    """``time.perf_counter`` of the demo module, advanced by hand."""
-
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def perf_counter(self) -> float:
-        return self.now
-
-
 @pytest.fixture
-def clock(monkeypatch):
-    fake = FakeClock()
+def clock(monkeypatch, fake_clock):
+    fake = fake_clock
     monkeypatch.setattr(demo, "time", fake)
     return fake
 

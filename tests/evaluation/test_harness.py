@@ -153,22 +153,12 @@ def test_resume_reuses_finished_episodes(tmp_path, tiny_episodes, monkeypatch):
     assert (out / "episodes.jsonl").read_text() == first
 
 
-class FakeClock:
-    """``time.perf_counter`` of the harness and runner modules; the work it times advances it by hand."""
-
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def perf_counter(self) -> float:
-        return self.now
-
-
 @pytest.fixture
-def clock(monkeypatch):
+def clock(monkeypatch, fake_clock):
     """Fake time: building a runner takes 0.5 s, an episode 2 s, writing the summary files 0.25 s."""
     from navformer_rl.evaluation import runner
 
-    fake = FakeClock()
+    fake = fake_clock
     monkeypatch.setattr(harness, "time", fake)
     monkeypatch.setattr(runner, "time", fake)
 
