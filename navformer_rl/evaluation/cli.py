@@ -121,7 +121,11 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="a configuration's name, then its evaluation folders (one per trained seed); repeat per group",
     )
     seeds.add_argument(
-        "--out", dest="seeds_out", type=Path, help="also write the markdown table to this file"
+        "--out",
+        dest="seeds_out",
+        type=Path,
+        metavar="FILE",
+        help="also write the markdown table to this file",
     )
     seeds.add_argument(
         "--json", dest="seeds_json", action="store_true", help="print JSON instead of markdown"

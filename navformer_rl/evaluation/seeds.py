@@ -87,7 +87,7 @@ def _json_ready(value: Any) -> Any:
 def _read_run(folder: Path) -> dict[str, Any]:
     """``run.json`` of ``folder``, checked to be an evaluation's (a label and an episode set)."""
     run = read_run(folder)
-    if not isinstance(run, dict) or "episode_set" not in run or "label" not in run:
+    if not isinstance(run, dict) or not isinstance(run.get("episode_set"), dict) or "label" not in run:
         raise ValueError(f"{folder / 'run.json'} is not an evaluation's run.json (no label / episode_set)")
     return run
 
