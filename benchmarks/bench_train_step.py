@@ -24,7 +24,9 @@ into the encoders).
 
 Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
 (``--device cuda`` on a GPU machine: everything, the matmul floors included, runs there; times are synchronised)
-(``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors;
+(``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors, and
+``--malloc keep`` (default: ``navformer_rl.allocator.keep_freed_memory``, as ``navformer train`` does) keeps
+freed big blocks for reuse; ``--malloc default`` measures glibc's own behaviour;
 ``--min-valid 0.5`` right-pads the trajectory batches, whose padded frames the encoders skip.)
 """
 
@@ -41,6 +43,7 @@ from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import flop_registry
 from torchrl.objectives import SoftUpdate
 
+from navformer_rl.allocator import keep_freed_memory
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import BYOLLoss, NavFormerLoss, joint_parameters
 
@@ -192,7 +195,14 @@ def main() -> None:
         default=1.0,
         help="trajectories keep U[min_valid * T, T] valid steps (1.0: no padding); padded frames are not encoded",
     )
+    parser.add_argument(
+        "--malloc",
+        choices=["keep", "default"],
+        default="keep",
+        help="keep: glibc keeps freed big blocks (navformer train's keep_freed_memory); default: glibc's own",
+    )
     args = parser.parse_args()
+    malloc_kept = args.malloc == "keep" and keep_freed_memory()
     if args.threads:
         torch.set_num_threads(args.threads)
     unknown = set(args.configs) - set(CONFIGS)
@@ -207,7 +217,7 @@ def main() -> None:
 
     fp32_floor, bf16_floor = matmul_gflops(torch.float32, device), matmul_gflops(torch.bfloat16, device)
     print(f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}, "
-          f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}")  # fmt: skip
+          f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}, malloc keeps freed memory: {malloc_kept}")  # fmt: skip
     valid = (batch_a["mask"].float().mean().item(), batch_b["mask"].float().mean().item())
     print(f"# valid fraction of trajectory steps: A {valid[0]:.2f}, B {valid[1]:.2f}")
     print(f"# matmul floor (2048^3): fp32 {fp32_floor:.0f} GFLOP/s, bf16 {bf16_floor:.0f} GFLOP/s")

@@ -40,6 +40,15 @@ CONFIGS: dict[str, dict] = {
         ],
         "hugetlb": True,
     },
+    "bf16 levers + glibc's own malloc (keep_freed_memory=false)": {
+        "overrides": [
+            "model.autocast_dtype=bfloat16",
+            "model.channels_last=true",
+            "model.encoder_micro_batch=512",
+            "keep_freed_memory=false",
+        ],
+        "hugetlb": True,
+    },
     "bf16 levers without prefetching (data.prefetch=false)": {
         "overrides": [
             "model.autocast_dtype=bfloat16",

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from navformer_rl import checkpoint as ckpt
+from navformer_rl.allocator import keep_freed_memory
 from navformer_rl.durable import atomic_write_text
 from navformer_rl.training.config import TrainConfig, validate_config
 from navformer_rl.training.datasets import check_datasets_fit_model, open_datasets, open_validation_datasets
@@ -35,6 +36,8 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
     output directory that already holds checkpoints (pass ``resume=True`` to continue it).
     """
     validate_config(cfg)
+    if cfg.keep_freed_memory:
+        keep_freed_memory()
     run_dir = Path(cfg.output_dir)
     if run_dir.exists() and not run_dir.is_dir():
         raise ValueError(f"output_dir={str(run_dir)!r} is a file; expected a folder (created if missing)")

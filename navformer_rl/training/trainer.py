@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 RESUME_MAY_CHANGE = frozenset(
     {
         "resume",
+        "keep_freed_memory",
         "device",
         "output_dir",
         "logger",

@@ -211,3 +211,12 @@ def test_a_checkpoint_from_before_a_new_key_resumes_with_that_keys_default(tiny_
     train(tiny_config("optim.iterations=2", f"output_dir={other}", "ssl.loss_weight=0.5"))
     with pytest.raises(ValueError, match=r"differs in \['ssl.loss_weight'\]"):
         train(tiny_config("optim.iterations=3", f"output_dir={other}", "resume=true"))
+
+
+def test_resume_may_change_the_allocator_setting(tiny_config, tmp_path):
+    run = tmp_path / "run"
+    train(tiny_config("optim.iterations=2", f"output_dir={run}"))
+    resumed = train(
+        tiny_config("optim.iterations=3", f"output_dir={run}", "resume=true", "keep_freed_memory=false")
+    )
+    assert resumed.iterations == 3

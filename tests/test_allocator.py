@@ -1,0 +1,55 @@
+"""The allocator setting: big freed blocks are reused (no fresh pages), and training applies it when asked."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from navformer_rl import allocator
+
+# A child process allocates, touches and frees a 64 MiB tensor six times and prints the minor page faults of
+# the last five rounds: a block that size is above glibc's largest mmap threshold (32 MiB), so by default
+# every round maps fresh pages (>= 32 faults even with 2 MiB huge pages); with keep_freed_memory() the
+# rounds after the first reuse the heap's pages. The child runs with huge pages for malloc, as run.sh sets
+# them (without, glibc's heap may grow past a freed block that small objects have split: see allocator.py).
+_FAULTS = textwrap.dedent(
+    """
+    import resource, sys, torch
+    from navformer_rl.allocator import keep_freed_memory
+    if sys.argv[1] == "keep":
+        assert keep_freed_memory()
+    def faults():
+        return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for round in range(6):
+        if round == 1:
+            start = faults()
+        block = torch.empty(16 << 20, dtype=torch.float32)
+        block.fill_(1.0)
+        del block
+    print(faults() - start)
+    """
+)
+
+
+def _page_faults(mode: str) -> int:
+    env = {**os.environ, "GLIBC_TUNABLES": "glibc.malloc.hugetlb=1"}
+    out = subprocess.run(
+        [sys.executable, "-c", _FAULTS, mode],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+        env=env,
+    )
+    return int(out.stdout.split()[-1])
+
+
+@pytest.mark.skipif(allocator._glibc() is None, reason="the setting exists for glibc only")
+def test_keep_freed_memory_reuses_big_blocks_instead_of_mapping_fresh_pages():
+    default, kept = _page_faults("default"), _page_faults("keep")
+    assert default >= 5 * 32, default  # 5 rounds x 64 MiB in fresh pages of at most 2 MiB
+    assert kept * 10 < default, (kept, default)  # the same 320 MiB from pages the process already has
