@@ -2,15 +2,18 @@
 
 glibc's ``malloc`` serves every block above its mmap threshold (at most 32 MiB) with a fresh ``mmap`` and
 gives it back with ``munmap`` when freed. A CPU training iteration allocates and frees dozens of such
-tensors (the GPT's ``[37950, 512]`` MLP activations and their gradients, the attention weights, the encoder
-activations of a micro-batch), so the kernel maps and zeroes those pages again at every iteration: with
-``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` (transparent huge pages, what ``run.sh`` sets) that is ~6,000 page
-faults and several gigabytes of zeroing per paper iteration. :func:`keep_freed_memory` switches that off
-for the rest of the process (``mallopt(M_MMAP_MAX, 0)``: big blocks come from the heap too, and
-``mallopt(M_TRIM_THRESHOLD, 2 GiB - 1)``: freed memory stays in the heap), so the second iteration onward
-reuses the first one's pages: a mean paper iteration takes ~0.84x the time on the 2-core CPU
-(``benchmarks/model.md``, "Thirteenth round"). The values computed do not change. The cost: the process's
-resident memory stays at its peak instead of shrinking between iterations.
+tensors (the GPT's ``[37950, 512]`` MLP activations and their gradients, the attention weights, ...), so
+the kernel maps and zeroes those pages again at every iteration: with ``GLIBC_TUNABLES=glibc.malloc.hugetlb=1``
+(transparent huge pages, what ``run.sh`` sets) a paper batch-B iteration took ~6,000 page faults, ~750 of
+them 2 MiB huge pages. :func:`keep_freed_memory` switches that off for the rest of the process
+(``mallopt(M_MMAP_MAX, 0)``: big blocks come from the heap too, and ``mallopt(M_TRIM_THRESHOLD, 2 GiB - 1)``:
+freed memory stays in the heap), so from the second iteration on the process reuses its pages (2-40 faults
+per batch-B iteration). On the 2-core CPU a mean paper iteration then takes 0.80-0.88x the time, 0.88-0.95x
+in the real loop with its data sampling (``benchmarks/model.md``, "Thirteenth round"). The values computed
+do not change. The cost: the process's resident memory stays at its peak instead of shrinking between
+iterations. Without huge pages for malloc, glibc may still grow the heap past a freed block that small
+objects have split (seen in a synthetic loop of equal-size tensors; not in training, which faulted 2-7 pages
+per batch-B iteration that way too).
 
 The same settings at process start: ``GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.mmap_max=0:
 glibc.malloc.trim_threshold=2147483647``. Other C libraries (musl, macOS, Windows) are left alone.

@@ -156,7 +156,7 @@ class TrainConfig:
         output_dir: the run directory (checkpoints, logs, config).
         resume: continue from the run directory's latest checkpoint (start fresh when it has none).
         keep_freed_memory: glibc's ``malloc`` serves big tensors from the heap and keeps freed memory
-            (:func:`navformer_rl.allocator.keep_freed_memory`): the same values, ~0.84x the time of a CPU
+            (:func:`navformer_rl.allocator.keep_freed_memory`): the same values, 0.8-0.95x the time of a CPU
             iteration, the process's memory stays at its peak. No effect on other C libraries.
     """
 
