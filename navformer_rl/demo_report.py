@@ -78,13 +78,19 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
         scalars = sorted((run_dir / "logs").glob("*/scalars"))
         plotted = False
         for folder in scalars:
-            for name in ("loss_dt", "loss_byol", "loss", *VALIDATION_CURVES):
+            names = list(CURVE_COLOURS)
+            if not (folder / "loss_byol.csv").is_file():
+                names.remove(
+                    "loss"
+                )  # without BYOL the total loss is loss_dt: one curve hidden under the other
+            for name in names:
                 path = folder / f"{name}.csv"
                 if path.is_file():
                     steps, values = _read_scalar(path)
                     if steps:
                         style = {"marker": "o", "linestyle": "--"} if name.startswith("validation/") else {}
-                        ax.plot(steps, values, label=VALIDATION_CURVES.get(name, name), **style)
+                        label = VALIDATION_CURVES.get(name, name)
+                        ax.plot(steps, values, label=label, color=CURVE_COLOURS[name], **style)
                         plotted = True
         ax.set_title(method)
         ax.set_xlabel("iteration")
@@ -106,6 +112,14 @@ VALIDATION_CURVES = {
     "validation/loss_dt_collision_avoidance": "loss_dt, held-out D_ca (eval mode)",
 }
 """The held-out curves drawn beside the training losses, and their legend labels."""
+CURVE_COLOURS = {
+    "loss_dt": "tab:blue",
+    "loss_byol": "tab:orange",
+    "loss": "tab:green",
+    "validation/loss_dt_exploration": "tab:red",
+    "validation/loss_dt_collision_avoidance": "tab:purple",
+}
+"""Each curve of the training figure in the same colour in every model's panel."""
 VALIDATION_COLUMNS = {
     "train_loss_dt_exploration": "D_e, training data",
     "loss_dt_exploration": "D_e, held-out mazes",

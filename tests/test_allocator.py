@@ -53,3 +53,39 @@ def test_keep_freed_memory_reuses_big_blocks_instead_of_mapping_fresh_pages():
     default, kept = _page_faults("default"), _page_faults("keep")
     assert default >= 5 * 32, default  # 5 rounds x 64 MiB in fresh pages of at most 2 MiB
     assert kept * 10 < default, (kept, default)  # the same 320 MiB from pages the process already has
+
+
+# Two training steps of the paper encoder on 768 frames (its first activation, [768, 32, 20, 20] float32, is
+# 39 MB: above the mmap threshold, so the two settings serve it from different memory), saved for comparison.
+_TRAIN = textwrap.dedent(
+    """
+    import sys, torch
+    from navformer_rl.allocator import keep_freed_memory
+    from navformer_rl.modules.models.cnn import ConvEncoder
+    if sys.argv[1] == "keep":
+        assert keep_freed_memory()
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    encoder = ConvEncoder(channels_last=False, space_to_depth=False)
+    optimizer = torch.optim.AdamW(encoder.parameters(), lr=1e-3)
+    pixels = torch.randint(0, 256, (768, 84, 84, 3), dtype=torch.uint8)
+    for _ in range(2):
+        optimizer.zero_grad()
+        encoder(pixels).square().mean().backward()
+        optimizer.step()
+    torch.save(encoder.state_dict(), sys.argv[2])
+    """
+)
+
+
+@pytest.mark.skipif(allocator._glibc() is None, reason="the setting exists for glibc only")
+def test_keep_freed_memory_gives_the_same_training_values(tmp_path):
+    import torch
+
+    weights = {}
+    for mode in ("default", "keep"):
+        path = tmp_path / f"{mode}.pt"
+        subprocess.run([sys.executable, "-c", _TRAIN, mode, str(path)], check=True, timeout=300)
+        weights[mode] = torch.load(path, weights_only=True)
+    assert weights["default"].keys() == weights["keep"].keys()
+    assert all(torch.equal(weights["default"][k], weights["keep"][k]) for k in weights["default"])

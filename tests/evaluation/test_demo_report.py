@@ -184,6 +184,40 @@ def test_the_training_section_tables_the_last_validation_of_each_model(tmp_path)
     assert (tmp_path / "figures" / "training_losses.png").is_file()
 
 
+def test_the_training_figure_gives_each_curve_one_colour_and_no_hidden_duplicate(tmp_path, monkeypatch):
+    """A curve has the same colour in every model's panel; a run without BYOL (DT) draws no ``loss`` curve,
+    which would lie exactly on its ``loss_dt``."""
+    from matplotlib.axes import Axes
+
+    from navformer_rl.demo_report import _training_section
+
+    drawn: list[tuple[int, str, str]] = []
+    plot = Axes.plot
+
+    def recording_plot(ax, *args, **kwargs):
+        drawn.append((id(ax), kwargs["label"], kwargs["color"]))
+        return plot(ax, *args, **kwargs)
+
+    monkeypatch.setattr(Axes, "plot", recording_plot)
+    curves = {"navformer": ["loss_dt", "loss_byol", "loss"], "dt": ["loss_dt", "loss"]}
+    train_dirs = {}
+    for method, names in curves.items():
+        scalars = tmp_path / method / "logs" / "navformer" / "scalars"
+        (scalars / "validation").mkdir(parents=True)
+        for name in [*names, "validation/loss_dt_exploration", "validation/loss_dt_collision_avoidance"]:
+            (scalars / f"{name}.csv").write_text("1,1.0\n10,0.2\n")
+        train_dirs[method] = tmp_path / method
+    _training_section(train_dirs, tmp_path)
+    panels = list(dict.fromkeys(ax for ax, _, _ in drawn))
+    labels = [[label for ax, label, _ in drawn if ax == panel] for panel in panels]
+    held_out = ["loss_dt, held-out D_e (eval mode)", "loss_dt, held-out D_ca (eval mode)"]
+    assert labels == [["loss_dt", "loss_byol", "loss", *held_out], ["loss_dt", *held_out]]
+    colours = {}
+    for _, label, colour in drawn:
+        assert colours.setdefault(label, colour) == colour, label
+    assert len(set(colours.values())) == len(colours)  # and different curves differ
+
+
 @pytest.mark.parametrize("value", [-1, 1.5, True])
 def test_held_out_sizes_must_be_counts(tmp_path, value):
     with pytest.raises(ValueError, match=r"held_out_collision=.*expected an integer >= 0 \(0: none\)"):
