@@ -15,6 +15,14 @@ iterations. Without huge pages for malloc, glibc may still grow the heap past a 
 objects have split (seen in a synthetic loop of equal-size tensors; not in training, which faulted 2-7 pages
 per batch-B iteration that way too).
 
+:func:`release_free_memory` (``malloc_trim(0)``) hands the free pages inside the heap back to the kernel;
+``navformer train`` calls it after every checkpoint when it keeps freed memory, so what the heap's
+fragmentation adds to the resident memory is undone once per checkpoint interval. Measured in the real loop
+at the paper's batches: 4.3 GiB resident after 10 iterations, 5.1 GiB after 160, still growing ~2 MB per
+iteration (glibc's default setting grew too: 3.9 GiB after 10 iterations, 4.6 GiB after 50); one
+``malloc_trim`` took 16-33 ms and brought it to 1.6 GiB, and the next two iterations faulted their pages in
+again (~2 s in all).
+
 The same settings at process start: ``GLIBC_TUNABLES=glibc.malloc.hugetlb=1:glibc.malloc.mmap_max=0:
 glibc.malloc.trim_threshold=2147483647``. Other C libraries (musl, macOS, Windows) are left alone.
 """
@@ -60,3 +68,15 @@ def keep_freed_memory() -> bool:
     mmap_ok = libc.mallopt(ctypes.c_int(M_MMAP_MAX), ctypes.c_int(0))
     trim_ok = libc.mallopt(ctypes.c_int(M_TRIM_THRESHOLD), ctypes.c_int(TRIM_THRESHOLD_BYTES))
     return bool(mmap_ok) and bool(trim_ok)
+
+
+def release_free_memory() -> bool:
+    """Return the free memory inside glibc's heap to the kernel (``malloc_trim(0)``); False elsewhere.
+
+    The next iterations fault those pages in again, so call it rarely (``navformer train``: at checkpoints).
+    """
+    libc = _glibc()
+    if libc is None:
+        return False
+    libc.malloc_trim(ctypes.c_size_t(0))
+    return True

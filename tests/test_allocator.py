@@ -89,3 +89,30 @@ def test_keep_freed_memory_gives_the_same_training_values(tmp_path):
         weights[mode] = torch.load(path, weights_only=True)
     assert weights["default"].keys() == weights["keep"].keys()
     assert all(torch.equal(weights["default"][k], weights["keep"][k]) for k in weights["default"])
+
+
+# keep_freed_memory, then 256 MiB of tensors allocated, touched and freed: the heap keeps their pages until
+# release_free_memory hands them back. Prints the resident MiB after the free and after the release.
+_RELEASE = textwrap.dedent(
+    """
+    import torch
+    from navformer_rl.allocator import keep_freed_memory, release_free_memory
+    def resident_mib():
+        return int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20
+    assert keep_freed_memory()
+    blocks = [torch.ones(16 << 20) for _ in range(4)]
+    del blocks
+    kept = resident_mib()
+    assert release_free_memory()
+    print(kept, resident_mib())
+    """
+)
+
+
+@pytest.mark.skipif(allocator._glibc() is None, reason="the setting exists for glibc only")
+def test_release_free_memory_hands_the_kept_pages_back():
+    out = subprocess.run(
+        [sys.executable, "-c", _RELEASE], capture_output=True, text=True, check=True, timeout=120
+    )
+    kept, released = map(float, out.stdout.split()[-2:])
+    assert kept - released > 200, (kept, released)  # most of the 256 MiB

@@ -157,7 +157,8 @@ class TrainConfig:
         resume: continue from the run directory's latest checkpoint (start fresh when it has none).
         keep_freed_memory: glibc's ``malloc`` serves big tensors from the heap and keeps freed memory
             (:func:`navformer_rl.allocator.keep_freed_memory`): the same values, 0.8-0.95x the time of a CPU
-            iteration, the process's memory stays at its peak. No effect on other C libraries.
+            iteration, the process's memory stays at its peak between checkpoints (after each one
+            ``release_free_memory`` hands the free pages back). No effect on other C libraries.
     """
 
     data: DataConfig = field(default_factory=DataConfig)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from navformer_rl import checkpoint as ckpt
-from navformer_rl.allocator import keep_freed_memory
+from navformer_rl.allocator import keep_freed_memory, release_free_memory
 from navformer_rl.durable import atomic_write_text
 from navformer_rl.training.config import TrainConfig, validate_config
 from navformer_rl.training.datasets import check_datasets_fit_model, open_datasets, open_validation_datasets
@@ -111,6 +111,8 @@ def train(cfg: TrainConfig) -> TrainResult:
                     trainer.log(trainer.validate(), timings=False)
             if trainer.iteration % cfg.checkpoint.interval == 0 or trainer.iteration == total:
                 last_checkpoint = trainer.save_checkpoint()
+                if cfg.keep_freed_memory:  # the kept heap's fragmentation must not grow for the whole run
+                    release_free_memory()
             bar.update(1)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}", fps=f"{metrics['frames_per_s']:.0f}")
     if last_checkpoint is None:

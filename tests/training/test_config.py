@@ -387,3 +387,21 @@ def test_training_applies_the_setting_only_when_configured(tiny_config, tmp_path
     assert calls == []
     run.build_trainer(tiny_config(f"output_dir={tmp_path / 'on'}")).close()
     assert calls == [True]
+
+
+@pytest.mark.parametrize("keep, releases", [(True, 2), (False, 0)])
+def test_training_releases_the_kept_memory_at_every_checkpoint(
+    tiny_config, tmp_path, monkeypatch, keep, releases
+):
+    from navformer_rl.training import run
+
+    calls = []
+    monkeypatch.setattr(run, "keep_freed_memory", lambda: True)
+    monkeypatch.setattr(run, "release_free_memory", lambda: calls.append(True) or True)
+    run.train(
+        tiny_config(
+            "optim.iterations=4", "checkpoint.interval=2", f"keep_freed_memory={str(keep).lower()}",
+            f"output_dir={tmp_path / 'run'}",
+        )
+    )  # fmt: skip
+    assert len(calls) == releases  # after the checkpoints at iterations 2 and 4
