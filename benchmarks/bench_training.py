@@ -11,6 +11,9 @@ FLOPs of one iteration (``torch.utils.flop_counter``: dense layers and convoluti
 counted, so the achieved rate is a lower bound) and, as the reference measured in the same run, the
 GFLOP/s of a large fp32 and bf16 matmul. Prints a Markdown table and writes JSON next to the data.
 
+Every configuration keeps glibc's freed memory (``keep_freed_memory=true``, ``navformer train``'s default)
+unless its overrides say otherwise ("bf16 levers + glibc's own malloc" measures that lever).
+
 On a shared machine wall-clock times are inflated by other processes; the process CPU time of each iteration
 (``time.process_time``) is reported beside it and, with one thread, is the better estimate of the cost.
 """

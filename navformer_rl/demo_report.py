@@ -80,9 +80,8 @@ def _training_section(train_dirs: dict[str, Path], report_dir: Path) -> list[str
         for folder in scalars:
             names = list(CURVE_COLOURS)
             if not (folder / "loss_byol.csv").is_file():
-                names.remove(
-                    "loss"
-                )  # without BYOL the total loss is loss_dt: one curve hidden under the other
+                # without BYOL the total loss is loss_dt: one curve would hide under the other
+                names.remove("loss")
             for name in names:
                 path = folder / f"{name}.csv"
                 if path.is_file():
