@@ -5,7 +5,10 @@ and under ``torch.no_grad``:
 
 - ``kv``: one ``IncrementalNavFormer.step`` at timestep T (encoding the new frame with f_s and f_g as one
   fused stack, the transformer on the 4 new tokens against the cache, the THSC head); median over
-  ``--steps`` consecutive steps.
+  ``--steps`` consecutive steps. Timed for each transformer path of ``--paths``: ``native`` (the compiled
+  kernel, ``NativeTransformerStep``, the default where it builds) and ``torch`` (``TransformerStep``), one
+  decoder each, in alternating rounds of a few steps so that both see the same machine phases; ``kv`` is
+  the first path's, ``vs torch`` its ratio to the torch path's.
 - ``recompute``: the same decision by re-running the transformer over the whole context (target + T steps,
   i.e. 4T tokens), with the frame embeddings of past steps cached and only the new frame encoded; median
   over ``--repeats``.
@@ -16,7 +19,8 @@ and under ``torch.no_grad``:
   0.4-0.64 ms at batch 1 leave the encoders out). The encoders are timed back to back, with their weights
   in cache, so ``rest`` also carries the cache misses the step pays for them.
 
-Usage: ``OMP_NUM_THREADS=1 python benchmarks/bench_inference.py [--threads 1] [--batches 1 6] [--T 50 200 500]``
+Usage: ``OMP_NUM_THREADS=1 python benchmarks/bench_inference.py [--threads 1] [--batches 1 6] [--T 50 200 500]
+[--paths native torch]``
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import time
 import torch
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
+from navformer_rl.modules.models.native import native_status
 
 
 def timed(fn, repeats: int) -> float:
@@ -77,6 +82,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="repeats of each recompute")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument(
+        "--paths", nargs="+", choices=("native", "torch"), default=["native", "torch"],
+        help="transformer paths to time (the first one fills the kv, encoders and ratio columns)",
+    )  # fmt: skip
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -86,11 +95,20 @@ def main() -> None:
     window = model.config.window_steps
     print(f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, "
           f"load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+    paths = list(dict.fromkeys(args.paths))
+    status = native_status()
+    if "native" in paths and (not status.available or device.type != "cpu"):
+        why = status.reason if not status.available else f"it runs on the CPU, not {device}"
+        print(f"# native kernel unavailable ({why}): timing the torch path only")
+        paths = ["torch"]
+    other = "torch" if paths[0] != "torch" and "torch" in paths else None
+    print(f"# paths: {', '.join(paths)}; native kernel: {status.reason}")
     print(
-        "| robots | T | tokens | KV step ms | ms / robot-step | of which encoders ms | rest ms | recompute ms "
-        "| speed-up | window recompute ms | window / KV |"
+        "| robots | T | tokens | KV step ms | ms / robot-step | vs torch | of which encoders ms | rest ms "
+        "| recompute ms | speed-up | window recompute ms | window / KV |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    rounds = 4
     with torch.no_grad():
         for batch in args.batches:
             window_ms = None
@@ -104,19 +122,32 @@ def main() -> None:
                 "action": torch.rand(batch, length, 2, device=device) * 2 - 1,
                 "step": torch.arange(length, device=device).clamp(max=511).expand(batch, -1),
             }
-            decoder = IncrementalNavFormer(model, batch, device=device)
-            prev = torch.zeros(batch, 2, device=device)
             rtg = torch.ones(batch, 1, device=device)
+            runs = {
+                path: [IncrementalNavFormer(model, batch, device=device, native=path == "native"),
+                       torch.zeros(batch, 2, device=device)]
+                for path in paths
+            }  # fmt: skip
+
+            def advance(path: str, runs=runs, frames=frames, target=target, rtg=rtg) -> float:
+                """One step of ``path``'s decoder; its wall time in ms."""
+                run = runs[path]
+                pixels = frames[:, int(run[0].steps_done[0]) % 8]
+                start = time.perf_counter()
+                run[1] = run[0].step(target, pixels, rtg, run[1])
+                return (time.perf_counter() - start) * 1e3
+
             for t in sorted(args.T):
-                while int(decoder.steps_done[0]) < t - 1:  # advance the episode to step T - 1
-                    prev = decoder.step(target, frames[:, int(decoder.steps_done[0]) % 8], rtg, prev)
-                samples = []
-                for _ in range(args.steps):
-                    pixels = frames[:, int(decoder.steps_done[0]) % 8]
-                    start = time.perf_counter()
-                    prev = decoder.step(target, pixels, rtg, prev)
-                    samples.append((time.perf_counter() - start) * 1e3)
-                kv_ms = statistics.median(samples)
+                for path in paths:  # advance each episode to step T - 1
+                    while int(runs[path][0].steps_done[0]) < t - 1:
+                        advance(path)
+                samples = {path: [] for path in paths}
+                for _ in range(rounds):  # alternate the paths so both see the same machine phases
+                    for path in paths:
+                        samples[path] += [advance(path) for _ in range(-(-args.steps // rounds))]
+                kv_ms = {path: statistics.median(samples[path]) for path in paths}
+                decoder = runs[paths[0]][0]
+                pixels = frames[:, t % 8]
                 encoder_ms = timed(
                     lambda pixels=pixels, decoder=decoder: decoder.encode_observations(pixels), args.steps
                 )
@@ -135,10 +166,12 @@ def main() -> None:
                         args.repeats,
                     )
                 tps = model.config.tokens_per_step
+                kv = kv_ms[paths[0]]
+                ratio = f"{kv / kv_ms[other]:.2f} ({kv_ms[other]:.3f} ms)" if other else "-"
                 print(
-                    f"| {batch} | {t} | {tps * t} | {kv_ms:.3f} | {kv_ms / batch:.3f} | {encoder_ms:.3f} | "
-                    f"{kv_ms - encoder_ms:.3f} | {recompute_ms:.1f} | "
-                    f"{recompute_ms / kv_ms:.0f}x | {window_ms:.1f} | {window_ms / kv_ms:.0f}x |"
+                    f"| {batch} | {t} | {tps * t} | {kv:.3f} | {kv / batch:.3f} | {ratio} | {encoder_ms:.3f} | "
+                    f"{kv - encoder_ms:.3f} | {recompute_ms:.1f} | "
+                    f"{recompute_ms / kv:.0f}x | {window_ms:.1f} | {window_ms / kv:.0f}x |"
                 )
 
 

@@ -48,6 +48,10 @@ class NavFormerPolicy(TensorDictModuleBase):
     robot starts an episode, and then the tables are rebuilt for every robot of the batch (those in the
     middle of an episode keep their KV cache, computed with the old weights). Pickling / ``copy.deepcopy``
     leave out the decoding state: a copy starts new episodes on its own weights.
+
+    native: run the transformer step through the compiled CPU kernel (``IncrementalNavFormer``'s
+    ``native``): None uses it where it builds and runs (a CPU decoder; ``NAVFORMER_NATIVE=0`` turns it
+    off), True requires it, False keeps the torch path. Both give the same actions up to float rounding.
     """
 
     def __init__(
@@ -61,9 +65,11 @@ class NavFormerPolicy(TensorDictModuleBase):
         reward_key: NestedKey | None = ("agents", "reward"),
         action_key: NestedKey = ("agents", "action"),
         is_init_key: NestedKey | None = "is_init",
+        native: bool | None = None,
     ) -> None:
         super().__init__()
         self.model = model
+        self.native = native
         self.is_init_key = is_init_key
         self.initial_return_to_go = float(initial_return_to_go)
         self.pixels_key, self.target_pixels_key = pixels_key, target_pixels_key
@@ -138,7 +144,7 @@ class NavFormerPolicy(TensorDictModuleBase):
         device = self.device  # looked up once per call: parameters() is not free at batch 1
         new_episode = self._new_episode_flags(tensordict, robots, device)
         if self._decoder is None or self._decoder.batch != robots or self._decoder.device != device:
-            self._decoder = IncrementalNavFormer(self.model, robots, device=device)
+            self._decoder = IncrementalNavFormer(self.model, robots, device=device, native=self.native)
             self._remember_weights()
             self._return_to_go = torch.full((robots, 1), self.initial_return_to_go, device=device)
             self._prev_action = torch.zeros(robots, self.model.config.action_dim, device=device)

@@ -6,11 +6,21 @@ import torch
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
 from navformer_rl.modules.models import sliding_window_mask
 from navformer_rl.modules.models.attention import additive_mask
+from navformer_rl.modules.models.native import native_status
 from navformer_rl.modules.models.step_layers import StepLayers
 from navformer_rl.modules.models.transformer import KVCache
 from navformer_rl.modules.models.transformer_step import TransformerStep
 
 KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
+NATIVE = [
+    pytest.param(False, id="torch-step"),
+    pytest.param(
+        True,
+        id="native-step",
+        marks=pytest.mark.skipif(not native_status().available, reason=native_status().reason),
+    ),
+]
+"""Both transformer paths of ``IncrementalNavFormer`` (the compiled kernel where it builds)."""
 
 
 def small_context_model(seed=0, **changes):
@@ -31,16 +41,20 @@ def decode(decoder, batch, t):
     return decoder.step(batch["target_pixels"], batch["pixels"][:, t], batch["return_to_go"][:, t], prev)
 
 
+@pytest.mark.parametrize("native", NATIVE)
 @pytest.mark.parametrize("robots", [1, 3, 6])  # 1, 3: im2col encoders; 6: oneDNN convolutions
 @pytest.mark.parametrize("ablation", ["navformer", "dt"])
-def test_cached_step_equals_full_forward_at_every_step_across_the_slide(batch_factory, ablation, robots):
+def test_cached_step_equals_full_forward_at_every_step_across_the_slide(
+    batch_factory, ablation, robots, native
+):
     model = small_context_model(
         **({} if ablation == "navformer" else {"use_static_encoder": False, "thsc": False})
     )
     window = model.config.window_steps
     steps = window * 2 + 3
     batch = batch_factory(robots, steps, seed=1)
-    decoder = IncrementalNavFormer(model, robots)
+    decoder = IncrementalNavFormer(model, robots, native=native)
+    assert decoder.native is native
     reference = full(model, batch, steps, window_steps=window)
     for t in range(steps):
         action = decode(decoder, batch, t)
@@ -64,12 +78,13 @@ def test_window_holds_at_most_context_tokens():
     assert int(mask[-1].sum()) == config.context_tokens
 
 
-def test_per_robot_reset_clears_only_that_robots_state(batch_factory):
+@pytest.mark.parametrize("native", NATIVE)
+def test_per_robot_reset_clears_only_that_robots_state(batch_factory, native):
     model = small_context_model()
     window = model.config.window_steps
     steps = window + 4
     batch = batch_factory(2, steps, seed=2)
-    decoder = IncrementalNavFormer(model, 2)
+    decoder = IncrementalNavFormer(model, 2, native=native)
     restart = 5
     reference_robot0 = full(model, batch, steps, window_steps=window)[0]
     # robot 1 restarts an episode at t = restart: its new episode is the tail of the batch from there
@@ -89,8 +104,9 @@ def test_per_robot_reset_clears_only_that_robots_state(batch_factory):
     assert decoder.steps_done.tolist() == [steps, steps - restart]
 
 
+@pytest.mark.parametrize("native", NATIVE)
 @pytest.mark.parametrize("ablation", ["navformer", "dt"])  # 4 and 3 tokens per step
-def test_shared_path_equals_general_path_and_leaves_its_state_for_it(batch_factory, ablation):
+def test_shared_path_equals_general_path_and_leaves_its_state_for_it(batch_factory, ablation, native):
     """The shared fast path (no slot bookkeeping, moving mask past the wrap) against the general path
     (positions and masks from ``slot_pos``) over two ring wraps; then a partial reset hands the shared
     decoder's state to the general path, which must continue exactly."""
@@ -100,7 +116,7 @@ def test_shared_path_equals_general_path_and_leaves_its_state_for_it(batch_facto
     window = model.config.window_steps
     steps = 2 * window + 3
     batch = batch_factory(2, steps + 2, seed=6)
-    shared, general = IncrementalNavFormer(model, 2), IncrementalNavFormer(model, 2)
+    shared, general = (IncrementalNavFormer(model, 2, native=native) for _ in range(2))
     general.reset(torch.tensor([True, False]))  # a partial reset: the general path from the start
     for t in range(steps):
         torch.testing.assert_close(decode(shared, batch, t), decode(general, batch, t), rtol=0, atol=0)
@@ -226,17 +242,18 @@ def test_transformer_step_rejects_an_unknown_block_structure():
         TransformerStep(model.transformer)
 
 
-def test_refresh_picks_up_updates_the_caches_cannot_see(batch_factory):
+@pytest.mark.parametrize("native", NATIVE)
+def test_refresh_picks_up_updates_the_caches_cannot_see(batch_factory, native):
     model = small_context_model()
     batch = batch_factory(2, 3)
-    decoder = IncrementalNavFormer(model, 2)
+    decoder = IncrementalNavFormer(model, 2, native=native)
     decode(decoder, batch, 0)
     with torch.no_grad():  # a write through .data bypasses the version counter
         model.transformer.blocks[0].mlp[0].weight.data.mul_(2.0)
         model.head.bias.data.add_(0.5)
     decoder.reset()
     decoder.refresh()
-    fresh = IncrementalNavFormer(model, 2)
+    fresh = IncrementalNavFormer(model, 2, native=native)
     torch.testing.assert_close(decode(decoder, batch, 0), decode(fresh, batch, 0), rtol=0, atol=0)
 
 
