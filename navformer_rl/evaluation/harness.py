@@ -32,6 +32,7 @@ and its checks live in :mod:`navformer_rl.evaluation.policy_spec`, the episode l
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -213,6 +214,11 @@ def evaluate(
         )
         if model_device not in (None, "cpu"):  # CPU results keep the keys they had before this option
             identity["device"] = model_device
+        if description.get("transformer_step") == "native":  # the torch path keeps its earlier keys
+            identity["transformer_step"] = "native"
+            spec = dataclasses.replace(spec, native=True)
+        elif description.get("transformer_step") == "torch":
+            spec = dataclasses.replace(spec, native=False)
         tasks = _make_tasks(
             episode_set, out_dir, label, maps_per_setup, videos_per_setup, video_fps, identity
         )

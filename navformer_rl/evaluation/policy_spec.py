@@ -46,6 +46,9 @@ class PolicySpec:
     """For your own policy: a picklable zero-argument callable (e.g. a module-level function) returning a
     ``TensorDictModuleBase`` that writes ``("agents", "action")``; ``method`` is then its label."""
     device: str = "cpu"
+    native: bool | None = None
+    """``NavFormerPolicy(native=)`` of ``navformer`` / ``dt``: the harness fixes it to what ``validate`` found
+    (``transformer_step``), so that every worker runs the same transformer path or fails saying why."""
 
     def validate(self, label: str | None = None) -> dict[str, Any]:
         """Check the method, (by loading it) the checkpoint, and that ``label`` (default: the method) names no
@@ -75,13 +78,17 @@ class PolicySpec:
                     "(CLI --checkpoint PATH, recipe checkpoint=PATH)"
                 )
             from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
+            from navformer_rl.modules.models.incremental import use_native_kernel
 
-            _, config = self._load_checkpoint()  # on the CPU: this process only checks it
+            policy, config = self._load_checkpoint()  # on the CPU: this process only checks it
             weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
+            native = use_native_kernel(self.native, policy.model, resolve_device(self.device))
             description = {
                 "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
                 "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
                 "ablation": checkpoint_ablation(self.checkpoint),
+                # the compiled kernel or the torch path: equal results up to float rounding only
+                "transformer_step": "native" if native else "torch",
             }
         elif self.checkpoint is not None:
             raise ValueError(f"method {self.method!r} takes no checkpoint (got {self.checkpoint!r})")
@@ -110,6 +117,7 @@ class PolicySpec:
             return self.factory(), None
         if self.method in CHECKPOINT_METHODS:
             policy, config = self._load_checkpoint()
+            policy.native = self.native
             return policy.to(resolve_device(self.device)), config
         if self.method == "vrw":
             from navformer_rl.baselines.random_walk import RandomWalkPolicy

@@ -14,6 +14,7 @@ from navformer_rl.evaluation import harness
 from navformer_rl.evaluation.episodes import load_episode_set
 from navformer_rl.evaluation.harness import evaluate, make_eval_env
 from navformer_rl.evaluation.measures import clustered_wilson_interval, collision_rate, spl
+from navformer_rl.modules.models.native import native_status
 
 
 def test_writes_every_output(vrw_run, tiny_episodes):
@@ -326,3 +327,25 @@ def test_a_new_video_frame_rate_recomputes_only_the_episodes_with_a_video(tmp_pa
     capture = cv2.VideoCapture(str(out / again.files["videos"][0]))
     assert capture.get(cv2.CAP_PROP_FPS) == 5.0
     capture.release()
+
+
+@pytest.mark.skipif(not native_status().available, reason=native_status().reason)
+def test_the_transformer_path_is_recorded_and_part_of_the_resume_key(
+    tmp_path, tiny_episodes, checkpoints, monkeypatch
+):
+    """The compiled kernel and the torch path agree only to float rounding: results of one are never
+    reused for the other."""
+    out = tmp_path / "navformer"
+    kwargs = dict(checkpoint=checkpoints["navformer"], maps_per_setup=0, videos_per_setup=0, progress=False)
+    evaluate("navformer", tiny_episodes, out, workers=1, **kwargs)
+    assert json.loads((out / "run.json").read_text())["transformer_step"] == "native"
+    partial = out / "per_episode" / "7.5m-2r_w00t00.json"
+    document = json.loads(partial.read_text())
+    document["records"][0]["path_length"] = 123.0  # a marked row: reused on resume, gone if recomputed
+    partial.write_text(json.dumps(document))
+    evaluate("navformer", tiny_episodes, out, workers=1, **kwargs)
+    assert json.loads((out / "episodes.jsonl").read_text().splitlines()[0])["path_length"] == 123.0
+    monkeypatch.setenv("NAVFORMER_NATIVE", "0")  # the workers inherit it
+    evaluate("navformer", tiny_episodes, out, workers=1, **kwargs)
+    assert json.loads((out / "run.json").read_text())["transformer_step"] == "torch"
+    assert json.loads((out / "episodes.jsonl").read_text().splitlines()[0])["path_length"] != 123.0

@@ -72,7 +72,7 @@ class IncrementalNavFormer:
                 f"IncrementalNavFormer decodes float32 models; this one holds {dtype} parameters"
             )
         device = torch.device(device) if device is not None else next(model.parameters()).device
-        self.native = _use_native(native, model, device)
+        self.native = use_native_kernel(native, model, device)
         with torch.inference_mode(False), torch.no_grad():
             self._allocate(model, batch, device, dtype)
         self.refresh()
@@ -300,8 +300,9 @@ class IncrementalNavFormer:
         return action
 
 
-def _use_native(native: bool | None, model: NavFormerModel, device: torch.device) -> bool:
-    """Whether to run the transformer step through the compiled kernel (``native`` None: when it can).
+def use_native_kernel(native: bool | None, model: NavFormerModel, device: torch.device) -> bool:
+    """Whether a decoder of ``model`` on ``device`` runs its transformer step through the compiled kernel
+    (``native`` None: when it can; see ``IncrementalNavFormer``).
 
     Raises:
         ValueError: ``native=True`` but the kernel is unavailable or cannot run this model / device.
