@@ -186,3 +186,26 @@ def test_the_library_is_cached_per_source_and_checked_when_loaded(tmp_path):
     garbage.write_bytes(b"not a library")
     with pytest.raises(NativeBuildError, match="loading"):
         build.load_library(garbage)
+
+
+@requires_native
+def test_the_portable_build_gives_the_same_results(tmp_path):
+    """A compiler that rejects -march=native gets the portable flags; that build computes the same."""
+    wrapper = tmp_path / "no-march-cc"
+    real = build.compiler_command()
+    wrapper.write_text(
+        '#!/bin/sh\nfor arg in "$@"; do [ "$arg" = -march=native ] && { echo no >&2; exit 1; }; done\n'
+        f'exec {" ".join(real)} "$@"\n'
+    )
+    wrapper.chmod(wrapper.stat().st_mode | stat.S_IEXEC)
+    library = build.load_library(build.build_library(cache_dir=tmp_path / "cache", compiler=[str(wrapper)]))
+    model = transformer(128, 2, 64, 4, "none")
+    gen = torch.Generator().manual_seed(3)
+    x = torch.randn(1, 4, 128, generator=gen)
+    mask = torch.rand(1, 1, 4, 30, generator=gen) > 0.3
+    mask[..., 0] = True
+    caches = [BlockedKVCache.empty(2, 1, 2, 40, 64) for _ in range(2)]
+    with torch.no_grad():
+        portable = NativeTransformerStep(model, library)(x, mask, caches[0], slice(20, 24))
+        tuned = NativeTransformerStep(model)(x, mask, caches[1], slice(20, 24))
+    torch.testing.assert_close(portable, tuned, rtol=0, atol=2e-5)

@@ -165,18 +165,25 @@ class NativeTransformerStep:
     ``TransformerStep`` (rebuilt when a Linear weight changes; the other parameters are read through their
     current storage). Not thread-safe: one call at a time per instance (a scratch buffer is shared).
 
+    library: a loaded kernel (``build.load_library``); default: ``native_status()``'s.
+
     Raises:
         ValueError: the kernel is unavailable (the reason is in the message) or cannot run this model.
+        NativeBuildError: ``library``'s structs differ from the mirrors here.
     """
 
-    def __init__(self, transformer: CausalTransformer) -> None:
-        status = native_status()
-        if not status.available:
-            raise ValueError(f"NativeTransformerStep: the compiled kernel is unavailable: {status.reason}")
+    def __init__(self, transformer: CausalTransformer, library: ctypes.CDLL | None = None) -> None:
+        if library is None:
+            status = native_status()
+            if not status.available:
+                raise ValueError(
+                    f"NativeTransformerStep: the compiled kernel is unavailable: {status.reason}"
+                )
+            library = status.library
         unsupported = native_support(transformer)
         if unsupported is not None:
             raise ValueError(f"NativeTransformerStep: {unsupported}")
-        self._library = status.library
+        self._library = library
         self._check_structs()
         self._function = self._library.navformer_transformer_step
         self._function.argtypes = [ctypes.POINTER(_Step)]

@@ -4,13 +4,15 @@
  * x += proj(attn(ln_attn(x))); x += out(gelu(fc(ln_mlp(x)))); then ln_final), written for the few rows
  * of an inference step: at 4 rows every BLAS call of the torch path re-packs its weight matrix, and the
  * attention kernel is built for long query blocks. Here each Linear is a 4 x 64 register-blocked loop
- * that streams its [in, out] weight once per 4 rows, and attention reads a key cache stored transposed
- * ([B, H, d_head, S]: 16 slots' scores per vector operation) and a value cache [B, H, S, d_head].
+ * that streams its [in, out] weight once per 4 rows, and attention reads a key cache blocked by 16 slots
+ * ([B, H, ceil(S / 16), d_head, 16]: 16 slots' scores per vector operation) and a value cache
+ * [B, H, S, d_head], each head's once for all new tokens.
  *
  * float32 throughout; results equal the torch path up to float rounding (different summation order).
  * exp, erf and tanh are computed with the polynomial approximations ATen's vectorised CPU kernels use.
  * Built by navformer_rl.modules.models.native.build with the system C compiler (-O3 -march=native);
  * GCC vector extensions, no intrinsics, so it compiles (and vectorises) on any target GCC or clang knows.
+ * The caller (step.py) checks every shape and index: nothing here is bounds-checked.
  */
 #include <math.h>
 #include <stdint.h>
