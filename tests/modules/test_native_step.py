@@ -209,3 +209,16 @@ def test_the_portable_build_gives_the_same_results(tmp_path):
         portable = NativeTransformerStep(model, library)(x, mask, caches[0], slice(20, 24))
         tuned = NativeTransformerStep(model)(x, mask, caches[1], slice(20, 24))
     torch.testing.assert_close(portable, tuned, rtol=0, atol=2e-5)
+
+
+def test_the_module_command_reports_the_status(monkeypatch, capsys):
+    from navformer_rl.modules.models.native.__main__ import main
+
+    monkeypatch.setenv(build.DISABLE_VARIABLE, "0")
+    assert main() == 1
+    assert "unavailable: disabled by NAVFORMER_NATIVE=0" in capsys.readouterr().err
+    monkeypatch.delenv(build.DISABLE_VARIABLE)
+    status = native_status()
+    assert main() == (0 if status.available else 1)
+    out = capsys.readouterr()
+    assert status.reason in (out.out if status.available else out.err)
