@@ -142,9 +142,9 @@ def native_support(transformer: CausalTransformer) -> str | None:
     parameter = next(transformer.parameters())
     if parameter.device.type != "cpu" or parameter.dtype != torch.float32:
         return f"the kernel runs float32 on the CPU, the model is {parameter.dtype} on {parameter.device}"
-    gelu = block.mlp[1]
-    if not isinstance(gelu, nn.GELU) or gelu.approximate not in ("none", "tanh"):
-        return f"the kernel's MLP activation is nn.GELU, got {gelu!r}"
+    activations = [b.mlp[1] for b in transformer.blocks]  # the kernel takes one GELU form for all blocks
+    if not all(isinstance(g, nn.GELU) and g.approximate == block.mlp[1].approximate for g in activations):
+        return f"the kernel's MLP activation is one nn.GELU form in every block, got {activations!r}"
     return None
 
 
@@ -254,10 +254,11 @@ class NativeTransformerStep:
                 f"{x.device}"
             )
         expected = (batch, dims.n_heads, cache.slots, dims.d_head)
-        if tuple(cache.values[0].shape) != expected or len(cache.values) != blocks:
+        counts = (len(cache.keys_blocked), len(cache.values))
+        if tuple(cache.values[0].shape) != expected or counts != (blocks, blocks):
             raise ValueError(
-                f"cache: expected {blocks} blocks of values {expected}, got "
-                f"{len(cache.values)} of {tuple(cache.values[0].shape)}"
+                f"cache: expected {blocks} blocks of keys and values {expected}, got {counts[0]} / "
+                f"{counts[1]} of {tuple(cache.values[0].shape)}"
             )
         mask_shape = tuple(attn_mask.shape)
         if (
@@ -283,7 +284,7 @@ class NativeTransformerStep:
         ):
             raise ValueError(
                 f"write_index: expected [{batch}, {length}] slots in [0, {cache.slots}), got shape "
-                f"{tuple(write_index.shape)}"
+                f"{tuple(write_index.shape)} with slots {int(write_index.min())}..{int(write_index.max())}"
             )
 
     def _call(self, batch: int, length: int, cache: BlockedKVCache) -> _Step:
@@ -308,6 +309,18 @@ class NativeTransformerStep:
         step.ln_final_eps = final.module.eps
 
     def _block_structs(self, weights: tuple[Tensor, ...], cache: BlockedKVCache) -> ctypes.Array:
+        """One ``_Block`` per transformer block; checks every block's cache tensors once per cache."""
+        batch, dims = cache.values[0].shape[0], self.dims
+        shapes = {
+            "keys_blocked": (batch, dims.n_heads, -(-cache.slots // LANES), dims.d_head, LANES),
+            "values": (batch, dims.n_heads, cache.slots, dims.d_head),
+        }
+        for i, (keys, values) in enumerate(zip(cache.keys_blocked, cache.values)):
+            for name, tensor in (("keys_blocked", keys), ("values", values)):
+                if tuple(tensor.shape) != shapes[name]:
+                    raise ValueError(
+                        f"cache: block {i}'s {name} has shape {tuple(tensor.shape)}, expected {shapes[name]}"
+                    )
         blocks = (_Block * len(self._torch_step.blocks))()
         for i, (block, struct) in enumerate(zip(self._torch_step.blocks, blocks)):
             qkv_t, proj_t, fc_t, out_t = weights[4 * i : 4 * i + 4]
