@@ -86,6 +86,8 @@ class DatasetReferenceCheckpointer(StorageCheckpointerBase):
             "rows": len(dataset),
             "metadata_sha256": hashlib.sha256((dataset.root / METADATA_FILE).read_bytes()).hexdigest(),
         }
+        if "subset" in dataset.metadata:
+            self.reference["subset"] = dataset.metadata["subset"]
 
     def dumps(self, storage, path) -> None:
         path = Path(path)
@@ -97,7 +99,7 @@ class DatasetReferenceCheckpointer(StorageCheckpointerBase):
         saved = read_json_object(file, "dump the buffer again with a dataset-backed buffer")
         if saved.get("format") != self.reference["format"]:
             raise ValueError(f"{file} is not a dataset reference (format {saved.get('format')!r})")
-        differ = [k for k in ("rows", "metadata_sha256") if saved.get(k) != self.reference[k]]
+        differ = [k for k in ("rows", "metadata_sha256", "subset") if saved.get(k) != self.reference.get(k)]
         if differ:
             raise ValueError(
                 f"{file} was dumped over the dataset {saved.get('dataset')!r}, which differs from this buffer's "
@@ -134,6 +136,25 @@ class NavDataset:
     def num_trajectories(self) -> int:
         return 0 if self.episodes is None else len(self.episodes)
 
+    def head(self, n: int) -> NavDataset:
+        """The dataset's first ``n`` items (trajectories of D_e / D_ca, pairs of D_ssl), as a view: no copy.
+
+        Trajectories are stored contiguously in id order, so the first ``n`` are a prefix of the rows; target
+        images stay indexable by ``target_id``. The view's ``metadata`` records ``subset``
+        (``{"first": n, "of": <items in the folder>}``) and its row count, so a sampler state dumped over
+        one subset refuses to load over another (:class:`DatasetReferenceCheckpointer`). ``n`` equal to the
+        number of items returns ``self``.
+        """
+        total = self.num_trajectories if self.kind.is_trajectory else len(self)
+        unit = "trajectories" if self.kind.is_trajectory else "pairs"
+        if not is_count(n) or not 1 <= n <= total:
+            raise ValueError(f"head({n!r}) of {self.root}: expected 1 <= n <= {total} ({unit} in the folder)")
+        if n == total:
+            return self
+        end = int(self.episodes.start[n]) if self.episodes is not None else n
+        metadata = {**self.metadata, "subset": {"first": n, "of": total}}
+        return NavDataset(self.root, metadata, self.rows[:end], self.targets)
+
     def storage(self) -> TensorStorage:
         """A TorchRL ``TensorStorage`` over the memmapped rows (no copy; writes into it reach the files)."""
         return TensorStorage(self.rows)
@@ -160,7 +181,7 @@ class NavDataset:
     ) -> TensorDictReplayBuffer:
         """TorchRL buffer with :class:`TrajectorySampler`: ``sample()`` is flat ``[N * T]`` with ``"mask"``
         (also as ``("collector", "mask")``) and per-row ``target_pixels``; ``.reshape(N, -1)`` gives windows
-        that ``NavFormerLoss`` takes as they are."""
+        that ``ActionMSELoss`` takes as they are."""
         self._require_trajectories(num_trajectories)
         sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
         return self.replay_buffer(sampler=sampler, batch_size=num_trajectories)

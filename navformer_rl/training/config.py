@@ -65,6 +65,9 @@ class DataConfig:
         context_steps: longest trajectory window in steps; None = what fits the model's context
             (``NavFormerConfig.window_steps`` = 1024 // 4 = 256 steps). Longer trajectories are cut to a window
             at a random offset.
+        exploration_trajectories / collision_trajectories / ssl_pairs: train on the first N trajectories
+            (pairs) of a dataset folder only; None = all of it (:meth:`~navformer_rl.data.NavDataset.head`).
+            For data-scaling studies from one collection.
         prefetch: draw the next iteration's batches in a background thread while this one trains
             (:class:`~navformer_rl.data.prefetch.Prefetcher`; the same batches, so the same losses). On CUDA the
             batches are also gathered into page-locked memory, so their copies to the GPU are asynchronous.
@@ -77,6 +80,9 @@ class DataConfig:
     collision_batch_trajs: int = 150
     ssl_batch_pairs: int = 512
     context_steps: int | None = None
+    exploration_trajectories: int | None = None
+    collision_trajectories: int | None = None
+    ssl_pairs: int | None = None
     prefetch: bool = True
 
 

@@ -14,6 +14,8 @@ from navformer_rl.validation import PATH_KEYS
 
 DATASET_KEYS = {"e": "exploration_path", "ca": "collision_path", "ssl": "ssl_path"}
 """The config key (under ``data.``) of each dataset kind."""
+SUBSET_KEYS = {"e": "exploration_trajectories", "ca": "collision_trajectories", "ssl": "ssl_pairs"}
+"""The config key (under ``data.``) that keeps only a dataset's first N items."""
 
 
 def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
@@ -34,6 +36,7 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
             continue
         path = getattr(cfg.data, key)
         dataset = _open_dataset(path, kind, f"data.{key}")
+        dataset = _head(dataset, SUBSET_KEYS[kind], getattr(cfg.data, SUBSET_KEYS[kind]), path)
         available = dataset.num_trajectories if kind != "ssl" else len(dataset)
         batch = getattr(cfg.data, batch_key)
         if batch > available:
@@ -63,6 +66,16 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
             advice = f"add {fixes} ({largest}) or collect more data"
         raise ValueError("; ".join([*(problem for problem, _, _ in too_small), advice]))
     return datasets
+
+
+def _head(dataset: Any, key: str, first: int | None, path: str) -> Any:
+    """``dataset.head(first)`` (``None``: the whole dataset), with an error naming ``data.<key>``."""
+    if first is None:
+        return dataset
+    total = dataset.num_trajectories if key != "ssl_pairs" else len(dataset)
+    if isinstance(first, bool) or not isinstance(first, int) or not 1 <= first <= total:
+        raise ValueError(f"data.{key}={first!r}: expected null or an integer in [1, {total}] (what {path!r} holds)")
+    return dataset.head(first)
 
 
 def open_validation_datasets(cfg: TrainConfig) -> dict[str, Any]:

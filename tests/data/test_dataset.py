@@ -333,3 +333,32 @@ def test_buffer_dumps_a_reference_and_loads_only_over_the_same_dataset(tmp_path)
     assert hashlib.sha256(pixels_file.read_bytes()).hexdigest() == before  # the dataset is untouched
     with pytest.raises(ValueError, match="was dumped over the dataset .* differs from this buffer's"):
         open_dataset(tmp_path / "other").trajectory_buffer(4).loads(tmp_path / "dump")
+
+
+def test_head_is_the_prefix_of_the_first_n_items(e_dataset, ssl_dataset):
+    full = open_dataset(e_dataset)
+    head = full.head(5)
+    assert head.num_trajectories == 5
+    assert len(head) == int(full.episodes.start[5])
+    assert torch.equal(head.episodes.length, full.episodes.length[:5])
+    assert torch.equal(head.rows["pixels"][-1], full.rows["pixels"][len(head) - 1])
+    assert head.metadata["subset"] == {"first": 5, "of": 12}
+    assert full.head(12) is full
+    draw = head.trajectory_batcher(5, context_steps=40, seed=0).sampler.draw()
+    assert sorted(draw.trajectory.tolist()) == [0, 1, 2, 3, 4]  # one epoch: every trajectory of the head once
+    assert int(draw.index.max()) < len(head)
+    pairs = open_dataset(ssl_dataset).head(7)
+    assert len(pairs) == 7 and pairs.metadata["subset"] == {"first": 7, "of": 40}
+    for bad in (0, 13, 2.5, True):
+        with pytest.raises(ValueError, match=r"expected 1 <= n <= 12"):
+            full.head(bad)
+
+
+def test_buffer_dumped_over_a_head_loads_only_over_the_same_head(e_dataset, tmp_path):
+    full = open_dataset(e_dataset)
+    buffer = full.head(6).trajectory_buffer(2, context_steps=8, seed=0)
+    buffer.sample()
+    buffer.dumps(tmp_path / "dump")
+    full.head(6).trajectory_buffer(2, context_steps=8, seed=0).loads(tmp_path / "dump")
+    with pytest.raises(ValueError, match="differs from this buffer"):
+        full.head(7).trajectory_buffer(2, context_steps=8, seed=0).loads(tmp_path / "dump")

@@ -405,3 +405,15 @@ def test_training_releases_the_kept_memory_at_every_checkpoint(
         )
     )  # fmt: skip
     assert len(calls) == releases  # after the checkpoints at iterations 2 and 4
+
+
+def test_data_subset_keys_keep_the_first_items(tiny_config):
+    from navformer_rl.training.datasets import open_datasets
+
+    datasets = open_datasets(
+        tiny_config("data.exploration_trajectories=3", "data.collision_trajectories=4", "data.ssl_pairs=5")
+    )
+    assert datasets["e"].num_trajectories == 3 and datasets["ca"].num_trajectories == 4
+    assert len(datasets["ssl"]) == 5
+    with pytest.raises(ValueError, match=r"data.exploration_trajectories=7: expected null or an integer in \[1, 6\]"):
+        open_datasets(tiny_config("data.exploration_trajectories=7"))
