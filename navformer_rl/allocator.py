@@ -10,7 +10,7 @@ them 2 MiB huge pages. :func:`keep_freed_memory` switches that off for the rest 
 freed memory stays in the heap), so once the heap has grown to the run's peak (a few iterations) the
 process reuses its pages (2-40 faults per batch-B iteration). On the 2-core CPU a mean paper iteration
 then takes 0.80-0.88x the time, 0.88-0.95x in the real loop with its data sampling (``benchmarks/model.md``,
-"Thirteenth round"). The values computed do not change. The cost: the process's resident memory stays at its peak instead of shrinking between
+"Allocator: keep freed memory"). The values computed do not change. The cost: the process's resident memory stays at its peak instead of shrinking between
 iterations. Without huge pages for malloc, glibc may still grow the heap past a freed block that small
 objects have split (seen in a synthetic loop of equal-size tensors; not in training, which faulted 2-7 pages
 per batch-B iteration that way too).
