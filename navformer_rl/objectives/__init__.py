@@ -1,12 +1,13 @@
-"""NavFormer losses: ``NavFormerLoss`` (eq. 10) and ``BYOLLoss`` (eqs. 6-8); L = L_BYOL + L_DT (eq. 11)."""
+"""NavFormer losses: ``ActionMSELoss`` (L_DT, eq. 10, key ``loss_dt``) and ``BYOLLoss`` (L_BYOL, eqs. 6-8, key
+``loss_byol``); L = L_BYOL + L_DT (eq. 11) is the sum of the ``loss*`` entries of both outputs."""
 
 from navformer_rl.objectives.byol import BYOLLoss, BYOLTauSchedule, byol_tau, joint_parameters, normalized_mse
-from navformer_rl.objectives.navformer import NavFormerLoss, masked_action_mse
+from navformer_rl.objectives.dt_loss import ActionMSELoss, masked_action_mse
 
 __all__ = [
+    "ActionMSELoss",
     "BYOLLoss",
     "BYOLTauSchedule",
-    "NavFormerLoss",
     "byol_tau",
     "joint_parameters",
     "masked_action_mse",

@@ -17,6 +17,7 @@ from torchrl.objectives import LossModule, SoftUpdate
 from navformer_rl.augment import BYOLAugmentation
 from navformer_rl.modules.models.cnn import ImageEncoder
 from navformer_rl.modules.models.config import AUTOCAST_DTYPES
+from navformer_rl.modules.models.dve import DualVisualEncoder
 
 
 def byol_mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
@@ -95,17 +96,27 @@ class BYOLLoss(LossModule):
     ``L_e = mean_batch[ l(q(g(f(v))), sg(g'(f'(v')))) + l(q(g(f(v'))), sg(g'(f'(v)))) ]`` with l of eq. 6,
     and ``loss_byol = sum_e L_e`` (eq. 8).
 
-    The encoders passed in are *the same module objects* as ``NavFormerModel.static_encoder`` /
-    ``general_encoder``: one optimizer over ``joint_parameters(dt_loss, byol_loss)`` trains them with
+    The encoders passed in (or those of the ``DualVisualEncoder`` passed in: ``BYOLLoss(model.dve)``) are
+    *the same module objects* as the model's ``dve.static_encoder`` / ``dve.general_encoder``: one
+    optimizer over ``joint_parameters(dt_loss, byol_loss)`` trains them with
     ``L = L_BYOL + L_DT`` (eq. 11). Target parameters are buffers, absent from ``parameters()``.
 
     Keys (``set_keys``): ``pixels_static`` uint8 ``[B, 84, 84, 3]`` (o^s), ``pixels_dynamic`` uint8
-    ``[B, 84, 84, 3]`` (o^d). Outputs: ``loss_byol`` and ``loss_byol_<name>`` for each encoder, plus the
-    (detached) ``projection_std_<name>``: std of the normalised online projections over the batch
-    (averaged over dims), a collapse monitor (-> 0 on collapse, about 1/sqrt(d_proj) when healthy).
+    ``[B, 84, 84, 3]`` (o^d). Outputs (scalars, ``out_keys``; ``select_out_keys`` / ``reset_out_keys`` work):
+
+    - ``loss_byol``: L_BYOL (eq. 8), the only entry carrying gradients and the only one starting with
+      ``loss``, so TorchRL's convention of summing the ``loss*`` entries optimises eq. 8 once;
+    - ``byol_<name>`` for each encoder: L_e, detached (its share of ``loss_byol``, for logging);
+    - ``projection_std_<name>``, detached: std of the normalised online projections over the batch
+      (averaged over dims), a collapse monitor (-> 0 on collapse, about 1/sqrt(d_proj) when healthy).
+
+    ``reset_parameters_recursive()`` re-draws the online encoders, projectors and predictors (the encoders
+    are the model's own, as with any TorchRL loss sharing its networks) and restarts the target as a copy
+    of the online encoders and projectors.
 
     Args:
-        static_encoder / general_encoder: the encoders (None to skip one; at least one is needed).
+        static_encoder / general_encoder: the encoders (None to skip one; at least one is needed), or a
+            ``DualVisualEncoder`` alone as first argument (its f_s and f_g).
         projection_dim / hidden_dim: MLP sizes (defaults 128 / 512, see ``docs/model.md``).
         augmentation: a ``BYOLAugmentation`` (default: a new one seeded with ``seed``).
         autocast_dtype: ``"bfloat16"`` / ``"float16"`` / None - autocast around the encoders and MLPs.
@@ -134,8 +145,8 @@ class BYOLLoss(LossModule):
 
     def __init__(
         self,
-        static_encoder: ImageEncoder | None,
-        general_encoder: ImageEncoder | None,
+        static_encoder: ImageEncoder | DualVisualEncoder | None,
+        general_encoder: ImageEncoder | None = None,
         *,
         projection_dim: int = 128,
         hidden_dim: int = 512,
@@ -144,6 +155,12 @@ class BYOLLoss(LossModule):
         autocast_dtype: str | None = None,
     ) -> None:
         super().__init__()
+        if isinstance(static_encoder, DualVisualEncoder):
+            if general_encoder is not None:
+                raise ValueError(
+                    "BYOLLoss: pass a DualVisualEncoder alone, or static_encoder / general_encoder"
+                )
+            static_encoder, general_encoder = static_encoder.static_encoder, static_encoder.general_encoder
         encoders = {
             name: enc
             for name, enc in (("static", static_encoder), ("general", general_encoder))
@@ -167,6 +184,11 @@ class BYOLLoss(LossModule):
         )
         self.convert_to_functional(online, "online_network", create_target_params=True)
         self.convert_to_functional(predictor, "predictor", create_target_params=False)
+        self._out_keys = [
+            "loss_byol",
+            *(f"byol_{name}" for name in self.encoder_names),
+            *(f"projection_std_{name}" for name in self.encoder_names),
+        ]
         self.augmentation = augmentation if augmentation is not None else BYOLAugmentation(seed=seed)
         self.autocast_dtype = autocast_dtype
 
@@ -190,8 +212,20 @@ class BYOLLoss(LossModule):
 
     @property
     def out_keys(self) -> list[str]:
-        losses = [f"loss_byol_{name}" for name in self.encoder_names]
-        return ["loss_byol", *losses, *(f"projection_std_{name}" for name in self.encoder_names)]
+        return self._out_keys
+
+    @out_keys.setter
+    def out_keys(self, values: list[str]) -> None:
+        self._out_keys = list(values)
+
+    def reset_parameters_recursive(self) -> None:
+        """Re-draw the online networks (each layer's ``reset_parameters``, as TorchRL's losses do) and copy
+        them into the EMA target, the state BYOL starts from."""
+        for name in ("online_network", "predictor"):
+            module = getattr(self, name)
+            with getattr(self, f"{name}_params").to_module(module, preserve_module_state=False):
+                self._reset_parameters(module)
+        self.target_online_network_params.data.update_(self.online_network_params.data)
 
     def make_views(self, tensordict: TensorDictBase) -> dict[str, tuple[Tensor, Tensor]]:
         """The two augmented views (``[B, 3, H, W]``, in the autocast dtype if any) of each encoder.
@@ -217,7 +251,7 @@ class BYOLLoss(LossModule):
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Compute ``loss_byol`` (eq. 8) on a batch of image pairs."""
+        """Compute ``loss_byol`` (eq. 8) and the detached per-encoder terms on a batch of image pairs."""
         views = self.make_views(tensordict)
         device_type = next(iter(views.values()))[0].device.type
         autocast = (
@@ -245,7 +279,7 @@ class BYOLLoss(LossModule):
                 pred_a, pred_b = prediction.chunk(2)
                 target_a, target_b = target.chunk(2)
                 loss = (normalized_mse(pred_a, target_b) + normalized_mse(pred_b, target_a)).mean()
-                out[f"loss_byol_{name}"] = loss
+                out[f"byol_{name}"] = loss.detach()
                 out[f"projection_std_{name}"] = F.normalize(projection.detach().float(), dim=-1).std(0).mean()
                 total = loss if total is None else total + loss
         out["loss_byol"] = total

@@ -1,4 +1,5 @@
-"""BYOLLoss (eqs. 6-8): loss values, EMA target, tau schedule, shared encoders, augmentations."""
+"""BYOLLoss (eqs. 6-8): loss values, EMA target, tau schedule, shared encoders, augmentations, and TorchRL's loss
+contract (``TestBYOLLoss``)."""
 
 import math
 
@@ -10,9 +11,9 @@ from torchrl.objectives import SoftUpdate
 from navformer_rl.augment import BYOLAugmentation
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import (
+    ActionMSELoss,
     BYOLLoss,
     BYOLTauSchedule,
-    NavFormerLoss,
     byol_tau,
     joint_parameters,
     normalized_mse,
@@ -81,10 +82,10 @@ def test_loss_value_equals_the_symmetric_normalised_mse_of_its_branches():
         p_a, p_b = prediction.chunk(2)
         t_a, t_b = target.chunk(2)
         expected = (normalized_mse(p_a, t_b) + normalized_mse(p_b, t_a)).mean()
-        torch.testing.assert_close(out[f"loss_byol_{name}"], expected, rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(out[f"byol_{name}"], expected, rtol=1e-5, atol=1e-6)
         total = total + expected
     torch.testing.assert_close(out["loss_byol"], total, rtol=1e-5, atol=1e-6)
-    assert 0 <= out["loss_byol_static"] <= 8 and out["projection_std_general"] > 0
+    assert 0 <= out["byol_static"] <= 8 and out["projection_std_general"] > 0
 
 
 def test_target_gets_no_gradient_and_is_not_a_parameter():
@@ -124,7 +125,7 @@ def test_encoders_are_shared_with_the_model_and_one_step_trains_both_losses(td_f
     model, byol = make_byol()
     assert byol.online_network["static"].encoder is model.static_encoder
     assert byol.online_network["general"].encoder is model.general_encoder
-    dt = NavFormerLoss(make_navformer_actor(model))
+    dt = ActionMSELoss(make_navformer_actor(model))
     params = joint_parameters(dt, byol)
     assert len({id(p) for p in params}) == len(params)
     assert {id(p) for p in model.parameters()} <= {id(p) for p in params}
@@ -146,8 +147,8 @@ def test_single_encoder_byol_and_bad_arguments():
     model = NavFormerModel(NavFormerConfig.dt_baseline())
     loss = BYOLLoss(None, model.general_encoder)
     out = loss(TensorDict({"pixels_dynamic": pairs()["pixels_dynamic"]}, batch_size=[8]))
-    assert set(out.keys()) == {"loss_byol", "loss_byol_general", "projection_std_general"}
-    torch.testing.assert_close(out["loss_byol"], out["loss_byol_general"])
+    assert set(out.keys()) == {"loss_byol", "byol_general", "projection_std_general"}
+    torch.testing.assert_close(out["loss_byol"], out["byol_general"])
     with pytest.raises(ValueError, match="at least one"):
         BYOLLoss(None, None)
 
@@ -263,3 +264,123 @@ def test_train_and_eval_reach_the_heads_batchnorm():
     assert loss.eval() is loss and not any(m.training for m in norms)
     loss.train()
     assert all(m.training for m in norms)
+
+
+class TestBYOLLoss:
+    """TorchRL's loss contract, as TorchRL's own loss tests check it (``test/test_cost.py``)."""
+
+    @staticmethod
+    def make(seed: int = 0, augmentation_seed: int = 0) -> tuple[NavFormerModel, BYOLLoss]:
+        torch.manual_seed(seed)
+        model = NavFormerModel(NavFormerConfig(dropout=0.0))
+        return model, BYOLLoss(model.static_encoder, model.general_encoder, seed=augmentation_seed)
+
+    def test_input_tensordict_is_left_unchanged(self):
+        _, loss = self.make()
+        batch = pairs(4)
+        before = batch.clone()
+        loss(batch)
+        assert set(batch.keys(True, True)) == set(before.keys(True, True))
+        assert (batch == before).all()
+
+    def test_state_dict_round_trip(self):
+        _, loss = self.make(seed=0)
+        _, other = self.make(seed=1)  # other parameters, the same augmentation seed
+        state = loss.state_dict()
+        assert any(key.startswith("target_online_network_params.") for key in state)  # the EMA target too
+        other.load_state_dict(state)
+        for key, value in other.state_dict().items():
+            torch.testing.assert_close(value, state[key], rtol=0, atol=0)
+        expected, got = loss(pairs(4)), other(pairs(4))
+        for key in loss.out_keys:
+            torch.testing.assert_close(got[key], expected[key], rtol=0, atol=0)
+
+    def test_set_keys_renames_the_inputs_end_to_end(self):
+        _, loss = self.make()
+        assert loss.tensor_keys.pixels_static == "pixels_static"
+        assert loss.tensor_keys.pixels_dynamic == "pixels_dynamic"
+        batch = pairs(4)
+        expected = loss(batch)["loss_byol"]
+        _, renamed = self.make()
+        renamed.set_keys(pixels_static=("pair", "static"), pixels_dynamic="dynamic")
+        assert set(renamed.in_keys) == {("pair", "static"), "dynamic"}
+        moved = TensorDict(
+            {("pair", "static"): batch["pixels_static"], "dynamic": batch["pixels_dynamic"]}, batch_size=[4]
+        )
+        torch.testing.assert_close(renamed(moved)["loss_byol"], expected, rtol=0, atol=0)
+        with pytest.raises(ValueError, match="not an accepted tensordict key"):
+            renamed.set_keys(pixels="pixels")
+
+    def test_select_and_reset_out_keys(self):
+        _, loss = self.make()
+        every_key = [
+            "loss_byol",
+            "byol_static",
+            "byol_general",
+            "projection_std_static",
+            "projection_std_general",
+        ]
+        assert loss.out_keys == every_key
+        loss.select_out_keys("loss_byol", "byol_static")
+        assert loss.out_keys == ["loss_byol", "byol_static"]
+        assert set(loss(pairs(4)).keys()) == {"loss_byol", "byol_static"}
+        loss.reset_out_keys()
+        assert loss.out_keys == every_key and set(loss(pairs(4)).keys()) == set(every_key)
+        with pytest.raises(ValueError, match="non existent key"):
+            loss.select_out_keys("loss_byol_static")
+
+    def test_reset_parameters_recursive_redraws_online_and_restarts_the_target(self):
+        model, loss = self.make()
+        updater = SoftUpdate(loss, eps=0.5)
+        optimizer = torch.optim.SGD(loss.parameters(), lr=1.0)
+        loss(pairs(4))["loss_byol"].backward()
+        optimizer.step()
+        updater.step()  # the target now differs from the online networks
+        online, target = loss.online_network_params, loss.target_online_network_params
+        weight = ("static", "encoder", "linear", "weight")
+        assert not torch.equal(target[weight], online[weight].data)
+        shared = model.static_encoder.linear.weight
+        before = {
+            "encoder": shared.detach().clone(),
+            "projector": online["general", "projector", "0", "weight"].detach().clone(),
+            "predictor": loss.predictor_params["static", "0", "weight"].detach().clone(),
+        }
+        loss.reset_parameters_recursive()
+        assert model.static_encoder.linear.weight is shared  # the model's own parameter, re-drawn in place
+        after = {
+            "encoder": shared.detach(),
+            "projector": online["general", "projector", "0", "weight"].detach(),
+            "predictor": loss.predictor_params["static", "0", "weight"].detach(),
+        }
+        for name, value in after.items():
+            assert not torch.equal(value, before[name]), name
+        assert (target == online.data).all()  # the EMA target restarts as a copy of the online branch
+        assert torch.isfinite(loss(pairs(4))["loss_byol"])
+
+    def test_sum_of_loss_entries_is_eq_8(self):
+        _, loss = self.make()
+        out = loss(pairs(4))
+        loss_keys = [key for key in out.keys() if key.startswith("loss")]
+        assert loss_keys == ["loss_byol"]  # the per-encoder terms are reported, not summed again
+        total = sum(out[key] for key in loss_keys)
+        torch.testing.assert_close(total, out["byol_static"] + out["byol_general"], rtol=1e-6, atol=1e-7)
+
+    def test_gradients_only_through_the_loss_entry_and_the_online_branch(self):
+        _, loss = self.make()
+        out = loss(pairs(4))
+        assert out["loss_byol"].requires_grad
+        assert not any(out[key].requires_grad for key in out.keys() if not key.startswith("loss"))
+        out["loss_byol"].backward()
+        assert all(t.grad is None for t in loss.target_online_network_params.values(True, True))
+        for params in (loss.online_network_params, loss.predictor_params):
+            for name in ("static", "general"):
+                grads = [p.grad for p in params[name].values(True, True) if isinstance(p, torch.nn.Parameter)]
+                assert grads and all(g is not None for g in grads), name
+
+    def test_torchrl_sum_of_both_losses_is_eq_11(self, td_factory):
+        model, byol = self.make()
+        dt = ActionMSELoss(make_navformer_actor(model))
+        outputs = [dt(td_factory(2, 3)), byol(pairs(4))]
+        # what a TorchRL trainer optimises: every entry whose name starts with "loss"
+        total = sum(value for out in outputs for key, value in out.items() if key.startswith("loss"))
+        torch.testing.assert_close(total, outputs[0]["loss_dt"] + outputs[1]["loss_byol"], rtol=0, atol=0)

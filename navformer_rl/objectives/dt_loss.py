@@ -1,4 +1,4 @@
-"""``NavFormerLoss``: the Decision-Transformer action loss of NavFormer (paper eq. 10)."""
+"""``ActionMSELoss``: L_DT, the masked action MSE that trains NavFormer (paper eq. 10)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
 
-class NavFormerLoss(LossModule):
-    """Masked action MSE over the valid steps of a trajectory batch (eq. 10).
+class ActionMSELoss(LossModule):
+    """L_DT (eq. 10): masked action MSE over the valid steps of a trajectory batch.
 
     ``loss_dt = sum_{n,t valid} || a_{n,t} - a-hat_{n,t} ||^2 / #valid`` - the squared error is summed over
     the action dimensions (eq. 10's squared norm) and averaged over every valid step of the batch.
@@ -22,7 +22,10 @@ class NavFormerLoss(LossModule):
     Keys (``set_keys``): ``action_target`` (default ``"action"``, float ``[N, T, A]``), ``action_pred``
     (default ``"action_pred"``, written by the actor), ``mask`` (default ``"mask"``, bool ``[N, T]``;
     a tensordict without it counts every step as valid, unless it holds TorchRL's ``("collector", "mask")``,
-    which is refused with a ``KeyError`` rather than ignored). Output: ``TensorDict(loss_dt=scalar)``.
+    which is refused with a ``KeyError`` rather than ignored). Output (``out_keys``): ``loss_dt``, the scalar
+    L_DT, its only entry (``select_out_keys`` / ``reset_out_keys`` work as on TorchRL's losses). The input
+    tensordict is left unchanged: the actor runs on a shallow copy.
+    ``reset_parameters_recursive()`` re-draws the actor's parameters (each layer's ``reset_parameters``).
 
     Args:
         actor_network: a ``TensorDictModule`` writing ``action_pred`` (``make_navformer_actor(model)``).
@@ -51,6 +54,7 @@ class NavFormerLoss(LossModule):
     def __init__(self, actor_network: TensorDictModule) -> None:
         super().__init__()
         self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
+        self._out_keys = ["loss_dt"]
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass
@@ -62,7 +66,11 @@ class NavFormerLoss(LossModule):
 
     @property
     def out_keys(self) -> list[str]:
-        return ["loss_dt"]
+        return self._out_keys
+
+    @out_keys.setter
+    def out_keys(self, values: list[str]) -> None:
+        self._out_keys = list(values)
 
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -71,10 +79,10 @@ class NavFormerLoss(LossModule):
         keys = self.tensor_keys
         present = set(tensordict.keys(include_nested=True))
         if keys.action_target not in present:
-            raise KeyError(f"NavFormerLoss: the batch has no {keys.action_target!r} (action_target key)")
+            raise KeyError(f"ActionMSELoss: the batch has no {keys.action_target!r} (action_target key)")
         if keys.mask not in present and ("collector", "mask") in present:
             raise KeyError(
-                f"NavFormerLoss: the batch has ('collector', 'mask') but no {keys.mask!r}; padded steps would "
+                f"ActionMSELoss: the batch has ('collector', 'mask') but no {keys.mask!r}; padded steps would "
                 "count as valid. Use loss.set_keys(mask=('collector', 'mask')) or copy the mask to that key"
             )
         target = tensordict.get(keys.action_target).detach()
@@ -82,7 +90,7 @@ class NavFormerLoss(LossModule):
             prediction = self.actor_network(tensordict).get(keys.action_pred, None)
         if prediction is None:
             raise KeyError(
-                f"NavFormerLoss: the actor did not write {keys.action_pred!r} (action_pred key); its out_keys "
+                f"ActionMSELoss: the actor did not write {keys.action_pred!r} (action_pred key); its out_keys "
                 f"are {self.actor_network.out_keys}"
             )
         if prediction.shape != target.shape:
@@ -97,7 +105,7 @@ class NavFormerLoss(LossModule):
 def masked_action_mse(
     prediction: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None
 ) -> torch.Tensor:
-    """Eq. 10 on tensors: ``[N, T, A] x [N, T, A] x bool [N, T] -> scalar`` (see ``NavFormerLoss``)."""
+    """Eq. 10 on tensors: ``[N, T, A] x [N, T, A] x bool [N, T] -> scalar`` (see ``ActionMSELoss``)."""
     squared_error = (prediction.float() - target.float()).pow(2).sum(-1)
     if mask is None:
         return squared_error.mean()

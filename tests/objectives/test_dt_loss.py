@@ -1,0 +1,165 @@
+"""ActionMSELoss (L_DT, eq. 10): hand-computed values, masking, keys, composition with the actor, and TorchRL's
+loss contract (``TestActionMSELoss``)."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+from torch import nn
+
+from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
+from navformer_rl.objectives import ActionMSELoss, masked_action_mse
+
+
+class FixedPrediction(nn.Module):
+    """Returns a fixed prediction tensor (plus 0 * a parameter so gradients exist)."""
+
+    def __init__(self, prediction):
+        super().__init__()
+        self.prediction = prediction
+        self.scale = nn.Parameter(torch.ones(()))
+
+    def forward(self, action):
+        return self.prediction * self.scale
+
+
+def fixed_loss(prediction):
+    actor = TensorDictModule(FixedPrediction(prediction), in_keys=["action"], out_keys=["action_pred"])
+    return ActionMSELoss(actor)
+
+
+def test_loss_on_hand_computed_values():
+    target = torch.tensor([[[1.0, 0.0], [0.0, 0.0], [0.5, 0.5]]])  # [1, 3, 2]
+    prediction = torch.tensor([[[0.0, 0.0], [0.0, 1.0], [9.0, 9.0]]])
+    mask = torch.tensor([[True, True, False]])
+    td = TensorDict({"action": target, "mask": mask}, batch_size=[1, 3])
+    # valid steps: ||(1,0)-(0,0)||^2 = 1 and ||(0,0)-(0,1)||^2 = 1 -> mean 1; the padded step is ignored
+    assert fixed_loss(prediction)(td)["loss_dt"].item() == pytest.approx(1.0)
+    td_all = TensorDict({"action": target}, batch_size=[1, 3])  # no mask key: every step counts
+    expected = (1 + 1 + (8.5**2) * 2) / 3
+    assert fixed_loss(prediction)(td_all)["loss_dt"].item() == pytest.approx(expected)
+
+
+def test_set_keys_renames_inputs_and_rejects_unknown_names():
+    target = torch.tensor([[[0.2, -0.2]]])
+    prediction = torch.tensor([[[0.0, 0.0]]])
+    loss = fixed_loss(prediction)
+    loss.set_keys(action_target=("expert", "action"), mask="valid")
+    td = TensorDict(
+        {"action": target, ("expert", "action"): target, "valid": torch.ones(1, 1, dtype=torch.bool)}, [1, 1]
+    )
+    assert loss(td)["loss_dt"].item() == pytest.approx(0.08)
+    with pytest.raises(ValueError, match="not an accepted tensordict key"):
+        loss.set_keys(foo="bar")
+
+
+def test_loss_with_the_navformer_actor_ignores_padding_and_backpropagates(td_factory):
+    torch.manual_seed(0)
+    model = NavFormerModel(NavFormerConfig(dropout=0.0))
+    loss_module = ActionMSELoss(make_navformer_actor(model))
+    td = td_factory(2, 4)
+    td["mask"][1, 2:] = False
+    loss = loss_module(td)["loss_dt"]
+    junk = td.clone()
+    junk["action"][1, 2:] = 5.0
+    junk["pixels"][1, 2:] = 0
+    torch.testing.assert_close(loss_module(junk)["loss_dt"], loss, rtol=0, atol=1e-7)
+    loss.backward()
+    assert model.head.weight.grad is not None and model.static_encoder.linear.weight.grad.abs().sum() > 0
+    assert "action_pred" not in td.keys()  # the loss works on a shallow copy
+    assert set(loss_module.in_keys) >= {"action", "mask", "pixels", "target_pixels"}
+
+
+class TestActionMSELoss:
+    """TorchRL's loss contract, as TorchRL's own loss tests check it (``test/test_cost.py``)."""
+
+    @staticmethod
+    def make(seed: int = 0, **config) -> tuple[NavFormerModel, ActionMSELoss]:
+        torch.manual_seed(seed)
+        model = NavFormerModel(NavFormerConfig(dropout=0.0, **config))  # deterministic forward passes
+        return model, ActionMSELoss(make_navformer_actor(model))
+
+    @staticmethod
+    def batch(td_factory) -> TensorDict:
+        td = td_factory(2, 3, seed=1)
+        td["mask"][1, 1:] = False
+        return td
+
+    def test_input_tensordict_is_left_unchanged(self, td_factory):
+        _, loss = self.make()
+        td = self.batch(td_factory)
+        before = td.clone()
+        loss(td)
+        assert set(td.keys(True, True)) == set(before.keys(True, True))
+        assert (td == before).all()
+
+    def test_state_dict_round_trip(self, td_factory):
+        _, loss = self.make(seed=0)
+        _, other = self.make(seed=1)
+        td = self.batch(td_factory)
+        assert not torch.equal(other(td)["loss_dt"], loss(td)["loss_dt"])
+        other.load_state_dict(loss.state_dict())
+        torch.testing.assert_close(other(td)["loss_dt"], loss(td)["loss_dt"], rtol=0, atol=0)
+
+    def test_set_keys_renames_every_key_end_to_end(self, td_factory):
+        model, loss = self.make()
+        assert loss.tensor_keys.action_target == "action"
+        assert loss.tensor_keys.action_pred == "action_pred"
+        assert loss.tensor_keys.mask == "mask"
+        td = self.batch(td_factory)
+        prediction = make_navformer_actor(model)(td.copy())["action_pred"].detach()
+        renamed = ActionMSELoss(make_navformer_actor(model, out_keys=("my_pred",)))
+        renamed.set_keys(action_target=("expert", "action"), action_pred="my_pred", mask="valid")
+        assert {("expert", "action"), "valid"} <= set(renamed.in_keys)
+        target = torch.zeros_like(td["action"])  # differs from the actor's input actions
+        valid = torch.tensor([[True, False, True], [False, True, True]])
+        td[("expert", "action")], td["valid"] = target, valid
+        expected = masked_action_mse(prediction, target, valid)
+        torch.testing.assert_close(renamed(td)["loss_dt"], expected, rtol=1e-6, atol=1e-7)
+        renamed.set_keys(mask=None)  # None restores the default key
+        assert renamed.tensor_keys.mask == "mask"
+
+    def test_select_and_reset_out_keys(self, td_factory):
+        _, loss = self.make()
+        td = self.batch(td_factory)
+        assert loss.out_keys == ["loss_dt"]
+        loss.select_out_keys("loss_dt")
+        assert loss.out_keys == ["loss_dt"] and list(loss(td).keys()) == ["loss_dt"]
+        loss.reset_out_keys()
+        assert loss.out_keys == ["loss_dt"]
+        with pytest.raises(ValueError, match="non existent key"):
+            loss.select_out_keys("loss_byol")
+
+    def test_reset_parameters_recursive_redraws_the_shared_model(self, td_factory):
+        model, loss = self.make()
+        parameters = list(model.parameters())
+        layers = [m for m in model.modules() if isinstance(m, (nn.Linear, nn.Conv2d, nn.Embedding))]
+        before = [layer.weight.detach().clone() for layer in layers]
+        loss.reset_parameters_recursive()
+        assert all(a is b for a, b in zip(model.parameters(), parameters, strict=True))  # redrawn in place
+        assert layers and all(
+            not torch.equal(layer.weight, w) for layer, w in zip(layers, before, strict=True)
+        )
+        assert torch.isfinite(loss(self.batch(td_factory))["loss_dt"])
+
+    def test_sum_of_loss_entries_is_eq_10(self, td_factory):
+        model, loss = self.make()
+        td = self.batch(td_factory)
+        out = loss(td)
+        prediction = make_navformer_actor(model)(td.copy())["action_pred"]
+        squared = (prediction - td["action"]).pow(2).sum(-1)  # ||a - a-hat||^2 over the action dims
+        eq_10 = squared[td["mask"]].mean()  # averaged over the valid steps
+        total = sum(value for key, value in out.items() if key.startswith("loss"))
+        torch.testing.assert_close(total, eq_10, rtol=1e-6, atol=1e-7)
+
+    @pytest.mark.parametrize("detach_encoders", [False, True])
+    def test_gradients_reach_the_encoders_only_when_they_train_with_l_dt(self, td_factory, detach_encoders):
+        model, loss = self.make(detach_encoders=detach_encoders)
+        loss(self.batch(td_factory))["loss_dt"].backward()
+        assert model.head.weight.grad is not None and model.head.weight.grad.abs().sum() > 0
+        for encoder in (model.static_encoder, model.general_encoder):
+            grads = [p.grad for p in encoder.parameters()]
+            if detach_encoders:  # frozen-encoder mode: L_DT trains the transformer and head only
+                assert all(g is None for g in grads)
+            else:
+                assert any(g is not None and g.abs().sum() > 0 for g in grads)
