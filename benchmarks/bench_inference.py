@@ -33,7 +33,7 @@ import time
 import torch
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
-from navformer_rl.modules.models.native import native_status
+from navformer_rl.modules.decoding.native import native_status
 
 
 def timed(fn, repeats: int) -> float:
@@ -61,15 +61,16 @@ def recompute_step(
     """Decide the action at step ``steps - 1`` by running the transformer over the whole context
     (the new frame is encoded exactly as the KV step encodes it)."""
     model = decoder.model
-    tps = model.config.tokens_per_step
+    tps, embedding = model.config.tokens_per_step, model.transformer.tokens
     obs = torch.cat([cached["obs"][:, : steps - 1], decoder.encode_observations(pixels)[:, None]], dim=1)
-    tokens = model.step_tokens(
-        obs, cached["rtg"][:, :steps], cached["action"][:, :steps], cached["step"][:, :steps]
+    tokens = embedding.step_tokens(
+        list(obs.unbind(2)), cached["rtg"][:, :steps], cached["action"][:, :steps], cached["step"][:, :steps]
     )
     batch = tokens.shape[0]
     sequence = torch.cat([cached["target"][:, None], tokens.reshape(batch, steps * tps, -1)[:, :-1]], dim=1)
-    hidden, _ = model.transformer(model.prepare_tokens(sequence))
-    return model.predict_action(hidden[:, 0], hidden[:, -1:])[:, 0]
+    hidden, _ = model.transformer.gpt(embedding.prepare(sequence))
+    named = {"target": hidden[:, :1], "observation": hidden[:, -1:]}
+    return model.head(*(named[name] for name in model.head.reads))[:, 0]
 
 
 def main() -> None:
@@ -116,8 +117,8 @@ def main() -> None:
             frames = random_frames(batch, 8, seed=batch).to(device)  # cycle 8 frames: content is irrelevant
             target = random_frames(batch, seed=99).to(device)
             cached = {
-                "target": model.target_token(model.encode_target(target)),
-                "obs": model.encode_observations(frames)[:, torch.arange(length) % 8],
+                "target": model.transformer.tokens.target_token(model.dve.encode_target(target)),
+                "obs": model.dve.encode_observations(frames)[:, torch.arange(length) % 8],
                 "rtg": torch.ones(batch, length, 1, device=device),
                 "action": torch.rand(batch, length, 2, device=device) * 2 - 1,
                 "step": torch.arange(length, device=device).clamp(max=511).expand(batch, -1),

@@ -24,6 +24,7 @@ steps in contact, and at the end the replay buffer's size and a sampled batch's 
 from __future__ import annotations
 
 import argparse
+import logging
 
 import torch
 from torchrl.collectors import Collector
@@ -68,6 +69,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--frames-per-batch", type=int, default=40, help="env steps per batch (default 40)")
     args = parser.parse_args(argv)
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # no INFO lines ("Initialized LazyTensorStorage")
 
     env = TransformedEnv(
         SerialEnv(

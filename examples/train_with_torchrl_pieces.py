@@ -1,8 +1,8 @@
 """Train NavFormer with our TorchRL pieces in your own loop (no recipe, no CLI).
 
 Builds tiny synthetic datasets in the real on-disk format (swap in folders from ``navformer collect``), then
-wires the pieces by hand: trajectory batchers alternating D_e / D_ca (``CrossTaskSampler``), the model as a
-``TensorDictModule`` (``make_navformer_actor``), the DT loss (eq. 10, ``NavFormerLoss``), BYOL on D_ssl
+wires the pieces by hand: trajectory batchers alternating D_e / D_ca (``CrossTaskSampler``), the model's DVE,
+causal transformer and head as TensorDict modules (``make_navformer_actor``), the DT loss (eq. 10, ``ActionMSELoss``), BYOL on D_ssl
 (eqs. 6-8, ``BYOLLoss`` + TorchRL ``SoftUpdate``), summed as in eq. 11. Then scores the model on held-out
 trajectories (eq. 10 in eval mode on fixed windows: ``FixedTrajectoryBatches`` + ``teacher_forced_loss``).
 
@@ -21,7 +21,7 @@ from torchrl.objectives import SoftUpdate
 from navformer_rl.data import CrossTaskSampler, open_dataset
 from navformer_rl.data.synthetic import make_synthetic_dataset
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
-from navformer_rl.objectives import BYOLLoss, BYOLTauSchedule, NavFormerLoss
+from navformer_rl.objectives import ActionMSELoss, BYOLLoss, BYOLTauSchedule
 from navformer_rl.validation import FixedTrajectoryBatches, evaluation_mode, teacher_forced_loss
 
 
@@ -55,8 +55,8 @@ def train(root: Path, iterations: int) -> None:
     pairs = ssl.pair_batcher(32, seed=3)
 
     model = NavFormerModel(NavFormerConfig())
-    dt_loss = NavFormerLoss(make_navformer_actor(model))  # reads pixels, target_pixels, return_to_go, ...
-    byol_loss = BYOLLoss(model.static_encoder, model.general_encoder, seed=4)  # the same encoder modules
+    dt_loss = ActionMSELoss(make_navformer_actor(model))  # reads pixels, target_pixels, return_to_go, ...
+    byol_loss = BYOLLoss(model.dve, seed=4)  # the DVE's own encoder modules
     updater = SoftUpdate(byol_loss, eps=0.996)
     tau = BYOLTauSchedule(updater, iterations, 0.996)
     model_ids = {id(p) for p in model.parameters()}

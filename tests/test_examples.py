@@ -29,6 +29,42 @@ def test_training_example_runs_and_alternates_tasks():
     assert held_out[:3] == ["held-out", "D_e", "L_DT"] and float(held_out[3]) > 0
 
 
+def test_swap_the_head_example_trains_and_decodes_with_its_own_head():
+    out = run("examples/swap_the_head.py", "--iterations", "3")
+    assert out.returncode == 0, out.stderr
+    assert (
+        "module=MLPHead(" in out.stdout
+        and "in_keys=[('hidden', 'target'), ('hidden', 'observation')" in out.stdout
+    )
+    losses = [float(line.split()[-1]) for line in out.stdout.splitlines() if "L_DT" in line]
+    assert len(losses) == 3 and losses[-1] < losses[0]
+    decoded = [line for line in out.stdout.splitlines() if line.startswith("decoded step")]
+    assert len(decoded) == 3
+
+
+def test_pretrain_dve_example_feeds_a_frozen_dve_to_a_torchrl_actor():
+    out = run("examples/pretrain_dve_with_byol.py", "--iterations", "2")
+    assert out.returncode == 0, out.stderr
+    losses = [float(line.split()[-1]) for line in out.stdout.splitlines() if "L_BYOL" in line]
+    assert len(losses) == 2 and all(0 < loss < 16 for loss in losses)  # two encoders' terms, each in [0, 8]
+    assert "action (3, 2), log-prob (3,)" in out.stdout
+    trainable = int(out.stdout.split("trainable parameters after the frozen DVE: ")[1].split()[0])
+    assert 0 < trainable < 100_000  # the MLP only: the DVE alone holds 414,272
+
+
+@pytest.mark.parametrize(
+    ("ablation", "parts"),
+    [("navformer", ["DualVisualEncoder", "CausalTransformer", "THSCHead"]), ("dt", ["ObservationHead"])],
+)
+def test_module_tree_example_prints_every_part_with_its_keys(ablation, parts):
+    out = run("examples/print_module_tree.py", "--ablation", ablation)
+    assert out.returncode == 0, out.stderr
+    for part in parts:
+        assert f"  {part}  (" in out.stdout
+    assert out.stdout.count("reads:") == 3 and "writes: action_pred" in out.stdout
+    assert ("('embed', 'static')" in out.stdout) == (ablation == "navformer")
+
+
 def test_custom_policy_example_is_evaluated(tmp_path):
     out = run(
         "examples/custom_policy_evaluation.py", "--out", str(tmp_path), "--trials", "1", "--max-steps", "20"

@@ -1,27 +1,126 @@
-"""TensorDict wrappers of ``NavFormerModel`` for training (teacher-forced trajectories)."""
+"""TensorDict modules of NavFormer's parts and their composition, the training actor (teacher forcing).
+
+Each part is a ``TensorDictModule`` around the plain ``nn.Module`` of ``navformer_rl.modules.models``;
+keys are renamed through ``in_keys`` / ``out_keys``. The defaults chain into ``make_navformer_actor``::
+
+    dve_module          pixels, target_pixels, mask -> ("embed", "static"), ("embed", "general"),
+                                                       ("embed", "target")
+    transformer_module  ("embed", "target"), ("embed", "static"), ("embed", "general"), return_to_go,
+                        action, step, mask -> ("hidden", "target"), ("hidden", "observation"),
+                                              ("hidden", "tokens")
+    head_module         ("hidden", "target"), ("hidden", "observation"), mask -> action_pred
+
+(an ablation with one encoder has one ``("embed", name)`` key; ``ObservationHead`` reads no
+``("hidden", "target")``).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from tensordict.utils import NestedKey
 
+from navformer_rl.modules.models.dve import DualVisualEncoder
 from navformer_rl.modules.models.navformer import NavFormerModel
+from navformer_rl.modules.models.thsc import ActionHead
+from navformer_rl.modules.models.transformer import HIDDEN_NAMES, CausalTransformer
 
 NAVFORMER_IN_KEYS: tuple[str, ...] = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
-"""Default in_keys, in the order of ``NavFormerModel.forward``'s arguments."""
+"""Default in_keys of ``make_navformer_actor``, in the order of ``NavFormerModel.forward``'s arguments."""
 NAVFORMER_OUT_KEYS: tuple[str, ...] = ("action_pred",)
+EMBED_KEY = "embed"
+"""Parent key of the DVE's outputs: ``("embed", "static")``, ``("embed", "general")``, ``("embed", "target")``."""
+HIDDEN_KEY = "hidden"
+"""Parent key of the causal transformer's outputs: ``("hidden", name)`` for name in ``HIDDEN_NAMES``."""
+
+
+def _checked(keys: Sequence[NestedKey] | None, default: list[NestedKey], what: str) -> list[NestedKey]:
+    if keys is None:
+        return default
+    if len(keys) != len(default):
+        raise ValueError(f"{what}={list(keys)!r}: expected {len(default)} keys, in the order of {default}")
+    return list(keys)
+
+
+def dve_module(
+    dve: DualVisualEncoder,
+    in_keys: Sequence[NestedKey] | None = None,
+    out_keys: Sequence[NestedKey] | None = None,
+) -> TensorDictModule:
+    """``dve`` as a ``TensorDictModule``.
+
+    in_keys (default ``["pixels", "target_pixels", "mask"]``): uint8 frames ``[..., H, W, 3]``, uint8 target
+    images ``[B, H, W, 3]`` (or ``[B, T, H, W, 3]``), optional bool mask (a missing key means all valid).
+    out_keys (default ``[("embed", name) for name in dve.names] + [("embed", "target")]``): e^s / e^ca
+    ``[..., d]`` and e_g.
+    """
+    default_out: list[NestedKey] = [(EMBED_KEY, name) for name in (*dve.names, "target")]
+    return TensorDictModule(
+        dve,
+        in_keys=_checked(in_keys, ["pixels", "target_pixels", "mask"], "in_keys"),
+        out_keys=_checked(out_keys, default_out, "out_keys"),
+    )
+
+
+def transformer_module(
+    transformer: CausalTransformer,
+    in_keys: Sequence[NestedKey] | None = None,
+    out_keys: Sequence[NestedKey] | None = None,
+) -> TensorDictModule:
+    """``transformer`` as a ``TensorDictModule``.
+
+    in_keys (default ``[("embed", "target"), *(("embed", name) for name in observation_names),
+    "return_to_go", "action", "step", "mask"]``): e_g, the observation embeddings ``[B, T, d]``, R-hat
+    ``[B, T, 1]``, actions ``[B, T, A]``, int64 timesteps ``[B, T]``, optional bool mask ``[B, T]``.
+    out_keys (default ``[("hidden", name) for name in HIDDEN_NAMES]``): h_g ``[B, T, d]``, h_o ``[B, T, d]``,
+    the token hidden states ``[B, T, tps, d]`` (see ``CausalTransformer``).
+    """
+    arguments = ["target_embedding", *transformer.observation_names, "return_to_go", "action", "step", "mask"]
+    default_in: list[NestedKey] = [
+        (EMBED_KEY, "target"),
+        *((EMBED_KEY, name) for name in transformer.observation_names),
+        "return_to_go",
+        "action",
+        "step",
+        "mask",
+    ]
+    in_keys = _checked(in_keys, default_in, "in_keys")
+    return TensorDictModule(
+        transformer,
+        in_keys=dict(zip(arguments, in_keys, strict=True)),
+        out_to_in_map=True,
+        out_keys=_checked(out_keys, [(HIDDEN_KEY, name) for name in HIDDEN_NAMES], "out_keys"),
+    )
+
+
+def head_module(
+    head: ActionHead,
+    in_keys: Sequence[NestedKey] | None = None,
+    out_keys: Sequence[NestedKey] | None = None,
+) -> TensorDictModule:
+    """``head`` as a ``TensorDictModule``.
+
+    in_keys (default ``[("hidden", name) for name in head.reads] + ["mask"]``); out_keys (default
+    ``["action_pred"]``): float32 actions ``[B, T, A]`` in [-1, 1], 0 on padded steps.
+    """
+    default_in: list[NestedKey] = [*((HIDDEN_KEY, name) for name in head.reads), "mask"]
+    return TensorDictModule(
+        head,
+        in_keys=_checked(in_keys, default_in, "in_keys"),
+        out_keys=_checked(out_keys, list(NAVFORMER_OUT_KEYS), "out_keys"),
+    )
 
 
 def make_navformer_actor(
     model: NavFormerModel,
     in_keys: Sequence[NestedKey] = NAVFORMER_IN_KEYS,
     out_keys: Sequence[NestedKey] = NAVFORMER_OUT_KEYS,
-) -> TensorDictModule:
-    """Wrap ``model`` as a ``TensorDictModule`` reading a trajectory batch and writing predicted actions.
+) -> TensorDictSequential:
+    """``model``'s parts as ``TensorDictSequential(dve_module, transformer_module, head_module)``.
 
-    Keys (defaults; pass ``in_keys`` in the same order to rename):
+    Reads a trajectory batch and writes predicted actions, plus the parts' ``("embed", ..)`` and
+    ``("hidden", ..)`` keys. Keys (defaults; pass ``in_keys`` in the same order to rename):
 
     ============== ========================================= ==========================================
     key            dtype / shape                             meaning
@@ -36,13 +135,29 @@ def make_navformer_actor(
     ============== ========================================= ==========================================
 
     The tensordict may have batch size ``[N]`` (per-step keys ``[N, T, ...]``, as the data package's
-    ``TrajectoryBatcher`` yields) or ``[N, T]`` with ``target_pixels`` expanded over T. The module
-    composes with ``TensorDictSequential`` and ``NavFormerLoss``.
+    ``TrajectoryBatcher`` yields) or ``[N, T]`` with ``target_pixels`` expanded over T. Swap a part by
+    composing ``dve_module`` / ``transformer_module`` / ``head_module`` (or your own module on the same
+    keys) in a ``TensorDictSequential``; the result works with ``ActionMSELoss``.
     """
-    if len(in_keys) != len(NAVFORMER_IN_KEYS):
-        raise ValueError(
-            f"in_keys={list(in_keys)!r}: expected {len(NAVFORMER_IN_KEYS)} keys in the order {list(NAVFORMER_IN_KEYS)}"
-        )
-    if len(out_keys) != 1:
-        raise ValueError(f"out_keys={list(out_keys)!r}: expected exactly one key (the predicted actions)")
-    return TensorDictModule(model, in_keys=list(in_keys), out_keys=list(out_keys))
+    target_pixels, pixels, return_to_go, action, step, mask = _checked(
+        in_keys, list(NAVFORMER_IN_KEYS), "in_keys"
+    )
+    (action_pred,) = _checked(out_keys, list(NAVFORMER_OUT_KEYS), "out_keys")
+    transformer = model.transformer
+    transformer_in = [
+        (EMBED_KEY, "target"),
+        *((EMBED_KEY, name) for name in transformer.observation_names),
+        return_to_go,
+        action,
+        step,
+        mask,
+    ]
+    return TensorDictSequential(
+        dve_module(model.dve, in_keys=[pixels, target_pixels, mask]),
+        transformer_module(transformer, in_keys=transformer_in),
+        head_module(
+            model.head,
+            in_keys=[*((HIDDEN_KEY, name) for name in model.head.reads), mask],
+            out_keys=[action_pred],
+        ),
+    )

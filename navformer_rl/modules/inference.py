@@ -8,7 +8,7 @@ from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import Tensor
 
-from navformer_rl.modules.models.incremental import IncrementalNavFormer
+from navformer_rl.modules.decoding.incremental import IncrementalNavFormer, use_native_kernel
 from navformer_rl.modules.models.navformer import NavFormerModel
 
 
@@ -85,9 +85,27 @@ class NavFormerPolicy(TensorDictModuleBase):
         self._return_to_go: Tensor | None = None
         self._prev_action: Tensor | None = None
 
+    @classmethod
+    def from_pretrained(cls, name: str, **kwargs) -> NavFormerPolicy:
+        """The policy of the shipped weights ``name`` (``"navformer"``, ``"dt"``, ...; see
+        ``navformer_rl.pretrained.shipped_names()``), its model in eval mode on the CPU; ``kwargs`` go to
+        the constructor. ValueError for an unknown name or a corrupt file, FileNotFoundError for a missing
+        one (docs/pretrained.md)."""
+        from navformer_rl.pretrained import load_pretrained
+
+        model, _ = load_pretrained(name)
+        return cls(model, **kwargs)
+
     @property
     def device(self) -> torch.device:
         return next(self.model.parameters()).device
+
+    def describe(self, device: torch.device | None = None) -> dict[str, str]:
+        """What evaluation records about how this policy decodes on ``device`` (default: its model's):
+        ``{"transformer_step": "native" | "torch"}``, the compiled kernel or the torch path (equal results up
+        to float rounding). Raises ``ValueError`` when ``native=True`` and the kernel cannot run there."""
+        native = use_native_kernel(self.native, self.model, device if device is not None else self.device)
+        return {"transformer_step": "native" if native else "torch"}
 
     def reset(self) -> None:
         """Forget every robot's episode (the next call starts new episodes with a new decoder, whose

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from navformer_rl.modules.models.attention import additive_mask, chunked_dropout_attention
+from navformer_rl.modules.models.ops.attention import additive_mask, chunked_dropout_attention
 
 
 def reference(q, k, v, bias, keep, scale):

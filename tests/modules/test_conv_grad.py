@@ -5,7 +5,7 @@ import torch
 import torch.nn.functional as F
 
 from navformer_rl.modules.models.cnn import ConvEncoder
-from navformer_rl.modules.models.conv_grad import conv2d_matmul_weight_grad, im2col
+from navformer_rl.modules.models.ops.conv_grad import conv2d_matmul_weight_grad, im2col
 
 
 def _randn(*shape: int, seed: int, dtype: torch.dtype = torch.float64) -> torch.Tensor:

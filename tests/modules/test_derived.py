@@ -2,7 +2,7 @@
 
 import torch
 
-from navformer_rl.modules.models.derived import DerivedCache
+from navformer_rl.modules.decoding.derived import DerivedCache
 
 
 def test_rebuilds_only_after_an_in_place_update_or_a_replaced_tensor():

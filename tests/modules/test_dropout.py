@@ -4,9 +4,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from navformer_rl.modules.models import dropout
-from navformer_rl.modules.models.attention import attention_with_dropout
-from navformer_rl.modules.models.dropout import PARALLEL_WORDS, Dropout, fast_dropout, keep_mask
+from navformer_rl.modules.models.ops import dropout
+from navformer_rl.modules.models.ops.attention import attention_with_dropout
+from navformer_rl.modules.models.ops.dropout import PARALLEL_WORDS, Dropout, fast_dropout, keep_mask
 
 
 def test_keep_mask_has_the_requested_rate_and_no_lane_pattern():

@@ -4,12 +4,12 @@ import pytest
 import torch
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
+from navformer_rl.modules.decoding.native import native_status
+from navformer_rl.modules.decoding.step_layers import StepLayers
+from navformer_rl.modules.decoding.transformer_step import TransformerStep
 from navformer_rl.modules.models import sliding_window_mask
-from navformer_rl.modules.models.attention import additive_mask
-from navformer_rl.modules.models.native import native_status
-from navformer_rl.modules.models.step_layers import StepLayers
-from navformer_rl.modules.models.transformer import KVCache
-from navformer_rl.modules.models.transformer_step import TransformerStep
+from navformer_rl.modules.models.gpt import KVCache
+from navformer_rl.modules.models.ops.attention import additive_mask
 
 KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
 NATIVE = [
@@ -158,28 +158,25 @@ def test_step_layers_equal_the_models_layers_and_follow_parameter_updates(thsc):
     t = torch.tensor([0, 1, 7, 12])  # 12 > max_timestep: timesteps clamp
 
     def check():
-        step, prev_step = t.clamp(max=7), (t - 1).clamp(0, 7)
-        first_token = model.action_token(prev_action, prev_step)
-        first_token[first] = model.target_token(target[first])
-        raw = torch.cat(
-            [
-                first_token[:, None],
-                model.return_token(rtg, step)[:, None],
-                model.observation_tokens(obs, step),
-            ],
-            dim=1,
-        )
-        expected = model.prepare_tokens(raw)
+        embedding = model.transformer.tokens
+        observations = list(obs.unbind(1))
+        now = embedding.step_tokens(observations, rtg, prev_action, t.clamp(max=7))  # R_t, e_t.., (a)
+        before = embedding.step_tokens(observations, rtg, prev_action, (t - 1).clamp(0, 7))  # a_{t-1}
+        first_token = before[:, -1]
+        first_token[first] = embedding.target_token(target[first])
+        expected = embedding.prepare(torch.cat([first_token[:, None], now[:, :-1]], dim=1))
         tokens = layers.tokens(prev_action, rtg, obs, t.clamp(max=8), target[first], first)
         torch.testing.assert_close(tokens, expected)
         shared = layers.tokens(prev_action[1:2], rtg[1:2], obs[1:2], 1)  # an int row: the shared path
         torch.testing.assert_close(shared, expected[1:2])
-        expected_action = model.predict_action(hidden_g, hidden_obs[:, None])[:, 0]
+        hidden = {"target": hidden_g[:, None], "observation": hidden_obs[:, None]}
+        expected_action = model.head(*(hidden[name] for name in model.head.reads))[:, 0]
         torch.testing.assert_close(layers.action(hidden_g, hidden_obs), expected_action)
 
     with torch.no_grad():
         check()
-        for param in (model.timestep_embed.weight, model.action_embed.bias, model.head.weight):
+        tokens = model.transformer.tokens
+        for param in (tokens.timestep_embed.weight, tokens.action_embed.bias, model.head.weight):
             param.add_(0.5)  # in-place updates: the tables are rebuilt
             check()
 
@@ -189,7 +186,7 @@ def test_step_layers_equal_the_models_layers_and_follow_parameter_updates(thsc):
 def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(write, layout):
     model = small_context_model()
     config = model.config
-    step = TransformerStep(model.transformer)
+    step = TransformerStep(model.transformer.gpt)
     gen = torch.Generator().manual_seed(4)
     x = torch.randn(2, 4, config.d_embed, generator=gen)
     allowed = torch.rand(2, 1, 4, 9, generator=gen) > 0.3
@@ -206,16 +203,18 @@ def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(w
             for cache in caches:
                 for tensor in cache.keys + cache.values:
                     tensor.copy_(torch.randn(tensor.shape, generator=torch.Generator().manual_seed(5)))
-            expected, _ = model.transformer(x, attn_mask=mask, kv_cache=caches[0], write_index=write_index)
+            expected, _ = model.transformer.gpt(
+                x, attn_mask=mask, kv_cache=caches[0], write_index=write_index
+            )
             torch.testing.assert_close(step(x, mask, caches[1], write_index), expected)
             for got, want in zip(caches[1].keys + caches[1].values, caches[0].keys + caches[0].values):
                 torch.testing.assert_close(got, want)
 
     with torch.no_grad():
         check()
-        model.transformer.blocks[1].mlp[0].weight.mul_(-2.0)  # an in-place update
+        model.transformer.gpt.blocks[1].mlp[0].weight.mul_(-2.0)  # an in-place update
         check()
-        qkv = model.transformer.blocks[0].attn.qkv
+        qkv = model.transformer.gpt.blocks[0].attn.qkv
         qkv.weight.data = torch.randn(qkv.weight.shape, generator=gen)  # a replaced tensor
         check()
 
@@ -223,7 +222,7 @@ def test_transformer_step_equals_the_module_path_and_follows_parameter_updates(w
 def test_transformer_step_buffers_work_in_and_out_of_inference_mode():
     model = small_context_model()
     config = model.config
-    step = TransformerStep(model.transformer)
+    step = TransformerStep(model.transformer.gpt)
     x = torch.randn(1, 4, config.d_embed, generator=torch.Generator().manual_seed(7))
     mask = torch.ones(1, 1, 4, 6, dtype=torch.bool).tril(diagonal=2)
     outputs = []
@@ -237,9 +236,9 @@ def test_transformer_step_buffers_work_in_and_out_of_inference_mode():
 
 def test_transformer_step_rejects_an_unknown_block_structure():
     model = small_context_model()
-    model.transformer.blocks[0].mlp[1] = torch.nn.ReLU()
+    model.transformer.gpt.blocks[0].mlp[1] = torch.nn.ReLU()
     with pytest.raises(ValueError, match="GELU"):
-        TransformerStep(model.transformer)
+        TransformerStep(model.transformer.gpt)
 
 
 @pytest.mark.parametrize("native", NATIVE)
@@ -249,7 +248,7 @@ def test_refresh_picks_up_updates_the_caches_cannot_see(batch_factory, native):
     decoder = IncrementalNavFormer(model, 2, native=native)
     decode(decoder, batch, 0)
     with torch.no_grad():  # a write through .data bypasses the version counter
-        model.transformer.blocks[0].mlp[0].weight.data.mul_(2.0)
+        model.transformer.gpt.blocks[0].mlp[0].weight.data.mul_(2.0)
         model.head.bias.data.add_(0.5)
     decoder.reset()
     decoder.refresh()

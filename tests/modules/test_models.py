@@ -3,9 +3,16 @@
 import pytest
 import torch
 
-from navformer_rl.modules import ConvEncoder, NavFormerConfig, NavFormerModel, ResNet18Encoder
+from navformer_rl.modules import (
+    ConvEncoder,
+    NavFormerConfig,
+    NavFormerModel,
+    ObservationHead,
+    ResNet18Encoder,
+    THSCHead,
+)
+from navformer_rl.modules.decoding.fused_encoders import FusedConvEncoders
 from navformer_rl.modules.models import MODEL_ABLATIONS
-from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
 from navformer_rl.objectives import masked_action_mse
 
 KEYS = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
@@ -211,7 +218,7 @@ def test_resnet18_micro_batches_and_chunks_give_the_whole_batch_gradient(batch_f
         return loss, {n: p.grad for n, p in model.named_parameters() if p.grad is not None}
 
     loss, grads = loss_and_grads(1, None)
-    assert any(n.startswith("general_encoder.") for n in grads)
+    assert any(n.startswith("dve.general_encoder.") for n in grads)
     for chunks, micro_batch in [(2, None), (1, 3), (2, 2)]:
         other_loss, other = loss_and_grads(chunks, micro_batch)
         assert other_loss == pytest.approx(loss, rel=1e-5)
@@ -263,18 +270,19 @@ def test_changing_the_target_image_changes_the_actions(batch_factory):
 def test_thsc_head_is_a_linear_map_of_target_and_observation_hidden_states():
     model = eval_model()
     d = model.config.d_embed
-    assert model.head.weight.shape == (2, 2 * d)
+    assert isinstance(model.head, THSCHead) and model.head.weight.shape == (2, 2 * d)
     gen = torch.Generator().manual_seed(0)
-    h_g, h_obs = torch.randn(3, d, generator=gen), torch.randn(3, 4, d, generator=gen)
+    h_g, h_obs = torch.randn(3, 1, d, generator=gen).expand(3, 4, d), torch.randn(3, 4, d, generator=gen)
     w, b = model.head.weight, model.head.bias
-    expected = torch.tanh(h_g[:, None] @ w[:, :d].T + h_obs @ w[:, d:].T + b)
-    torch.testing.assert_close(model.predict_action(h_g, h_obs), expected)
+    expected = torch.tanh(h_g @ w[:, :d].T + h_obs @ w[:, d:].T + b)
+    torch.testing.assert_close(model.head(h_g, h_obs), expected)
+    mask = torch.tensor([[True] * 4, [True, True, False, False], [False] * 4])
+    torch.testing.assert_close(model.head(h_g, h_obs, mask), expected * mask[..., None])
     # without THSC the head reads h_obs only, so h_g has no direct path
     plain = eval_model(thsc=False)
+    assert isinstance(plain.head, ObservationHead) and plain.head.reads == ("observation",)
     assert plain.head.weight.shape == (2, d)
-    torch.testing.assert_close(
-        plain.predict_action(h_g, h_obs), plain.predict_action(torch.zeros_like(h_g), h_obs)
-    )
+    torch.testing.assert_close(plain.head(h_obs), torch.tanh(h_obs @ plain.head.weight.T + plain.head.bias))
 
 
 # ------------------------------------------------------------------------------------------ padding
@@ -317,7 +325,7 @@ def test_gradient_reaches_every_parameter_unless_encoders_are_detached(batch_fac
     loss = masked_action_mse(run(model, batch), batch["action"], batch["mask"])
     loss.backward()
     for name, param in model.named_parameters():
-        is_encoder = name.startswith(("static_encoder", "general_encoder"))
+        is_encoder = name.startswith("dve.")
         if detach and is_encoder:
             assert param.grad is None, name
         else:
@@ -346,13 +354,16 @@ def test_every_model_ablation_builds_and_runs(batch_factory, name):
     assert (model.static_encoder is not None, model.general_encoder is not None) == (static, general)
     assert all(type(encoder) is encoder_class for _, encoder in model.observation_encoders())
     # the target image goes through f_g, through f_s when f_g is ablated
-    assert model.target_encoder is (model.general_encoder if general else model.static_encoder)
+    assert model.dve.target_encoder is (model.general_encoder if general else model.static_encoder)
+    assert model.dve.names == ("static",) * static + ("general",) * general
     tps = 2 + static + general  # R-hat, one token per encoder, a
     assert config.tokens_per_step == tps
     assert model.head.in_features == (2 * d if thsc else d)  # THSC reads [h_g ; h_obs]
     seen = {}
-    model.transformer.register_forward_hook(lambda m, args, out: seen.update(tokens=args[0], hidden=out[0]))
-    model.head.register_forward_hook(lambda m, args, out: seen.update(head_input=args[0]))
+    model.transformer.gpt.register_forward_hook(
+        lambda m, args, out: seen.update(tokens=args[0], hidden=out[0])
+    )
+    model.head.register_forward_hook(lambda m, args, out: seen.update(head_args=args))
     # row 1: row 0 with another target image; row 2: row 0's target with other steps (frames, RTG, actions)
     first, other = batch_factory(1, steps), batch_factory(1, steps, seed=1)
     batch = {k: torch.cat([first[k], first[k] if k != "target_pixels" else other[k], other[k]]) for k in KEYS}
@@ -364,9 +375,11 @@ def test_every_model_ablation_builds_and_runs(batch_factory, name):
     hidden = seen["hidden"]
     obs_hidden = hidden[:, tps - 1 :: tps]  # step t's last observation token: 1 + t * tps + (tps - 2)
     assert obs_hidden.shape == (3, steps, d)
-    head_input = torch.cat([hidden[:, :1].expand(-1, steps, -1), obs_hidden], -1) if thsc else obs_hidden
-    assert torch.equal(seen["head_input"], head_input)
-    torch.testing.assert_close(out, torch.tanh(model.head(head_input)))
+    head_args = (hidden[:, :1].expand(-1, steps, -1), obs_hidden) if thsc else (obs_hidden,)
+    assert len(seen["head_args"]) == len(head_args) + 1  # and the mask
+    assert all(torch.equal(got, want) for got, want in zip(seen["head_args"], head_args))
+    head_input = torch.cat(head_args, -1)
+    torch.testing.assert_close(out, torch.tanh(head_input @ model.head.weight.T + model.head.bias))
     # h_g (what THSC adds to the head) depends on the target image alone: g comes first in causal order
     torch.testing.assert_close(hidden[2, 0], hidden[0, 0], rtol=0, atol=1e-6)
     assert not torch.allclose(hidden[1, 0], hidden[0, 0])
@@ -392,8 +405,9 @@ def test_bf16_autocast_forward_is_close_to_fp32(batch_factory):
     model = eval_model()
     batch = batch_factory(2, 4)
     fp32 = run(model, batch)
-    model.config = model.config.replace(autocast_dtype="bfloat16")
-    bf16 = run(model, batch)
+    bf16_model = NavFormerModel(model.config.replace(autocast_dtype="bfloat16")).eval()
+    bf16_model.load_state_dict(model.state_dict())
+    bf16 = run(bf16_model, batch)
     assert bf16.dtype == torch.float32
     torch.testing.assert_close(bf16, fp32, rtol=0, atol=0.05)
 
@@ -421,7 +435,7 @@ def test_encoding_only_valid_frames_equals_encoding_all_frames_on_valid_steps(ba
     pixels = batch_factory(3, 5)["pixels"]
     mask = torch.tensor([[1, 1, 1, 1, 1], [1, 1, 0, 0, 0], [1, 1, 1, 0, 0]], dtype=torch.bool)
     with torch.no_grad():
-        full = model.encode_observations(pixels)
-        masked = model.encode_observations(pixels, mask)
+        full = model.dve.encode_observations(pixels)
+        masked = model.dve.encode_observations(pixels, mask)
     torch.testing.assert_close(masked[mask], full[mask])
     assert masked[~mask].abs().max() == 0

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel
-from navformer_rl.modules.models.native import (
+from navformer_rl.modules.decoding.native import (
     BlockedKVCache,
     NativeBuildError,
     NativeTransformerStep,
@@ -16,8 +16,8 @@ from navformer_rl.modules.models.native import (
     native_status,
     native_support,
 )
-from navformer_rl.modules.models.transformer import CausalTransformer, KVCache
-from navformer_rl.modules.models.transformer_step import TransformerStep
+from navformer_rl.modules.decoding.transformer_step import TransformerStep
+from navformer_rl.modules.models.gpt import GPT2Blocks, KVCache
 
 requires_native = pytest.mark.skipif(not native_status().available, reason=native_status().reason)
 
@@ -34,7 +34,7 @@ def test_the_kernel_builds_wherever_a_c_compiler_is_installed():
 
 def transformer(d, heads, d_head, mlp_ratio, gelu, seed=0):
     torch.manual_seed(seed)
-    model = CausalTransformer(d, n_blocks=2, n_heads=heads, d_head=d_head, mlp_ratio=mlp_ratio, dropout=0.0)
+    model = GPT2Blocks(d, n_blocks=2, n_heads=heads, d_head=d_head, mlp_ratio=mlp_ratio, dropout=0.0)
     for block in model.blocks:
         block.mlp[1].approximate = gelu
     return model.eval()
@@ -131,7 +131,7 @@ def test_decoder_falls_back_or_names_why_the_kernel_cannot_run(native):
     model = NavFormerModel(
         NavFormerConfig(context_tokens=24, d_embed=48, d_head=24)
     ).eval()  # not a multiple of 16
-    assert "d_head=24" in native_support(model.transformer)
+    assert "d_head=24" in native_support(model.transformer.gpt)
     if native:
         with pytest.raises(ValueError, match="native=True.*d_head=24"):
             IncrementalNavFormer(model, 1, native=native)
@@ -212,7 +212,7 @@ def test_the_portable_build_gives_the_same_results(tmp_path):
 
 
 def test_the_module_command_reports_the_status(monkeypatch, capsys):
-    from navformer_rl.modules.models.native.__main__ import main
+    from navformer_rl.modules.decoding.native.__main__ import main
 
     monkeypatch.setenv(build.DISABLE_VARIABLE, "0")
     assert main() == 1

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from navformer_rl.modules.models.conv_grad import conv2d_matmul_weight_grad
+from navformer_rl.modules.models.ops.conv_grad import conv2d_matmul_weight_grad
 
 
 def check_images(pixels: Tensor, image_size: int, name: str = "pixels") -> None:

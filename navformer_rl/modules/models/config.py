@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass
 
@@ -147,3 +148,8 @@ class NavFormerConfig:
         if name not in switches:
             raise ValueError(f"unknown model ablation {name!r}: expected one of {MODEL_ABLATIONS}")
         return cls(**{**switches[name], **changes})
+
+
+def autocast(device: torch.device, dtype: torch.dtype | None) -> contextlib.AbstractContextManager:
+    """``torch.autocast`` on ``device``'s type in ``dtype``, or a no-op context when ``dtype`` is None."""
+    return torch.autocast(device.type, dtype=dtype) if dtype is not None else contextlib.nullcontext()

@@ -1,187 +1,274 @@
-"""GPT-2 style causal transformer (pre-LN) with an optional slot-addressed key/value cache (paper §IV.C)."""
+"""``CausalTransformer`` (CT, paper §IV.C): the interleaved token sequence (eq. 5) through the GPT-2 blocks."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
-from navformer_rl.modules.models.attention import attention_with_dropout
-from navformer_rl.modules.models.dropout import Dropout
+from navformer_rl.modules.models.config import NavFormerConfig, autocast
+from navformer_rl.modules.models.dve import ENCODER_NAMES
+from navformer_rl.modules.models.gpt import GPT2Blocks
+from navformer_rl.modules.models.ops.dropout import Dropout
+
+MODALITIES = ("target", "return_to_go", "static", "general", "action")
+"""Rows of the learnable modality embedding table."""
+HIDDEN_NAMES = ("target", "observation", "tokens")
+"""What ``CausalTransformer.forward`` returns, in order (see there)."""
 
 
-@dataclass
-class KVCache:
-    """Keys and values of every block, addressed by slot.
+class TokenEmbedding(nn.Module):
+    """Token embeddings of eq. 4-5: every token gets ``modality_embed[type]``, step tokens also
+    ``timestep_embed[step]`` (absolute timestep); then LayerNorm and dropout per token (``prepare``).
 
-    keys[i], values[i]: ``[B, n_heads, S, d_head]`` for block ``i``; ``S`` slots per sequence. Which slot
-    holds which token (and whether it is valid) is the caller's business: it passes the attention mask.
-    Attention is a weighted sum over keys, so slot order does not matter - a ring buffer works.
+    There is no token-position embedding, so a cached key/value stays valid when the inference window
+    slides (see ``docs/model.md``).
 
-    slot_major[i] (``empty`` fills it): ``[B, S, 2, n_heads, d_head]``, the storage that ``keys[i]`` and
-    ``values[i]`` are views of (``[..., 0, :, :]`` keys, ``[..., 1, :, :]`` values). One slot's keys and
-    values of every head are contiguous, so a step's new keys and values go in with one copy, straight from
-    the ``[B, L, 3, n_heads, d_head]`` projection (``TransformerStep``), and attention reads each slot once.
-    None when ``keys``/``values`` are separate tensors.
-    """
-
-    keys: list[Tensor]
-    values: list[Tensor]
-    slot_major: list[Tensor] | None = None
-
-    @classmethod
-    def empty(
-        cls,
-        n_blocks: int,
-        batch: int,
-        n_heads: int,
-        slots: int,
-        d_head: int,
-        device: torch.device | str | None = None,
-        dtype: torch.dtype = torch.float32,
-    ) -> KVCache:
-        storage = [
-            torch.zeros(batch, slots, 2, n_heads, d_head, device=device, dtype=dtype) for _ in range(n_blocks)
-        ]
-        return cls(
-            keys=[block[:, :, 0].transpose(1, 2) for block in storage],
-            values=[block[:, :, 1].transpose(1, 2) for block in storage],
-            slot_major=storage,
-        )
-
-    @property
-    def slots(self) -> int:
-        return self.keys[0].shape[2]
-
-
-class CausalSelfAttention(nn.Module):
-    """Masked multi-head attention (MMHA) through ``F.scaled_dot_product_attention``."""
-
-    def __init__(self, d_embed: int, n_heads: int, d_head: int, dropout: float) -> None:
-        super().__init__()
-        self.n_heads, self.d_head, self.dropout = n_heads, d_head, dropout
-        self.qkv = nn.Linear(d_embed, 3 * n_heads * d_head)
-        self.proj = nn.Linear(n_heads * d_head, d_embed)
-        self.resid_dropout = Dropout(dropout)
-
-    def forward(
-        self,
-        x: Tensor,
-        attn_mask: Tensor | None,
-        cache: tuple[Tensor, Tensor] | None,
-        write_index: Tensor | slice | None,
-    ) -> Tensor:
-        """x: ``[B, L, d]``. Without ``attn_mask``: plain causal attention among the L tokens.
-
-        With ``cache = (keys, values)`` (``[B, H, S, d_head]``), the new keys/values are written at
-        ``write_index`` (long ``[B, L]``, slots; or a ``slice`` of L slots shared by every sequence, one
-        copy instead of a scatter) and the queries attend over the first S' slots under ``attn_mask``
-        (bool ``[B or 1, 1, L, S']``, True = may attend, or additive float 0 / -inf; S' <= S).
-        """
-        batch, length, _ = x.shape
-        q, k, v = self.qkv(x).view(batch, length, 3, self.n_heads, self.d_head).permute(2, 0, 3, 1, 4)
-        if cache is not None:
-            cache_k, cache_v = cache
-            if isinstance(write_index, slice):  # every sequence writes the same contiguous slots
-                cache_k[:, :, write_index] = k
-                cache_v[:, :, write_index] = v
-            else:
-                index = write_index[:, None, :, None].expand(batch, self.n_heads, length, self.d_head)
-                cache_k.scatter_(2, index, k.to(cache_k.dtype))
-                cache_v.scatter_(2, index, v.to(cache_v.dtype))
-            used = attn_mask.shape[-1]  # the caller may restrict attention to the first slots in use
-            k, v = cache_k[:, :, :used], cache_v[:, :, :used]
-        dropout_p = self.dropout if self.training else 0.0
-        if dropout_p > 0.0 and x.device.type == "cpu":
-            y = attention_with_dropout(q, k, v, attn_mask, dropout_p)
-        else:
-            y = F.scaled_dot_product_attention(
-                q, k, v, attn_mask=attn_mask, dropout_p=dropout_p, is_causal=attn_mask is None
-            )
-        y = y.transpose(1, 2).reshape(batch, length, self.n_heads * self.d_head)
-        return self.resid_dropout(self.proj(y))
-
-
-class TransformerBlock(nn.Module):
-    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))`` with MLP = Linear(d, 4d) - GELU - Linear(4d, d).
-
-    GELU is the exact (erf) one: GPT-2's tanh approximation differs by < 1e-3 and costs 2-3x more on CPU."""
-
-    def __init__(self, d_embed: int, n_heads: int, d_head: int, mlp_ratio: int, dropout: float) -> None:
-        super().__init__()
-        self.ln_attn = nn.LayerNorm(d_embed)
-        self.attn = CausalSelfAttention(d_embed, n_heads, d_head, dropout)
-        self.ln_mlp = nn.LayerNorm(d_embed)
-        self.mlp = nn.Sequential(
-            nn.Linear(d_embed, mlp_ratio * d_embed),
-            nn.GELU(),
-            nn.Linear(mlp_ratio * d_embed, d_embed),
-            Dropout(dropout),
-        )
-
-    def forward(
-        self,
-        x: Tensor,
-        attn_mask: Tensor | None,
-        cache: tuple[Tensor, Tensor] | None,
-        write_index: Tensor | slice | None,
-    ) -> Tensor:
-        x = x + self.attn(self.ln_attn(x), attn_mask, cache, write_index)
-        return x + self.mlp(self.ln_mlp(x))
-
-
-class CausalTransformer(nn.Module):
-    """N GPT-2 blocks and a final LayerNorm: ``[B, L, d] -> [B, L, d]``.
-
-    No positional embedding inside: the caller adds timestep and modality embeddings to the tokens, so
-    a token's key/value never depends on where it sits in the window (what makes the sliding KV cache valid).
-    Padding: sequences are right-padded; under causal attention padded tokens never influence valid ones.
+    Args:
+        observation_names: the observation tokens of a step, in order (``("static", "general")``, or one).
     """
 
     def __init__(
-        self, d_embed: int, n_blocks: int, n_heads: int, d_head: int, mlp_ratio: int, dropout: float
+        self,
+        d_embed: int,
+        action_dim: int,
+        max_timestep: int,
+        observation_names: Sequence[str] = ENCODER_NAMES,
+        dropout: float = 0.1,
     ) -> None:
         super().__init__()
-        self.n_blocks, self.n_heads, self.d_head = n_blocks, n_heads, d_head
-        self.blocks = nn.ModuleList(
-            TransformerBlock(d_embed, n_heads, d_head, mlp_ratio, dropout) for _ in range(n_blocks)
+        unknown = [name for name in observation_names if name not in ENCODER_NAMES]
+        if unknown or not observation_names:
+            raise ValueError(
+                f"observation_names={tuple(observation_names)!r}: expected one or more of {ENCODER_NAMES}"
+            )
+        self.observation_names = tuple(observation_names)
+        self.return_embed = nn.Linear(1, d_embed)
+        self.action_embed = nn.Linear(action_dim, d_embed)
+        self.timestep_embed = nn.Embedding(max_timestep, d_embed)
+        self.modality_embed = nn.Embedding(len(MODALITIES), d_embed)
+        self.embed_ln = nn.LayerNorm(d_embed)
+        self.embed_dropout = Dropout(dropout)
+        step_types = ["return_to_go", *self.observation_names, "action"]
+        self.register_buffer(
+            "step_modalities", torch.tensor([MODALITIES.index(t) for t in step_types]), persistent=False
         )
-        self.ln_final = nn.LayerNorm(d_embed)
-        self.apply(_init_gpt2)
-        for name, param in self.named_parameters():
-            if name.endswith("attn.proj.weight") or name.endswith("mlp.2.weight"):
-                nn.init.normal_(param, mean=0.0, std=0.02 / (2 * n_blocks) ** 0.5)
+
+    @classmethod
+    def from_config(cls, config: NavFormerConfig) -> TokenEmbedding:
+        """The token embeddings of ``config`` (observation tokens of the encoders it uses); the tables keep
+        ``nn.Embedding``'s init until ``reset_tables``."""
+        used = (config.use_static_encoder, config.use_general_encoder)
+        names = [name for name, use in zip(ENCODER_NAMES, used, strict=True) if use]
+        return cls(config.d_embed, config.action_dim, config.max_timestep, names, config.dropout)
+
+    def reset_tables(self) -> None:
+        """GPT-2's init of the timestep and modality tables: N(0, 0.02)."""
+        for table in (self.timestep_embed, self.modality_embed):
+            nn.init.normal_(table.weight, mean=0.0, std=0.02)
+
+    @property
+    def tokens_per_step(self) -> int:
+        """R-hat, the observation tokens and a: 4 for NavFormer, 3 with one encoder."""
+        return 2 + len(self.observation_names)
+
+    def target_token(self, target_embedding: Tensor) -> Tensor:
+        """``[B, d]`` -> the target token ``[B, d]`` (modality embedding added, no timestep)."""
+        return target_embedding + self.modality_embed.weight[MODALITIES.index("target")]
+
+    def step_tokens(
+        self, observations: Sequence[Tensor], return_to_go: Tensor, action: Tensor, step: Tensor
+    ) -> Tensor:
+        """Per-step tokens ``[B, T, tps, d]`` = (R-hat, observation embeddings.., a) + modality + timestep.
+
+        observations: one ``[B, T, d]`` per name of ``observation_names``; return_to_go ``[B, T, 1]``,
+        action ``[B, T, A]`` (a_t, at its own timestep), step long ``[B, T]``.
+        """
+        timestep = self.timestep_embed(step)
+        modality = self.modality_embed(self.step_modalities)
+        tokens = [self.return_embed(return_to_go) + modality[0] + timestep]
+        tokens += [embedding + modality[i] + timestep for i, embedding in enumerate(observations, 1)]
+        tokens.append(self.action_embed(action) + modality[-1] + timestep)
+        return torch.stack(tokens, dim=-2)
+
+    def prepare(self, tokens: Tensor) -> Tensor:
+        """LayerNorm then dropout on token embeddings ``[..., d]`` (per token, as in the DT reference code)."""
+        return self.embed_dropout(self.embed_ln(tokens))
+
+
+class CausalTransformer(nn.Module):
+    """The CT of paper §IV.C: embeddings, R-hat and actions -> token sequence -> hidden states.
+
+    Token sequence of one trajectory of T steps (eq. 5), ``tps`` tokens a step::
+
+        e_g, (e_R1, e^s_1, e^ca_1, e_a1), ..., (e_RT, e^s_T, e^ca_T)        # a_T is never fed: L = tps * T
+
+    ``forward(target_embedding, return_to_go, action, step, mask=None, *, static=None, general=None)``
+    returns (``HIDDEN_NAMES``):
+
+    - target: h_g ``[B, T, d]`` (the target token's hidden state, expanded over the steps);
+    - observation: h_o ``[B, T, d]``, the hidden state of each step's last observation token (h^ca_o
+      for NavFormer); it precedes a_t in the causal order, so a_t never influences a prediction of step t;
+    - tokens: ``[B, T, tps, d]``, the hidden states of the tokens each step feeds, ``(g or a_{t-1}, R_t,
+      e.._t)`` (a view of the sequence's hidden states).
+
+    Inputs: target_embedding ``[B, d]`` (or ``[B, T, d]``, constant over T: step 0 is read); static /
+    general: e^s / e^ca ``[B, T, d]``, exactly those of ``observation_names``; return_to_go float
+    ``[B, T, 1]``; action float ``[B, T, A]`` (a_t only feeds steps > t); step int64 ``[B, T]`` (absolute
+    timestep < ``max_timestep`` on valid steps); mask bool ``[B, T]``, True on valid steps (padding on
+    the right; None = all valid). Padded steps' inputs are zeroed (a NaN left there would reach valid
+    outputs through 0 * NaN in the attention product).
+
+    window_steps: None - plain causal attention (``tps * T`` must fit ``context_tokens``). An int W -
+    sliding-window attention that reproduces the streaming KV cache exactly: a token created at the query
+    of step c (R, e of step c and a_{c-1}) sees the target token and the tokens of steps >= c - W + 1.
+    """
+
+    def __init__(
+        self,
+        tokens: TokenEmbedding,
+        gpt: GPT2Blocks,
+        context_tokens: int,
+        *,
+        autocast_dtype: torch.dtype | None = None,
+    ) -> None:
+        super().__init__()
+        self.tokens = tokens
+        self.gpt = gpt
+        self.context_tokens = context_tokens
+        self.autocast_dtype = autocast_dtype
+
+    @classmethod
+    def from_config(cls, config: NavFormerConfig) -> CausalTransformer:
+        """A freshly initialised CT of ``config`` (observation tokens of the encoders ``config`` uses)."""
+        tokens = TokenEmbedding.from_config(config)
+        transformer = cls(
+            tokens,
+            GPT2Blocks.from_config(config),
+            config.context_tokens,
+            autocast_dtype=config.torch_autocast_dtype,
+        )
+        tokens.reset_tables()
+        return transformer
+
+    @property
+    def observation_names(self) -> tuple[str, ...]:
+        return self.tokens.observation_names
+
+    @property
+    def tokens_per_step(self) -> int:
+        return self.tokens.tokens_per_step
 
     def forward(
         self,
-        x: Tensor,
-        attn_mask: Tensor | None = None,
-        kv_cache: KVCache | None = None,
-        write_index: Tensor | slice | None = None,
-    ) -> tuple[Tensor, KVCache | None]:
-        """x: ``[B, L, d]`` -> (hidden ``[B, L, d]``, the updated ``kv_cache``).
+        target_embedding: Tensor,
+        return_to_go: Tensor,
+        action: Tensor,
+        step: Tensor,
+        mask: Tensor | None = None,
+        *,
+        static: Tensor | None = None,
+        general: Tensor | None = None,
+        window_steps: int | None = None,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """-> ``(h_g [B, T, d], h_o [B, T, d], token hidden states [B, T, tps, d])`` (see the class docstring)."""
+        given = {"static": static, "general": general}
+        if tuple(name for name, value in given.items() if value is not None) != self.observation_names:
+            raise ValueError(
+                f"CausalTransformer: expected the embeddings {self.observation_names}, got "
+                f"{tuple(name for name, value in given.items() if value is not None)}"
+            )
+        observations = [given[name] for name in self.observation_names]
+        batch, steps = self._check_inputs(target_embedding, observations, return_to_go, action, step, mask)
+        tps = self.tokens_per_step
+        if window_steps is None and tps * steps > self.context_tokens:
+            raise ValueError(
+                f"trajectory of T={steps} steps needs {tps * steps} tokens > context_tokens="
+                f"{self.context_tokens}; use T <= {self.context_tokens // tps} or pass window_steps"
+            )
+        if window_steps is not None and window_steps <= 0:
+            raise ValueError(f"window_steps={window_steps!r}: expected None or a positive int")
+        if target_embedding.dim() == 3:
+            target_embedding = target_embedding[:, 0]
+        if mask is not None:
+            step = step.masked_fill(~mask, 0)
+            return_to_go = return_to_go.masked_fill(~mask[..., None], 0.0)
+            action = action.masked_fill(~mask[..., None], 0.0)
+        with autocast(return_to_go.device, self.autocast_dtype):
+            target = self.tokens.target_token(target_embedding)
+            tokens = self.tokens.step_tokens(observations, return_to_go, action, step)
+            sequence = torch.cat([target.unsqueeze(1), tokens.reshape(batch, steps * tps, -1)[:, :-1]], dim=1)
+            attn_mask = None
+            if window_steps is not None and window_steps < steps:
+                attn_mask = sliding_window_mask(steps, tps, window_steps, sequence.device)
+            hidden, _ = self.gpt(self.tokens.prepare(sequence), attn_mask=attn_mask)
+        token_hidden = hidden.view(batch, steps, tps, -1)
+        return hidden[:, :1].expand(batch, steps, -1), token_hidden[:, :, -1], token_hidden
 
-        attn_mask: bool, True = may attend; ``[B or 1, 1, L, L]`` without a cache, ``[B, 1, L, S']`` with
-        one (attention over the first S' <= S slots); None means causal among the L tokens (no cache only).
-        kv_cache / write_index: incremental mode (inference, no autograd): the L new tokens' keys and
-        values are written in place at slots ``write_index`` (long ``[B, L]``, or a ``slice`` of L slots
-        shared by the whole batch) before attending.
-        """
-        if kv_cache is not None and (write_index is None or attn_mask is None):
-            raise ValueError("CausalTransformer: a kv_cache needs both write_index and attn_mask")
-        for i, block in enumerate(self.blocks):
-            cache = None if kv_cache is None else (kv_cache.keys[i], kv_cache.values[i])
-            x = block(x, attn_mask, cache, write_index)
-        return self.ln_final(x), kv_cache
+    def _check_inputs(
+        self,
+        target_embedding: Tensor,
+        observations: list[Tensor],
+        return_to_go: Tensor,
+        action: Tensor,
+        step: Tensor,
+        mask: Tensor | None,
+    ) -> tuple[int, int]:
+        first = observations[0]
+        if first.dim() != 3:
+            raise ValueError(f"{self.observation_names[0]}: expected [B, T, d], got {tuple(first.shape)}")
+        batch, steps, d_embed = first.shape
+        action_dim = self.tokens.action_embed.in_features
+        expected = {
+            name: (value, (batch, steps, d_embed))
+            for name, value in zip(self.observation_names, observations)
+        }
+        expected |= {
+            "return_to_go": (return_to_go, (batch, steps, 1)),
+            "action": (action, (batch, steps, action_dim)),
+            "step": (step, (batch, steps)),
+        }
+        if mask is not None:
+            expected["mask"] = (mask, (batch, steps))
+        for name, (value, shape) in expected.items():
+            if tuple(value.shape) != shape:
+                raise ValueError(f"{name}: expected shape {list(shape)}, got {list(value.shape)}")
+        if tuple(target_embedding.shape) not in ((batch, d_embed), (batch, steps, d_embed)):
+            raise ValueError(
+                f"target_embedding: expected [{batch}, {d_embed}] or [{batch}, {steps}, {d_embed}], got "
+                f"{list(target_embedding.shape)}"
+            )
+        if not return_to_go.is_floating_point() or not action.is_floating_point():
+            raise ValueError(
+                f"return_to_go / action: expected float tensors, got {return_to_go.dtype} / {action.dtype}"
+            )
+        if step.dtype != torch.int64:
+            raise ValueError(f"step: expected int64 timesteps, got {step.dtype}")
+        if mask is not None and mask.dtype != torch.bool:
+            raise ValueError(f"mask: expected bool, got {mask.dtype}")
+        valid_steps = step if mask is None else step[mask]
+        max_timestep = self.tokens.timestep_embed.num_embeddings
+        if valid_steps.numel() and (valid_steps.min() < 0 or valid_steps.max() >= max_timestep):
+            raise ValueError(
+                f"step: valid timesteps must lie in [0, {max_timestep}), got "
+                f"[{int(valid_steps.min())}, {int(valid_steps.max())}]"
+            )
+        return batch, steps
 
 
-def _init_gpt2(module: nn.Module) -> None:
-    """GPT-2 initialisation: N(0, 0.02) weights, zero biases, unit LayerNorm."""
-    if isinstance(module, nn.Linear):
-        nn.init.normal_(module.weight, mean=0.0, std=0.02)
-        nn.init.zeros_(module.bias)
-    elif isinstance(module, nn.LayerNorm):
-        nn.init.ones_(module.weight)
-        nn.init.zeros_(module.bias)
+def sliding_window_mask(steps: int, tokens_per_step: int, window_steps: int, device: torch.device) -> Tensor:
+    """Bool attention mask ``[1, 1, L, L]`` (L = tps * steps, True = may attend) of the streaming window.
+
+    Token j >= 1 belongs to step ``(j - 1) // tps``; it is created at the query of step c = its step, or
+    its step + 1 for the action token. Query j may attend key k <= j if k is the target token or k's step
+    >= c(j) - W + 1: exactly the keys the streaming KV cache holds when j is computed.
+    """
+    length = steps * tokens_per_step
+    index = torch.arange(length, device=device)
+    token_step = torch.where(index == 0, -1, (index - 1) // tokens_per_step)
+    is_action = (index > 0) & ((index - 1) % tokens_per_step == tokens_per_step - 1)
+    created_at = token_step + is_action.long()
+    in_window = token_step[None, :] >= created_at[:, None] - window_steps + 1
+    allowed = (index[None, :] <= index[:, None]) & (in_window | (index[None, :] == 0))
+    return allowed[None, None]

@@ -8,8 +8,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from navformer_rl.modules.models.derived import DerivedCache
-from navformer_rl.modules.models.transformer import CausalTransformer, KVCache
+from navformer_rl.modules.decoding.derived import DerivedCache
+from navformer_rl.modules.models.gpt import GPT2Blocks, KVCache
 
 
 class LayerNormWeights(NamedTuple):
@@ -39,7 +39,7 @@ class BlockWeights(NamedTuple):
 
 
 class TransformerStep:
-    """``CausalTransformer.forward`` with a KV cache (eval mode), as a loop of plain tensor ops.
+    """``GPT2Blocks.forward`` with a KV cache (eval mode), as a loop of plain tensor ops.
 
     ``step(x, attn_mask, cache, write_index)`` equals ``transformer(x, attn_mask, cache, write_index)[0]``
     (same maths, no dropout). With 4 new tokens every op is tiny, so module calls (``nn.Module.__call__``
@@ -54,7 +54,7 @@ class TransformerStep:
     into a kept buffer): call it under ``torch.no_grad()`` or inference mode.
     """
 
-    def __init__(self, transformer: CausalTransformer) -> None:
+    def __init__(self, transformer: GPT2Blocks) -> None:
         self.transformer = transformer
         self.blocks = tuple(block_weights(block) for block in transformer.blocks)
         self.ln_final = layer_norm_weights(transformer.ln_final)

@@ -1,4 +1,4 @@
-"""``python -m navformer_rl.modules.models.native``: build (or find) the kernel and say whether it loads.
+"""``python -m navformer_rl.modules.decoding.native``: build (or find) the kernel and say whether it loads.
 
 Exit status 0 and the library's path when it is available, 1 and the reason otherwise. Useful to build it
 once before launching many workers, or to see why decoders take the torch path.
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from navformer_rl.modules.models.native.build import native_status
+from navformer_rl.modules.decoding.native.build import native_status
 
 
 def main() -> int:

@@ -7,9 +7,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
+from navformer_rl.modules.decoding.derived import DerivedCache
 from navformer_rl.modules.models.cnn import ConvEncoder, check_images, images_to_float
-from navformer_rl.modules.models.conv_grad import im2col_view
-from navformer_rl.modules.models.derived import DerivedCache
+from navformer_rl.modules.models.ops.conv_grad import im2col_view
 
 KERNELS = (8, 4, 3)
 """Kernel sizes of ``ConvEncoder``'s three convolutions."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from navformer_rl.modules.models.dropout import keep_mask
+from navformer_rl.modules.models.ops.dropout import keep_mask
 
 CHUNK_BYTES = 4 << 20  # attention weights per chunk (the machine's L2 is 2 MB per core: 4 MB over 2 cores)
 

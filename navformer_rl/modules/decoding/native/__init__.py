@@ -4,8 +4,8 @@
 available; ``IncrementalNavFormer`` uses it when it is (``native=None``) and the torch path otherwise.
 """
 
-from navformer_rl.modules.models.native.build import NativeBuildError, NativeStatus, native_status
-from navformer_rl.modules.models.native.step import BlockedKVCache, NativeTransformerStep, native_support
+from navformer_rl.modules.decoding.native.build import NativeBuildError, NativeStatus, native_status
+from navformer_rl.modules.decoding.native.step import BlockedKVCache, NativeTransformerStep, native_support
 
 __all__ = [
     "BlockedKVCache",

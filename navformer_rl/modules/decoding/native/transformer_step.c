@@ -1,6 +1,6 @@
 /* NavFormer's causal transformer on a few new tokens against a key/value cache, in one call.
  *
- * The same maths as navformer_rl.modules.models.transformer_step.TransformerStep (pre-LN GPT-2 blocks:
+ * The same maths as navformer_rl.modules.decoding.transformer_step.TransformerStep (pre-LN GPT-2 blocks:
  * x += proj(attn(ln_attn(x))); x += out(gelu(fc(ln_mlp(x)))); then ln_final), written for the few rows
  * of an inference step: at 4 rows every BLAS call of the torch path re-packs its weight matrix, and the
  * attention kernel is built for long query blocks. Here each Linear is a 4 x 64 register-blocked loop
@@ -10,7 +10,7 @@
  *
  * float32 throughout; results equal the torch path up to float rounding (different summation order).
  * exp, erf and tanh are computed with the polynomial approximations ATen's vectorised CPU kernels use.
- * Built by navformer_rl.modules.models.native.build with the system C compiler (-O3 -march=native);
+ * Built by navformer_rl.modules.decoding.native.build with the system C compiler (-O3 -march=native);
  * GCC vector extensions, no intrinsics, so it compiles (and vectorises) on any target GCC or clang knows.
  * The caller (step.py) checks every shape and index: nothing here is bounds-checked.
  */

@@ -8,10 +8,10 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
-from navformer_rl.modules.models.attention import additive_mask
-from navformer_rl.modules.models.native.build import NativeBuildError, native_status
-from navformer_rl.modules.models.transformer import CausalTransformer, KVCache
-from navformer_rl.modules.models.transformer_step import TransformerStep
+from navformer_rl.modules.decoding.native.build import NativeBuildError, native_status
+from navformer_rl.modules.decoding.transformer_step import TransformerStep
+from navformer_rl.modules.models.gpt import GPT2Blocks, KVCache
+from navformer_rl.modules.models.ops.attention import additive_mask
 
 LANES = 16
 """Slots per block of ``BlockedKVCache.keys_blocked`` (one 16-float vector of scores per block)."""
@@ -114,7 +114,7 @@ class BlockedKVCache:
 
 
 class Dims(NamedTuple):
-    """A ``CausalTransformer``'s sizes: token width, heads, head width, MLP width."""
+    """A ``GPT2Blocks``'s sizes: token width, heads, head width, MLP width."""
 
     d_embed: int
     n_heads: int
@@ -122,7 +122,7 @@ class Dims(NamedTuple):
     hidden: int
 
 
-def transformer_dims(transformer: CausalTransformer) -> Dims:
+def transformer_dims(transformer: GPT2Blocks) -> Dims:
     return Dims(
         transformer.ln_final.normalized_shape[0],
         transformer.n_heads,
@@ -131,7 +131,7 @@ def transformer_dims(transformer: CausalTransformer) -> Dims:
     )
 
 
-def native_support(transformer: CausalTransformer) -> str | None:
+def native_support(transformer: GPT2Blocks) -> str | None:
     """Why ``NativeTransformerStep`` cannot run ``transformer`` (None when it can)."""
     block = transformer.blocks[0]
     dims = transformer_dims(transformer)
@@ -172,7 +172,7 @@ class NativeTransformerStep:
         NativeBuildError: ``library``'s structs differ from the mirrors here.
     """
 
-    def __init__(self, transformer: CausalTransformer, library: ctypes.CDLL | None = None) -> None:
+    def __init__(self, transformer: GPT2Blocks, library: ctypes.CDLL | None = None) -> None:
         if library is None:
             status = native_status()
             if not status.available:

@@ -10,6 +10,9 @@ on a robot's first step). When the window is full, step t overwrites step t - W'
 its action slot: the oldest whole timestep leaves, the target token stays. Keys/values of the steps that
 remain are kept as computed (a streaming window): the result equals ``NavFormerModel.forward(...,
 window_steps=W)`` on the whole episode, and plain causal ``forward`` as long as ``t < W``.
+
+The decoder runs the parameters of the model's parts: ``model.dve`` (the encoders), ``model.transformer``
+(``tokens`` as ``StepLayers`` tables, ``gpt`` as ``TransformerStep`` / the native kernel), ``model.head``.
 """
 
 from __future__ import annotations
@@ -17,19 +20,19 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from navformer_rl.modules.models.attention import additive_mask
-from navformer_rl.modules.models.cnn import ConvEncoder
-from navformer_rl.modules.models.fused_encoders import FusedConvEncoders
-from navformer_rl.modules.models.native import (
+from navformer_rl.modules.decoding.fused_encoders import FusedConvEncoders
+from navformer_rl.modules.decoding.native import (
     BlockedKVCache,
     NativeTransformerStep,
     native_status,
     native_support,
 )
+from navformer_rl.modules.decoding.step_layers import StepLayers
+from navformer_rl.modules.decoding.transformer_step import TransformerStep
+from navformer_rl.modules.models.cnn import ConvEncoder
+from navformer_rl.modules.models.gpt import KVCache
 from navformer_rl.modules.models.navformer import NavFormerModel
-from navformer_rl.modules.models.step_layers import StepLayers
-from navformer_rl.modules.models.transformer import KVCache
-from navformer_rl.modules.models.transformer_step import TransformerStep
+from navformer_rl.modules.models.ops.attention import additive_mask
 
 
 class IncrementalNavFormer:
@@ -122,8 +125,8 @@ class IncrementalNavFormer:
         """
         model = self.model
         self._layers = StepLayers(model)
-        self._transformer = (NativeTransformerStep if self.native else TransformerStep)(model.transformer)
-        encoders = [encoder for _, encoder in model.observation_encoders()]
+        self._transformer = (NativeTransformerStep if self.native else TransformerStep)(model.transformer.gpt)
+        encoders = [encoder for _, encoder in model.dve.observation_encoders()]
         self._fused_encoders = (
             FusedConvEncoders(*encoders)
             if len(encoders) == 2 and all(isinstance(e, ConvEncoder) for e in encoders)
@@ -178,7 +181,7 @@ class IncrementalNavFormer:
         """``[B, H, W, 3]`` u8 -> ``[B, n_enc, d]``; both paper CNNs run as one fused stack (same values)."""
         if self._fused_encoders is not None:
             return self._fused_encoders(pixels)
-        return self.model.encode_observations(pixels)
+        return self.model.dve.encode_observations(pixels)
 
     @torch.inference_mode()
     def step(
@@ -208,7 +211,7 @@ class IncrementalNavFormer:
         any_first = bool(first.any())
         target = None
         if any_first:
-            target = model.encode_target(target_pixels[first.to(target_pixels.device)].to(self.device))
+            target = model.dve.encode_target(target_pixels[first.to(target_pixels.device)].to(self.device))
         tokens = self._layers.tokens(
             prev_action.to(self.device),
             return_to_go.to(self.device),
@@ -273,7 +276,7 @@ class IncrementalNavFormer:
         tps, window, slots = self.tokens_per_step, self.window_steps, self.slot_pos.shape[1]
         t = self._shared_step
         first = t == 0
-        target = model.encode_target(target_pixels.to(self.device)) if first else None
+        target = model.dve.encode_target(target_pixels.to(self.device)) if first else None
         tokens = self._layers.tokens(
             prev_action.to(self.device),
             return_to_go.to(self.device),
@@ -314,7 +317,7 @@ def use_native_kernel(native: bool | None, model: NavFormerModel, device: torch.
     if reason is None and device.type != "cpu":
         reason = f"the kernel runs on the CPU, the decoder on {device}"
     if reason is None:
-        reason = native_support(model.transformer)
+        reason = native_support(model.transformer.gpt)
     if reason is not None and native:
         raise ValueError(f"IncrementalNavFormer(native=True): {reason}")
     return reason is None
