@@ -23,7 +23,8 @@ import time
 
 import numpy as np
 
-from navformer_rl.data import collect as C
+from navformer_rl.data import expert_episodes as C
+from navformer_rl.data.collect_settings import settings_for
 from navformer_rl.data.schema import DatasetKind
 
 PAPER = {"e": 342_954, "ca": 469_378, "ssl": 98_000}
@@ -66,11 +67,11 @@ def _planner_only(world, rng, expert_cls, max_steps: int) -> tuple[float, int]:
 def bench_exploration(n: int) -> dict[str, float]:
     from navformer_rl.experts.policies import ExplorationExpert
 
-    s = C.settings_for("e", "paper", seed=123, episodes_per_unit=1)
+    s = settings_for("e", "paper", seed=123, episodes_per_unit=1)
     t0, w0 = time.process_time(), time.perf_counter()
     steps = rows = 0
     for u in range(n):
-        r, _, counters = C._exploration_unit(s, u)
+        r, _, counters = C.exploration_unit(s, u)
         steps += counters["robot_steps"]
         rows += sum(x.shape[0] for x in r)
     collect_time, wall = time.process_time() - t0, time.perf_counter() - w0
@@ -88,11 +89,11 @@ def bench_exploration(n: int) -> dict[str, float]:
 def bench_collision_avoidance(n: int) -> dict[str, float]:
     from navformer_rl.experts.policies import NHORCAExpert
 
-    s = C.settings_for("ca", "paper", seed=123)
+    s = settings_for("ca", "paper", seed=123)
     t0, w0 = time.process_time(), time.perf_counter()
     steps = rows = 0
     for u in range(n):
-        r, _, counters = C._collision_avoidance_unit(s, u)
+        r, _, counters = C.collision_avoidance_unit(s, u)
         steps += counters["robot_steps"]
         rows += sum(x.shape[0] for x in r)
     collect_time, wall = time.process_time() - t0, time.perf_counter() - w0
@@ -114,11 +115,11 @@ def bench_ssl(n: int) -> dict[str, float]:
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.envs.world import WorldConfig, generate_world
 
-    s = C.settings_for("ssl", "paper", seed=123)
+    s = settings_for("ssl", "paper", seed=123)
     t0, w0 = time.process_time(), time.perf_counter()
     pairs = 0
     for u in range(n):
-        rows, _ = C._ssl_unit(s, u)
+        rows, _ = C.ssl_unit(s, u)
         pairs += rows.shape[0]
     collect_time, wall = time.process_time() - t0, time.perf_counter() - w0
     # reference: two bare renders per pair in a 12.5 m maze with 14 robots (the mean of 4-25)

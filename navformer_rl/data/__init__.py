@@ -1,7 +1,9 @@
 """Datasets on disk (D_e, D_ca, D_ssl): schema, sharded writer, loader, samplers, synthetic data.
 
-Names are imported lazily (so collection workers do not pay for importing torchrl); collection itself
-(pybullet, experts) lives in :mod:`navformer_rl.data.collect`.
+Names are imported lazily (so collection workers do not pay for importing torchrl). Collection (pybullet,
+experts) lives apart from these names: ``collect`` (the process pool, resume, progress),
+``collect_settings`` (settings, scales, unit seeds), ``expert_episodes`` (a work unit's expert episodes
+-> rows) and ``versions`` (the behaviour versions that identify collected data).
 """
 
 from __future__ import annotations

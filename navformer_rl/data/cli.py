@@ -43,19 +43,19 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=cli_args.seed, default=0, help="base seed (default: 0)")
     parser.add_argument(
         "--workers",
-        type=int,
+        type=cli_args.int_at_least(1),
         default=None,
         help="worker processes (default: every core this process may use)",
     )
     parser.add_argument(
         "--n",
-        type=int,
+        type=cli_args.int_at_least(1),
         default=None,
         help="override the size: trajectories for e/ca, worlds for ssl (not with 'all')",
     )
     parser.add_argument(
         "--action-noise",
-        type=float,
+        type=cli_args.number_between(0.0, 1.0),
         default=None,
         help="e / ca: std of Gaussian noise on the executed normalised actions, labels stay the expert's "
         "(DART; not in the paper; default 0)",
@@ -67,39 +67,38 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run_collect(args: argparse.Namespace) -> int:
     """Handler of ``collect``; returns the exit status (errors end with a one-line message, status 2)."""
+    if args.kind == "all" and args.n is not None:
+        return _error("--n applies to one dataset kind, not to 'all'")
+    if args.kind == "ssl" and args.action_noise is not None:
+        return _error("--action-noise applies to e and ca (D_ssl has no actions)")
+
     from navformer_rl.data.collect import collect, default_workers, settings_for
     from navformer_rl.data.schema import DatasetKind
 
     workers = default_workers() if args.workers is None else args.workers
+    noise = {} if args.action_noise is None else {"action_noise": args.action_noise}
+    if args.kind == "all":
+        jobs = [
+            (kind, args.out / kind.value, {} if kind is DatasetKind.SSL else dict(noise))
+            for kind in DatasetKind
+        ]
+    else:
+        kind = DatasetKind.parse(args.kind)
+        field = "n_worlds" if kind is DatasetKind.SSL else "n_trajectories"
+        jobs = [(kind, args.out, {**noise, **({} if args.n is None else {field: args.n})})]
     try:
-        if workers < 1:
-            raise ValueError(f"--workers must be >= 1, got {workers}")
-        if args.n is not None and args.n < 1:
-            raise ValueError(f"--n must be >= 1, got {args.n}")
-        if args.kind == "all":
-            if args.n is not None:
-                raise ValueError("--n applies to one dataset kind, not to 'all'")
-            noise = {} if args.action_noise is None else {"action_noise": args.action_noise}
-            jobs = [
-                (kind, args.out / kind.value, {} if kind is DatasetKind.SSL else noise)
-                for kind in DatasetKind
-            ]
-        else:
-            kind = DatasetKind.parse(args.kind)
-            field = "n_worlds" if kind is DatasetKind.SSL else "n_trajectories"
-            jobs = [(kind, args.out, {} if args.n is None else {field: args.n})]
-            if args.action_noise is not None:
-                if kind is DatasetKind.SSL:
-                    raise ValueError("--action-noise applies to e and ca (D_ssl has no actions)")
-                jobs[0][2]["action_noise"] = args.action_noise
         for kind, out, overrides in jobs:
             settings = settings_for(kind, args.scale, args.seed, **overrides)
             path = collect(kind, out, settings, workers=workers, progress=not args.no_progress)
             print(f"{kind.value}: {path}")
     except (ValueError, FileNotFoundError, RuntimeError) as err:
-        print(f"navformer collect: error: {err}", file=sys.stderr)
-        return 2
+        return _error(str(err))
     return 0
+
+
+def _error(message: str) -> int:
+    print(f"navformer collect: error: {message}", file=sys.stderr)
+    return 2
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -271,7 +271,7 @@ def open_dataset(path: str | Path, kind: DatasetKind | str | None = None, verify
 
     ``verify=True`` also reads every memmap file and compares its sha256 with the one ``metadata.json``
     recorded at collection (about 1.1-1.6 s per GB, so off by default: paper-scale pixels are many GB); a
-    dataset collected before hashes were recorded has none, which gives a ``UserWarning`` and no check.
+    dataset whose metadata records none gives a ``UserWarning`` and no check.
     """
     root = Path(path)
     meta_path = root / METADATA_FILE
@@ -312,7 +312,7 @@ def open_dataset(path: str | Path, kind: DatasetKind | str | None = None, verify
                 f"integer; {_DAMAGED}"
             )
     n_rows, n_items = counts["rows"], counts["items"]
-    hashes = metadata.get(HASHES_KEY)  # absent in datasets collected before hashes were recorded
+    hashes = metadata.get(HASHES_KEY)  # absent when the metadata records none
     if hashes is not None:
         problem = hashes_problem(hashes, consolidated_file_names(found))
         if problem is not None:

@@ -9,7 +9,7 @@ Two layers:
 * :class:`TrajectoryBatcher` / :class:`PairBatcher` are the fast path used for training: they draw with
   the same sampler and gather every key once with ``torch.index_select(..., out=)`` into buffers allocated
   once, returning ``[N, T]`` (or ``[B]``) TensorDicts with the target images attached. (TorchRL's
-  ``SliceSampler`` gathers the pixels twice and allocates fresh tensors: ~10x slower, see
+  ``SliceSampler`` gathers the pixels twice and allocates fresh tensors: ~17x slower, see
   ``benchmarks/data.md``.)
 
 Randomness: one ``torch.Generator`` per sampler; ``state_dict()``/``load_state_dict()`` capture it together with
@@ -131,7 +131,7 @@ class TrajectorySampler(Sampler):
     A trajectory longer than ``context_steps`` is cut to a window of that length at a uniformly random
     offset; windows never cross trajectories. In a TorchRL replay buffer the buffer's ``batch_size`` is the
     number of trajectories N and the output is flat ``[N * T]`` with the validity mask under ``"mask"``
-    (what ``NavFormerLoss`` and the actor read) and ``("collector", "mask")`` (TorchRL's slice-sampler key).
+    (what ``ActionMSELoss`` and the actor read) and ``("collector", "mask")`` (TorchRL's slice-sampler key).
 
     It is made for offline datasets: trajectories stored contiguously with ids ``0..n-1``. In a buffer
     that grows (``extend``), a table built from the storage is rebuilt at the next ``sample`` (the epoch

@@ -62,6 +62,7 @@ from navformer_rl.data.schema import (
     fields_for,
     key_name,
 )
+from navformer_rl.data.versions import VERSIONS_KEY
 from navformer_rl.durable import FolderLockedError as FolderLockedError  # re-exported
 from navformer_rl.durable import atomic_leftovers, atomic_write_json, fsync_dir, fsync_tree
 from navformer_rl.durable import folder_lock as durable_folder_lock
@@ -76,19 +77,44 @@ _UNIT_PREFIX = "unit-"
 
 
 CODE_KEY = "code_sha256"
-"""The settings entry holding the fingerprint of the code that makes the data (``collect.code_fingerprint``)."""
+"""The settings entry that identifies the collecting code by a sha256 of its source files, in datasets
+whose settings hold no :data:`~navformer_rl.data.versions.VERSIONS_KEY`."""
+
+_IDENTITY_KEYS = (VERSIONS_KEY, CODE_KEY)
+"""Settings entries that identify the code that made the data rather than the data asked for."""
 
 
-def _only_code_differs(old: dict[str, Any], header: dict[str, Any]) -> bool:
-    """Whether a stored dataset header and a new one differ in the code fingerprint of the settings only."""
+def _code_identity(settings: dict[str, Any]) -> str:
+    """The code identity of stored ``settings`` in words."""
+    if CODE_KEY in settings and VERSIONS_KEY not in settings:
+        return f"{CODE_KEY} {str(settings[CODE_KEY])[:12]}, a hash of its source files"
+    return "no record of its code" if VERSIONS_KEY not in settings else "data versions"
+
+
+def code_change(old: dict[str, Any], header: dict[str, Any]) -> str | None:
+    """How the code identity (:data:`_IDENTITY_KEYS`) of a stored dataset header ``old`` differs from a new
+    ``header`` when nothing else of the two differs: the versions that changed (``"data versions
+    exploration_expert 1 -> 2"``), or what identifies each code (``"code_sha256 0123456789ab, a hash of
+    its source files; now data versions"``). ``None`` when the two are equal or differ elsewhere (other
+    settings, kind, schema, size)."""
     was, now = old.get("settings"), header["settings"]
-    if not (isinstance(was, dict) and CODE_KEY in was and CODE_KEY in now) or was[CODE_KEY] == now[CODE_KEY]:
-        return False
-    same_settings = {k: v for k, v in was.items() if k != CODE_KEY} == {
-        k: v for k, v in now.items() if k != CODE_KEY
-    }
+    if not isinstance(was, dict):
+        return None
+    same_code = all(was.get(key) == now.get(key) for key in _IDENTITY_KEYS)
+    rest_was = {k: v for k, v in was.items() if k not in _IDENTITY_KEYS}
+    rest_now = {k: v for k, v in now.items() if k not in _IDENTITY_KEYS}
     same_rest = all(old.get(key) == header[key] for key in ("schema_version", "kind", "target_count"))
-    return same_settings and same_rest
+    if same_code or rest_was != rest_now or not same_rest:
+        return None
+    versions_was, versions_now = was.get(VERSIONS_KEY), now.get(VERSIONS_KEY)
+    if isinstance(versions_was, dict) and isinstance(versions_now, dict) and CODE_KEY not in was:
+        names = sorted(
+            k for k in {*versions_was, *versions_now} if versions_was.get(k) != versions_now.get(k)
+        )
+        return "data versions " + ", ".join(
+            f"{k} {versions_was.get(k, '(none)')} -> {versions_now.get(k, '(none)')}" for k in names
+        )
+    return f"{_code_identity(was)}; now {_code_identity(now)}"
 
 
 def folder_lock(root: str | Path) -> contextlib.AbstractContextManager[Path]:
@@ -347,8 +373,8 @@ class DatasetWriter:
             "package_version": __version__,
         }
         meta_path = self.root / METADATA_FILE
-        # metadata rewrites interrupted before their rename were never committed (the second pattern is
-        # how versions before atomic_write_json named them)
+        # temp files of metadata rewrites interrupted before their rename were never committed (two
+        # naming patterns: atomic_write_json's and the plain ``.tmp-metadata.json.*``)
         for leftover in (*atomic_leftovers(meta_path), *self.root.glob(f"{_TMP_PREFIX}{METADATA_FILE}.*")):
             leftover.unlink(missing_ok=True)
         if meta_path.exists():
@@ -357,18 +383,16 @@ class DatasetWriter:
                 f"{METADATA_FILE} is only ever replaced atomically, so it was damaged after it was written: "
                 f"restore it from a backup, or delete {self.root} and collect again",
             )
-            if _only_code_differs(old, header):
+            change = code_change(old, header)
+            if change is not None:
                 if old.get("status") != "complete":
                     raise ValueError(
-                        f"{self.root} is an unfinished collection started with other simulator / expert code "
-                        f"({CODE_KEY} {old['settings'][CODE_KEY][:12]}, now {header['settings'][CODE_KEY][:12]}):"
-                        " finishing it would mix data of two code versions; delete the folder to collect "
-                        "anew, or finish it with the code version that started it"
+                        f"{self.root} is an unfinished collection started by other code ({change}): finish "
+                        "it with the code version that started it, or delete the folder to collect anew"
                     )
                 warnings.warn(
-                    f"{self.root} was collected with other simulator / expert code ({CODE_KEY} "
-                    f"{old['settings'][CODE_KEY][:12]}, now {header['settings'][CODE_KEY][:12]}); it is "
-                    "complete, so it is used as it is (delete it to collect with the current code)",
+                    f"{self.root} was collected by other code ({change}); it is complete, so it is used as "
+                    "it is (delete it to collect with the current code)",
                     UserWarning,
                     stacklevel=2,
                 )

@@ -36,7 +36,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import multiprocessing
 import os
 import re
 import time
@@ -70,6 +69,7 @@ from navformer_rl.evaluation.runner import (
     make_eval_env,
 )
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
+from navformer_rl.interrupts import spawn_context
 from navformer_rl.mp4 import ffmpeg_executable
 
 __all__ = [
@@ -77,8 +77,7 @@ __all__ = [
     "PARTIAL_DIRNAME",
     "EvaluationResult",
     "evaluate",
-    # re-exported: defined here before the policy recipe and the episode runner got their own modules,
-    # and still imported from here (CLI, report, recipes, tests)
+    # re-exported for the CLI, the report, recipes and tests
     "METHODS",
     "EpisodeTask",
     "PolicySpec",
@@ -162,99 +161,39 @@ def evaluate(
             interrupted run picks up where it stopped); False recomputes everything.
     """
     invoked = time.perf_counter()
-    if isinstance(episode_set, str | os.PathLike):
-        episode_set = load_episode_set(episode_set)
-    if not isinstance(episode_set, EpisodeSet) or len(episode_set) == 0:
-        raise ValueError("episode_set must be a non-empty EpisodeSet or the path of an episode-set file")
-    _check_episode_ids(episode_set)
-    workers = check_int(workers, "workers")
-    check_int(maps_per_setup, "maps_per_setup (--maps)", minimum=0)
-    check_int(videos_per_setup, "videos_per_setup (--videos)", minimum=0)
-    if videos_per_setup > 0:
-        ffmpeg_executable()  # a missing encoder is reported here, not by a worker at its first video
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence={confidence!r}: expected a level in (0, 1), e.g. 0.95")
-    check_cluster(cluster)
-    if not (isinstance(video_fps, int | float) and math.isfinite(video_fps) and video_fps > 0):
-        raise ValueError(f"video_fps={video_fps!r}: expected a number of frames per second > 0")
+    episode_set = _checked_episode_set(episode_set)
+    workers = _check_options(workers, maps_per_setup, videos_per_setup, video_fps, confidence, cluster)
     if callable(method):
         factory, method = method, getattr(method, "__name__", "custom")
     else:
         factory = None
-    if checkpoint is not None and factory is None and method in CHECKPOINT_METHODS:
-        from navformer_rl.checkpoint import resolve_checkpoint
-
-        # one concrete checkpoint folder for the checks, run.json and every worker, even while the run
-        # directory is still training and a newer checkpoint appears mid-evaluation
-        checkpoint = resolve_checkpoint(checkpoint)
+    checkpoint = _resolved_checkpoint(method, factory, checkpoint)
     spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory, device)
     label = label or method
     description = spec.validate(label)
     out_dir = Path(out_dir)
     with folder_lock(out_dir, LOCK_FILENAME, "evaluated"):  # one evaluation per folder at a time
-        _remove_temporaries(out_dir)
-        _refuse_other_runs_results(out_dir, label)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        save_episode_set(episode_set, out_dir / "episode_set.json")
-
-        identity = {
-            "method": method,
-            "label": label,
-            "seed": int(seed),
-            "max_steps": episode_set.max_steps,
-            "checkpoint_sha256": description.get("checkpoint_sha256"),
-            "record_fields": sorted(RobotTrial.__dataclass_fields__),
-            # results of another release (simulator or policy fixes) are recomputed, never mixed in
-            "package_version": __version__,
-        }
-        if "factory" in description:  # your own policy: its module.qualname, not only its label
-            identity["factory"] = description["factory"]
-        model_device = (
-            resolve_device(device).type if method in CHECKPOINT_METHODS and factory is None else None
+        _prepare_folder(out_dir, label, episode_set)
+        model_device = _model_device(method, factory, device)
+        identity = _resume_identity(
+            method, label, int(seed), episode_set.max_steps, description, model_device
         )
-        if model_device not in (None, "cpu"):  # CPU results keep the keys they had before this option
-            identity["device"] = model_device
-        if description.get("transformer_step") == "native":  # the torch path keeps its earlier keys
-            identity["transformer_step"] = "native"
-            spec = dataclasses.replace(spec, native=True)
-        elif description.get("transformer_step") == "torch":
-            spec = dataclasses.replace(spec, native=False)
+        spec = _with_transformer_step(spec, description)
         tasks = _make_tasks(
             episode_set, out_dir, label, maps_per_setup, videos_per_setup, video_fps, identity
         )
         outputs, computed = _run_tasks(
             tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume
         )
-
         _remove_stale_outputs(out_dir, tasks, outputs)
-        records = [record for output in outputs for record in output["records"]]
-        atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
-        # the bootstrap seed is not the policy seed: the same rows get the same intervals here and in reports
-        summaries = write_summary_files(records, out_dir, confidence, cluster=cluster)
-        from navformer_rl.evaluation.plots import plot_setup_bars
-
-        plot = plot_setup_bars(summaries, out_dir / "metrics.png", title=f"{label} on {episode_set.name}")
-        files = {
-            "episodes": "episodes.jsonl",
-            "summary_csv": "summary.csv",
-            "summary_md": "summary.md",
-            "plot": plot.name,
-            "maps": [m for o in outputs for m in o["maps"]],
-            "videos": [v for o in outputs for v in o["videos"]],
-        }
+        records, summaries, files = _write_results(out_dir, label, episode_set, outputs, confidence, cluster)
         run = {
             "method": method,
             "label": label,
             "checkpoint": spec.checkpoint,
             "seed": int(seed),
             "workers": workers,
-            "episode_set": {
-                "name": episode_set.name,
-                "content_sha256": episode_set.content_hash(),
-                "episodes": len(episode_set),
-                "max_steps": episode_set.max_steps,
-                "setups": episode_set.setups,
-            },
+            "episode_set": _episode_set_entry(episode_set),
             "confidence": confidence,
             "cluster": cluster,
             "device": model_device,
@@ -272,6 +211,145 @@ def evaluate(
             episodes_computed=computed,
             seconds=run["seconds"],
         )
+
+
+def _checked_episode_set(episode_set: EpisodeSet | str | os.PathLike) -> EpisodeSet:
+    """``episode_set``, loaded when it is a path, after checking it is non-empty with distinct episode ids."""
+    if isinstance(episode_set, str | os.PathLike):
+        episode_set = load_episode_set(episode_set)
+    if not isinstance(episode_set, EpisodeSet) or len(episode_set) == 0:
+        raise ValueError("episode_set must be a non-empty EpisodeSet or the path of an episode-set file")
+    _check_episode_ids(episode_set)
+    return episode_set
+
+
+def _check_options(
+    workers: int,
+    maps_per_setup: int,
+    videos_per_setup: int,
+    video_fps: float,
+    confidence: float,
+    cluster: str,
+) -> int:
+    """Check :func:`evaluate`'s counts, levels and video settings (ValueError naming the bad one; a missing
+    video encoder is reported here, not by a worker at its first video); returns ``workers``."""
+    workers = check_int(workers, "workers")
+    check_int(maps_per_setup, "maps_per_setup (--maps)", minimum=0)
+    check_int(videos_per_setup, "videos_per_setup (--videos)", minimum=0)
+    if videos_per_setup > 0:
+        ffmpeg_executable()
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence={confidence!r}: expected a level in (0, 1), e.g. 0.95")
+    check_cluster(cluster)
+    if not (isinstance(video_fps, int | float) and math.isfinite(video_fps) and video_fps > 0):
+        raise ValueError(f"video_fps={video_fps!r}: expected a number of frames per second > 0")
+    return workers
+
+
+def _resolved_checkpoint(
+    method: str, factory: Callable[[], Any] | None, checkpoint: str | os.PathLike | None
+) -> str | os.PathLike | None:
+    """For ``navformer`` / ``dt``: one concrete checkpoint folder for the checks, ``run.json`` and every
+    worker (a run directory's latest, fixed now even while that run keeps training); else ``checkpoint``."""
+    if checkpoint is None or factory is not None or method not in CHECKPOINT_METHODS:
+        return checkpoint
+    from navformer_rl.checkpoint import resolve_checkpoint
+
+    return resolve_checkpoint(checkpoint)
+
+
+def _prepare_folder(out_dir: Path, label: str, episode_set: EpisodeSet) -> None:
+    """Clear writers' leftovers from ``out_dir``, refuse another label's results, save the episode set."""
+    _remove_temporaries(out_dir)
+    _refuse_other_runs_results(out_dir, label)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_episode_set(episode_set, out_dir / "episode_set.json")
+
+
+def _model_device(method: str, factory: Callable[[], Any] | None, device: str) -> str | None:
+    """The device type (``"cpu"``, ``"cuda"``) a ``navformer`` / ``dt`` model runs on; None for the others."""
+    return resolve_device(device).type if method in CHECKPOINT_METHODS and factory is None else None
+
+
+def _resume_identity(
+    method: str,
+    label: str,
+    seed: int,
+    max_steps: int,
+    description: dict[str, Any],
+    model_device: str | None,
+) -> dict[str, Any]:
+    """What a stored episode result must have been computed with to be reused (hashed into each task's key).
+
+    ``device`` is present only off the CPU and ``transformer_step`` only for the native kernel, so results
+    computed on the CPU with the torch step match whatever else the identity holds.
+    """
+    identity = {
+        "method": method,
+        "label": label,
+        "seed": seed,
+        "max_steps": max_steps,
+        "checkpoint_sha256": description.get("checkpoint_sha256"),
+        "record_fields": sorted(RobotTrial.__dataclass_fields__),
+        # results of another release (simulator or policy fixes) are recomputed, never mixed in
+        "package_version": __version__,
+    }
+    if "factory" in description:  # your own policy: its module.qualname, not only its label
+        identity["factory"] = description["factory"]
+    if model_device not in (None, "cpu"):
+        identity["device"] = model_device
+    if description.get("transformer_step") == "native":
+        identity["transformer_step"] = "native"
+    return identity
+
+
+def _with_transformer_step(spec: PolicySpec, description: dict[str, Any]) -> PolicySpec:
+    """``spec`` running the transformer step the policy described (native kernel or torch), when it names one."""
+    step = description.get("transformer_step")
+    if step == "native":
+        return dataclasses.replace(spec, native=True)
+    if step == "torch":
+        return dataclasses.replace(spec, native=False)
+    return spec
+
+
+def _write_results(
+    out_dir: Path,
+    label: str,
+    episode_set: EpisodeSet,
+    outputs: list[dict[str, Any]],
+    confidence: float,
+    cluster: str,
+) -> tuple[list[RobotTrial], list[SetupSummary], dict[str, Any]]:
+    """Write ``episodes.jsonl``, the summary tables and ``metrics.png``; returns the records, the summaries
+    and the ``files`` entry of ``run.json`` (those names, the maps and the videos)."""
+    records = [record for output in outputs for record in output["records"]]
+    atomic_write_text(out_dir / "episodes.jsonl", records_to_jsonl(records))
+    # the bootstrap seed is not the policy seed: the same rows get the same intervals here and in reports
+    summaries = write_summary_files(records, out_dir, confidence, cluster=cluster)
+    from navformer_rl.evaluation.plots import plot_setup_bars
+
+    plot = plot_setup_bars(summaries, out_dir / "metrics.png", title=f"{label} on {episode_set.name}")
+    files = {
+        "episodes": "episodes.jsonl",
+        "summary_csv": "summary.csv",
+        "summary_md": "summary.md",
+        "plot": plot.name,
+        "maps": [m for o in outputs for m in o["maps"]],
+        "videos": [v for o in outputs for v in o["videos"]],
+    }
+    return records, summaries, files
+
+
+def _episode_set_entry(episode_set: EpisodeSet) -> dict[str, Any]:
+    """The ``episode_set`` entry of ``run.json``: name, content hash, size, trial length, setups."""
+    return {
+        "name": episode_set.name,
+        "content_sha256": episode_set.content_hash(),
+        "episodes": len(episode_set),
+        "max_steps": episode_set.max_steps,
+        "setups": episode_set.setups,
+    }
 
 
 _TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
@@ -293,7 +371,7 @@ def _timing(outputs: list[dict[str, Any]], computed: int, elapsed: float) -> dic
 
     def total(key: str) -> float | None:
         values = [o.get(key) for o in outputs]
-        # an episode stored without its time (never by this version) makes the total unknown, not smaller
+        # an episode stored without its time makes the total unknown, not smaller
         return None if any(v is None for v in values) else round(sum(values), 3)
 
     return {
@@ -365,8 +443,8 @@ def _make_tasks(
     identity: dict[str, Any],
 ) -> list[EpisodeTask]:
     """One task per episode; its resume key hashes ``identity``, the episode, whether it saves a map and a
-    video, and the video's frame rate when it saves one (keys of results without the newer fields stay
-    as they were, so earlier runs resume)."""
+    video, and the video's frame rate only when it saves one (a result without a video does not depend
+    on it)."""
     seen: dict[str, int] = {}
     tasks = []
     for index, episode in enumerate(episode_set.episodes):
@@ -408,7 +486,7 @@ def _load_partial(task: EpisodeTask) -> dict[str, Any] | None:
             "records": [RobotTrial.from_dict(r) for r in document["records"]],
             "maps": list(document["maps"]),
             "videos": list(document["videos"]),
-            # the times it took when it was computed (None in files of versions that did not store them)
+            # the times it took when it was computed (None when the file holds none)
             "seconds": document.get("seconds"),
             "wall_seconds": document.get("wall_seconds"),
         }
@@ -482,7 +560,7 @@ def _run_tasks(
         else:
             pool = ProcessPoolExecutor(
                 max_workers=min(workers, len(todo)),
-                mp_context=multiprocessing.get_context("spawn"),
+                mp_context=spawn_context(),  # workers leave Ctrl-C to this process until initialised
                 initializer=_init_worker,
                 initargs=(spec, max_steps, video_fps),
             )
@@ -492,8 +570,8 @@ def _run_tasks(
                     finish(futures[future], future.result())
             except BaseException:
                 # An error or Ctrl-C: drop the queued episodes instead of running them all first (finished
-                # ones are already stored for resuming), and wait for the running ones (a Ctrl-C reaches
-                # the workers too), so that nothing writes into the folder once its lock is released.
+                # ones are already stored for resuming), and wait for the running ones (a Ctrl-C ends the
+                # workers too), so that nothing writes into the folder once its lock is released.
                 pool.shutdown(wait=True, cancel_futures=True)
                 raise
             pool.shutdown()

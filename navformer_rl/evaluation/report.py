@@ -10,8 +10,8 @@ aggregates from the per-robot-trial rows, and writes:
   measured in another simulator (Gazebo) on other worlds with the authors' models;
 - links to each method's top-down maps and videos, and the episode-set hash each method ran on;
 - a warning for an evaluation whose label names a training ablation (``navformer-no_thsc``) that its
-  checkpoint was not trained with (possible in folders written before ``evaluate`` refused such labels):
-  its rows are compared with the paper's row of the checkpoint's actual ablation when ``run.json`` or the
+  checkpoint was not trained with (``evaluate`` refuses such labels; a folder may still hold one it did
+  not check): its rows are compared with the paper's row of the checkpoint's actual ablation when ``run.json`` or the
   checkpoint tells it, and with no paper row otherwise.
 
 Every table and the plot list the setups in one order
@@ -29,7 +29,7 @@ from typing import Any
 
 from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.harness import checkpoint_ablation, label_ablation_problem
-from navformer_rl.evaluation.measures import check_cluster
+from navformer_rl.evaluation.measures import RobotTrial, check_cluster
 from navformer_rl.evaluation.paper_results import (
     ABLATION_TO_TABLE4,
     METHOD_TO_PAPER_COLUMN,
@@ -82,7 +82,7 @@ def _paper_column(label: str, ablation: str | None = None) -> str | None:
 
 def _recorded_ablation(run: dict[str, Any]) -> str | None:
     """The training ablation of the checkpoint an evaluation ran: ``run.json``'s ``ablation``; for a
-    ``run.json`` written before it was recorded, read from the checkpoint when it is still at the recorded
+    ``run.json`` without one, read from the checkpoint when it is still at the recorded
     path with the same weights (sha256); None when unknown or not a checkpoint method."""
     if "ablation" in run:
         return run["ablation"]
@@ -193,8 +193,8 @@ def paper_table4_markdown() -> str:
 
 
 REPORT_MARKER = "<!-- written by navformer_rl.evaluation.report.write_report -->"
-"""First line of every report: an existing file is replaced only if it is a report (this line, or the
-measures sentence that reports written before the marker existed carry near their top)."""
+"""First line of every report: an existing file is replaced only if it is a report (this line, or, in a
+report without it, the measures sentence near its top)."""
 _MEASURES_SENTENCE = "Measures as defined in the paper (§VII.A): SR = mean success over robot-trials"
 
 
@@ -212,10 +212,10 @@ def _check_replaceable(out_path: Path) -> None:
             )
 
 
-def _older_videos_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
-    """Lines naming the folders whose videos are not H.264 (episodes reused from a version that wrote
-    OpenCV's ``mp4v``) or could not be probed, from each folder's first video; empty when there are none."""
-    older, unreadable = [], []
+def _video_codec_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
+    """Lines naming the folders whose videos are not H.264 (e.g. OpenCV's ``mp4v``, in reused episodes) or
+    could not be probed, from each folder's first video; empty when there are none."""
+    not_h264, unreadable = [], []
     for folder, run in runs:
         videos = run["files"].get("videos", [])
         if videos and (folder / videos[0]).is_file():
@@ -225,11 +225,11 @@ def _older_videos_note(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str:
                 unreadable.append(f"{run['label']} ({type(error).__name__})")
                 continue
             if codec != "h264":
-                older.append(f"{run['label']} ({codec})")
+                not_h264.append(f"{run['label']} ({codec})")
     lines = []
-    if older:
+    if not_h264:
         lines.append(
-            f"Not H.264: the videos of {', '.join(older)}, reused from an earlier version (`mpeg4` is "
+            f"Not H.264: the videos of {', '.join(not_h264)}, reused from an earlier version (`mpeg4` is "
             "OpenCV's `mp4v`: VLC and mpv play it, browsers do not; to re-encode, rerun that evaluation with "
             "`--fresh` or delete its folder).\n"
         )
@@ -290,7 +290,7 @@ def _interval_settings(
     runs: Sequence[tuple[Path, Mapping[str, Any]]], confidence: float | None, cluster: str | None
 ) -> tuple[float, str, list[str]]:
     """The report's interval level and clusters (the folders' shared ones where not given) and a phrase per
-    folder whose own ``summary.md`` used other ones (``run.json``; folders of earlier versions: 0.95, trials)."""
+    folder whose own ``summary.md`` used other ones (``run.json``; 0.95 and trials where it records none)."""
     recorded = {folder: (run.get("confidence", 0.95), run.get("cluster", "trial")) for folder, run in runs}
     if confidence is None:
         levels = {level for level, _ in recorded.values()}
@@ -336,6 +336,36 @@ def write_report(
     out_path = Path(out_path)
     _check_replaceable(out_path)
     report_dir = out_path.parent
+    records, runs, labels = _read_runs(result_dirs)
+    confidence, cluster, differing = _interval_settings(runs, confidence, cluster)
+    summaries = summarize_by_setup(records, confidence, seed, cluster)
+    plot_path = report_dir / f"{out_path.stem}_metrics.png"  # not metrics.png: an evaluation folder's own
+    plot = plot_setup_bars(summaries, plot_path, methods=labels, title=title)
+    columns, ablations, label_warnings = _paper_columns(runs)
+    parts = [REPORT_MARKER, f"# {title}\n"]
+    parts.append(
+        f"{_MEASURES_SENTENCE} (success: within "
+        "1.5 m of the target before the trial ends); SPL = mean of S·ℓ/max(℘, ℓ) (eq. 12) with ℓ the "
+        "shortest collision-free path from start to target on the true map; CR = mean over robot-trials of "
+        "collision steps / active steps. See `docs/evaluation.md`.\n"
+    )
+    unpaired = _unpaired_warning(runs)
+    if unpaired is not None:
+        parts.append(unpaired)
+    parts += label_warnings
+    parts += _methods_section(runs, ablations)
+    parts += _results_section(summaries, labels, confidence, cluster, differing, plot.name)
+    parts += _paper_section(summaries, labels, columns)
+    parts += _episodes_section(runs, report_dir)
+    atomic_write_text(out_path, "\n".join(parts) + "\n")
+    return out_path
+
+
+def _read_runs(
+    result_dirs: Sequence[str | os.PathLike],
+) -> tuple[list[RobotTrial], list[tuple[Path, dict[str, Any]]], list[str]]:
+    """``(records, [(folder, run.json)], labels)`` of the evaluation folders, in order; ValueError when
+    two hold the same label (a report has one column per label)."""
     records, runs, labels = [], [], []
     for folder in map(Path, result_dirs):
         run = read_run(folder)
@@ -349,22 +379,16 @@ def write_report(
         labels.append(run["label"])
         records += mine
         runs.append((folder, run))
-    confidence, cluster, differing = _interval_settings(runs, confidence, cluster)
-    summaries = summarize_by_setup(records, confidence, seed, cluster)
-    plot_path = report_dir / f"{out_path.stem}_metrics.png"  # not metrics.png: an evaluation folder's own
-    plot = plot_setup_bars(summaries, plot_path, methods=labels, title=title)
+    return records, runs, labels
 
-    parts = [REPORT_MARKER, f"# {title}\n"]
-    parts.append(
-        f"{_MEASURES_SENTENCE} (success: within "
-        "1.5 m of the target before the trial ends); SPL = mean of S·ℓ/max(℘, ℓ) (eq. 12) with ℓ the "
-        "shortest collision-free path from start to target on the true map; CR = mean over robot-trials of "
-        "collision steps / active steps. See `docs/evaluation.md`.\n"
-    )
-    unpaired = _unpaired_warning(runs)
-    if unpaired is not None:
-        parts.append(unpaired)
-    columns, ablations = {}, {}
+
+def _paper_columns(
+    runs: Sequence[tuple[Path, dict[str, Any]]],
+) -> tuple[dict[str, str | None], dict[str, str | None], list[str]]:
+    """Per label: the paper column its rows are compared with and its training ablation, and a warning
+    paragraph for each folder whose label names another ablation than its checkpoint's (its rows are then
+    compared with the checkpoint's column, or with none)."""
+    columns, ablations, warnings = {}, {}, []
     for folder, run in runs:
         ablations[run["label"]] = ablation = _recorded_ablation(run)
         columns[run["label"]] = _paper_column(run["label"], ablation)
@@ -374,7 +398,7 @@ def write_report(
         if problem is not None and "factory" not in run:
             column = columns[run["label"]] if ablation is not None else None
             columns[run["label"]] = column
-            parts.append(
+            warnings.append(
                 f"**Warning: {folder}**: {problem}. That evaluation predates the check that now refuses "
                 "such a label; its rows are "
                 + (
@@ -384,17 +408,24 @@ def write_report(
                 )
                 + "\n"
             )
-    parts.append("## Methods\n")
+    return columns, ablations, warnings
+
+
+def _methods_section(
+    runs: Sequence[tuple[Path, dict[str, Any]]], ablations: dict[str, str | None]
+) -> list[str]:
+    """The "Methods" table (episode set, checkpoint, training ablation, seconds per label) and its note."""
+    parts = ["## Methods\n"]
     parts.append(
         "| Method | Episode set | Episodes | Max steps | Checkpoint | Training ablation | Seconds |\n"
         "|---|---|---|---|---|---|---|"
     )
-    legacy_seconds = False
+    last_invocation_seconds = False
     for _, run in runs:
         es = run["episode_set"]
         seconds = run.get("seconds")
-        if "invocation_seconds" not in run and seconds is not None:  # an earlier version's run.json
-            legacy_seconds = True
+        if "invocation_seconds" not in run and seconds is not None:  # seconds of the last invocation only
+            last_invocation_seconds = True
             seconds_cell = f"{seconds:.0f}†"
         else:
             seconds_cell = "-" if seconds is None else f"{seconds:.0f}"
@@ -412,12 +443,25 @@ def write_report(
         + (
             " † `run.json` of an earlier version: the wall time of the last invocation only, which is too "
             "small when that invocation reused finished episodes."
-            if legacy_seconds
+            if last_invocation_seconds
             else ""
         )
         + "\n"
     )
-    parts.append(f"## Results (ours, {100 * confidence:g} % confidence intervals in brackets)\n")
+    return parts
+
+
+def _results_section(
+    summaries: Sequence[SetupSummary],
+    labels: Sequence[str],
+    confidence: float,
+    cluster: str,
+    differing: Sequence[str],
+    plot_name: str,
+) -> list[str]:
+    """The "Results" section: the interval method, the SR / SPL / CR table, the bar plot ``plot_name`` and
+    the SPL measured to the success disc."""
+    parts = [f"## Results (ours, {100 * confidence:g} % confidence intervals in brackets)\n"]
     parts.append(f"Intervals: {interval_method(cluster, confidence)}.\n")
     if differing:
         parts.append(
@@ -427,14 +471,22 @@ def write_report(
             "from the per-episode rows.\n"
         )
     parts.append(table_markdown(summaries, labels))
-    parts.append(f"![SR, SPL and CR per setup]({plot.name})\n")
+    parts.append(f"![SR, SPL and CR per setup]({plot_name})\n")
     parts.append(
         "SPL with ℓ measured to the 1.5 m success disc instead of the target (not in the paper; it removes "
         "the 1.5 m of slack that eq. 12's ℓ gives a robot that stops at the disc's edge):\n"
     )
     parts.append(spl_disc_markdown(summaries, labels))
+    return parts
+
+
+def _paper_section(
+    summaries: Sequence[SetupSummary], labels: Sequence[str], columns: dict[str, str | None]
+) -> list[str]:
+    """The "Beside the paper" section: the caveat, our rows beside the paper's columns, Table I, and Table
+    IV when an ablation was evaluated on the 12.5 m / 4-robot setup."""
     comparison = paper_comparison_markdown(summaries, labels, columns)
-    parts.append("## Beside the paper\n")
+    parts = ["## Beside the paper\n"]
     parts.append(PAPER_CAVEAT.format(source=PAPER_SOURCE) + "\n")
     if comparison:
         parts.append(comparison)
@@ -446,10 +498,16 @@ def write_report(
     ):
         parts.append("### The paper's Table IV (ablations, Gazebo, for reference)\n")
         parts.append(paper_table4_markdown())
-    parts.append("## Episodes\n")
+    return parts
+
+
+def _episodes_section(runs: Sequence[tuple[Path, dict[str, Any]]], report_dir: Path) -> list[str]:
+    """The "Episodes" section: per label, links (relative to ``report_dir``) to its per-robot-trial rows,
+    maps and videos, then each label's first map shown inline."""
+    parts = ["## Episodes\n"]
     parts.append(
         "Videos are H.264 mp4 (browsers, VS Code and VLC play them), one frame per 0.2 s step at the run's "
-        "frame rate (10 fps by default: twice real time).\n" + _older_videos_note(runs)
+        "frame rate (10 fps by default: twice real time).\n" + _video_codec_note(runs)
     )
     for folder, run in runs:
         links = []
@@ -466,5 +524,4 @@ def write_report(
     first_maps = [(folder, run["files"]["maps"][0]) for folder, run in runs if run["files"].get("maps")]
     for folder, item in first_maps:
         parts.append(f"![{Path(item).stem}]({os.path.relpath(folder / item, report_dir)})")
-    atomic_write_text(out_path, "\n".join(parts) + "\n")
-    return out_path
+    return parts

@@ -2,7 +2,6 @@
 
 import ast
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -14,9 +13,12 @@ import pytest
 import torch
 
 from navformer_rl.data import collect as collect_module
-from navformer_rl.data import open_dataset
+from navformer_rl.data import expert_episodes, open_dataset
 from navformer_rl.data.cli import main as cli_main
 from navformer_rl.data.collect import collect, settings_for
+from navformer_rl.data.schema import DatasetKind
+from navformer_rl.data.versions import DATA_VERSIONS, KIND_VERSIONS, VERSIONS_KEY, data_versions
+from navformer_rl.data.writer import DatasetWriter
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -28,9 +30,9 @@ def _stored_target_names(ds, task, settings):
     for unit in range(ds.metadata["counts"]["units"]):
         if task == 0:
             episodes = range(settings.episodes_per_unit)
-            worlds = [collect_module.exploration_world(settings, unit, k)[0] for k in episodes]
+            worlds = [expert_episodes.exploration_world(settings, unit, k)[0] for k in episodes]
         else:
-            worlds = [collect_module.collision_avoidance_world(settings, unit)[0]]
+            worlds = [expert_episodes.collision_avoidance_world(settings, unit)[0]]
         for world in worlds:
             for target in world.targets:
                 position = tuple(np.float32(target.position).tolist())
@@ -80,6 +82,7 @@ def test_tiny_exploration_collection(tmp_path):
     _check_trajectories(ds, task=0, settings=s)
     meta = ds.metadata
     assert meta["settings"]["world_sizes"] == [5.0] and meta["counts"]["attempted"] >= 2
+    assert meta["settings"][VERSIONS_KEY] == data_versions("e") and "code_sha256" not in meta["settings"]
     assert meta["seeds"]["base"] == 0
 
 
@@ -138,15 +141,24 @@ def test_failed_episodes_are_dropped_and_counted():
     # 3 steps are never enough to reach a target in a 5 m maze: every episode fails
     s = settings_for("e", "small", seed=0, episodes_per_unit=2, world_sizes=(5.0,), max_steps=3)
     by_item: dict[str, list[int]] = {}
-    rows, targets, counters = collect_module._exploration_unit(s, 0, by_item)
+    rows, targets, counters = expert_episodes.exploration_unit(s, 0, by_item)
     assert rows == [] and targets == [] and by_item == {}
     assert counters == {"attempted": 2, "failed": 2, "collision_steps": 0, "robot_steps": 6}
 
 
-# ------------------------------------------------------------------------------- code fingerprint
+# --------------------------------------------------------------------------------- data versions
 PACKAGE = REPO / "navformer_rl"
-NOT_SHAPING_DATA = {"__init__.py", "durable.py", "mp4.py", "data/writer.py"}
-"""Package modules imported by the collection code that only move bytes, draw, or give the version."""
+COLLECTION_ROOTS = ("data/collect.py", "data/expert_episodes.py")
+NOT_SHAPING_DATA = {
+    "__init__.py",
+    "durable.py",
+    "interrupts.py",
+    "mp4.py",
+    "data/writer.py",
+    "data/versions.py",
+}
+"""Package modules imported by the collection code that only move bytes, draw, handle Ctrl-C, or give the
+version."""
 
 
 def _package_imports(file: Path) -> set[str]:
@@ -172,27 +184,29 @@ def _package_imports(file: Path) -> set[str]:
     return found
 
 
-def test_code_fingerprint_covers_every_module_that_shapes_the_data():
-    hashed = {f.relative_to(PACKAGE).as_posix() for f in collect_module.fingerprint_files()}
-    assert {"constants.py", "checks.py", "data/collect.py", "data/schema.py", "envs/sim.py"} <= hashed
-    imported = set().union(*(_package_imports(PACKAGE / name) for name in hashed))
-    # a module the collection code imports is hashed or known not to change the data
-    assert imported - hashed <= NOT_SHAPING_DATA, sorted(imported - hashed - NOT_SHAPING_DATA)
+def test_data_versions_cover_every_module_that_shapes_the_data():
+    """Each package module the collection code reaches (imports, transitively) is covered by a version of
+    DATA_VERSIONS (which a change of its behaviour bumps) or known not to change the data."""
+    covered = {name for version in DATA_VERSIONS.values() for name in version.covers}
+    assert all((PACKAGE / name).is_file() for name in covered), sorted(covered)
+    reached, todo = set(), list(COLLECTION_ROOTS)
+    while todo:
+        name = todo.pop()
+        if name in reached or name in NOT_SHAPING_DATA:
+            continue
+        reached.add(name)
+        todo.extend(_package_imports(PACKAGE / name))
+    assert {"envs/sim.py", "experts/dwa.py", "experts/nh_orca.py", "constants.py"} <= reached
+    assert reached - covered == set(), sorted(reached - covered)
 
 
-def test_code_fingerprint_changes_with_the_constants(tmp_path):
-    """SUCCESS_RADIUS, CONTROL_DT, IMAGE_SIZE, TARGET_SHAPES / TARGET_COLORS shape the data: a collection
-    resumed after changing them must be refused, so they change the fingerprint."""
-    package = tmp_path / "navformer_rl"
-    for file in collect_module.fingerprint_files():
-        target = package / file.relative_to(PACKAGE)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(file, target)
-    before = collect_module.code_fingerprint(package)
-    assert before == collect_module.code_fingerprint()
-    constants = package / "constants.py"
-    constants.write_text(constants.read_text().replace("SUCCESS_RADIUS = 1.5", "SUCCESS_RADIUS = 1.0"))
-    assert collect_module.code_fingerprint(package) != before
+def test_every_kind_records_its_data_versions():
+    for kind in DatasetKind:
+        versions = data_versions(kind)
+        assert {"world", "simulator", "renderer"} <= set(versions) == set(KIND_VERSIONS[kind])
+        assert all(isinstance(n, int) and n >= 1 for n in versions.values())
+    assert "exploration_expert" in data_versions("e") and "exploration_expert" not in data_versions("ca")
+    assert "collision_avoidance_expert" in data_versions("ca") and "ssl_pairs" in data_versions("ssl")
 
 
 def test_collection_is_deterministic_and_resumes_identically(tmp_path, folder_bytes):
@@ -288,14 +302,16 @@ def test_cli_help_and_errors(tmp_path, capsys):
         cli_main(["collect", "--help"])
     assert exit_info.value.code == 0
     assert "--scale" in capsys.readouterr().out
-    assert cli_main(["collect", "e", "--out", str(tmp_path / "x"), "--workers", "0"]) == 2
-    assert "--workers must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        cli_main(["collect", "e", "--out", str(tmp_path / "x"), "--workers", "0"])
+    assert exit_info.value.code == 2
+    assert "argument --workers: expected an integer >= 1, got 0" in capsys.readouterr().err
     assert cli_main(["collect", "all", "--out", str(tmp_path / "x"), "--n", "3"]) == 2
     assert "not to 'all'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli_main(["collect", "xyz", "--out", str(tmp_path)])
     # a folder holding another dataset is refused with a clear message
-    collect_module.DatasetWriter(tmp_path / "other", "e", {"something": "else"}, 1)
+    DatasetWriter(tmp_path / "other", "e", {"something": "else"}, 1)
     assert cli_main(["collect", "e", "--out", str(tmp_path / "other"), "--no-progress"]) == 2
     assert "already holds a dataset" in capsys.readouterr().err
 
@@ -321,7 +337,7 @@ def test_deferred_rendering_equals_live_cameras():
     s = settings_for("ca", "small", seed=1, other_robots=(2, 2))
 
     def episode():
-        world, rng = collect_module.collision_avoidance_world(s, 0)
+        world, rng = expert_episodes.collision_avoidance_world(s, 0)
         sim = Simulator(world, JACKAL)
         expert = NHORCAExpert()
         expert.reset(world, sim, rng)
@@ -329,15 +345,15 @@ def test_deferred_rendering_equals_live_cameras():
 
     world, sim, expert = episode()
     live = []
-    active = ~collect_module._reached(sim, world)
+    active = ~expert_episodes.reached_targets(sim, world)
     while active.any() and len(live) < 200:
         live.append(sim.render_all(active))
         actions = expert.act(sim, active)
         sim.step(np.where(active[:, None], actions, 0.0), active)
-        active &= ~collect_module._reached(sim, world) & ~expert.failed
+        active &= ~expert_episodes.reached_targets(sim, world) & ~expert.failed
     sim.close()
     world, sim, expert = episode()
-    trajs = collect_module.run_episode(world, sim, expert, 200)
+    trajs = expert_episodes.run_episode(world, sim, expert, 200)
     sim.close()
     assert world.n_robots == 3 and len(trajs) == world.n_robots  # the ego robot and its 2 others
     assert all(t.succeeded for t in trajs)
@@ -355,14 +371,14 @@ def test_paper_ssl_unit_that_overfills_its_maze_gets_fewer_robots():
     """Paper unit 26 draws 25 robots for a 5 m maze, which random placement cannot hold: the unit is
     retried with fewer robots (deterministically) instead of aborting the whole collection."""
     s = settings_for("ssl", "paper")
-    world, n_drawn, rng = collect_module.ssl_world(s, 26)
+    world, n_drawn, rng = expert_episodes.ssl_world(s, 26)
     assert (world.size, n_drawn) == (5.0, 25)
-    layouts = collect_module.ssl_layouts(s, 26, world, n_drawn, rng)
+    layouts = expert_episodes.ssl_layouts(s, 26, world, n_drawn, rng)
     n = len(layouts[0])
     assert 4 <= n < 25 and len(layouts) == -(-s.pairs_per_world // n)
     assert all(layout.shape == (n, 3) for layout in layouts)
-    world, n_drawn, rng = collect_module.ssl_world(s, 26)
-    again = collect_module.ssl_layouts(s, 26, world, n_drawn, rng)
+    world, n_drawn, rng = expert_episodes.ssl_world(s, 26)
+    again = expert_episodes.ssl_layouts(s, 26, world, n_drawn, rng)
     assert all(np.array_equal(a, b) for a, b in zip(layouts, again, strict=True))
 
 
@@ -402,7 +418,7 @@ def test_action_noise_perturbs_the_executed_actions_and_keeps_the_labels(capsys)
     def drive(noise, seed=0):
         sim = Simulator(world, JACKAL)
         try:
-            (traj,) = collect_module.run_episode(
+            (traj,) = expert_episodes.run_episode(
                 world, sim, _ConstantExpert(1), 6, False, noise, np.random.default_rng(seed)
             )
         finally:
@@ -416,7 +432,7 @@ def test_action_noise_perturbs_the_executed_actions_and_keeps_the_labels(capsys)
     assert len({round(float(p[2]), 6) for p in plain.poses}) == 1  # without noise: straight ahead
     assert all(np.array_equal(a, b) for a, b in zip(noisy.poses, again.poses))  # seeded
     with pytest.raises(ValueError, match="needs a noise_rng"):
-        collect_module.run_episode(world, None, _ConstantExpert(1), 6, False, 0.3)
+        expert_episodes.run_episode(world, None, _ConstantExpert(1), 6, False, 0.3)
     with pytest.raises(ValueError, match=r"e action_noise must be .*<= 1"):
         settings_for("e", action_noise=2.0)
     from navformer_rl.data.cli import main

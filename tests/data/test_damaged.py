@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from navformer_rl.data import collect as collect_module
 from navformer_rl.data import open_dataset
@@ -22,6 +23,7 @@ from navformer_rl.data import writer as writer_module
 from navformer_rl.data.cli import main as cli_main
 from navformer_rl.data.collect import collect, settings_for
 from navformer_rl.data.schema import DatasetKind
+from navformer_rl.data.versions import VERSIONS_KEY, data_versions
 
 # 5 trajectories, 2 per unit: units 0, 1 and the first trajectory of unit 2 (a cut shard)
 SETTINGS = settings_for("e", "small", seed=7, n_trajectories=5, episodes_per_unit=2)
@@ -51,15 +53,6 @@ def _crash_at_unit(stop):
 
 def _collect(out, unit_fn=_synthetic_unit, settings=SETTINGS):
     return collect("e", out, settings, workers=1, progress=False, unit_fn=unit_fn)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _fixed_code_fingerprint():
-    """The settings hold a hash of the simulator and expert source, which these synthetic units do not use:
-    a fixed one keeps the folders resumable while that source is edited during the test run."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(collect_module, "code_fingerprint", lambda: "synthetic-units")
-        yield
 
 
 @pytest.fixture(scope="module")
@@ -550,12 +543,18 @@ def test_a_dataset_written_before_hashes_opens_and_verify_has_nothing_to_check(e
         assert open_dataset(root, verify=True).num_trajectories == 12
 
 
+def _bump_exploration_expert(kind):
+    return {**data_versions(kind), "exploration_expert": data_versions(kind)["exploration_expert"] + 1}
+
+
 def test_a_complete_dataset_from_other_code_is_reused_with_a_warning(tmp_path, monkeypatch):
     out = tmp_path / "e"
     _collect(out)
     before = (out / "metadata.json").read_bytes()
-    monkeypatch.setattr(collect_module, "code_fingerprint", lambda: "edited-simulator")
-    with pytest.warns(UserWarning, match="collected with other simulator / expert code .* used as it is"):
+    monkeypatch.setattr(collect_module, "data_versions", _bump_exploration_expert)
+    was = data_versions("e")["exploration_expert"]
+    change = rf"data versions exploration_expert {was} -> {was + 1}"
+    with pytest.warns(UserWarning, match=rf"collected by other code \({change}\); .* used as it is"):
         assert _collect(out) == out
     assert (out / "metadata.json").read_bytes() == before  # the record of what made it stays
     # other settings still differ loudly
@@ -567,6 +566,48 @@ def test_an_unfinished_collection_from_other_code_is_refused(tmp_path, monkeypat
     out = tmp_path / "e"
     with pytest.raises(_Crash):
         _collect(out, unit_fn=_crash_at_unit(1))
-    monkeypatch.setattr(collect_module, "code_fingerprint", lambda: "edited-simulator")
-    with pytest.raises(ValueError, match="unfinished collection started with other simulator / expert code"):
+    monkeypatch.setattr(collect_module, "data_versions", _bump_exploration_expert)
+    with pytest.raises(
+        ValueError,
+        match=r"unfinished collection started by other code \(data versions exploration_expert \d -> \d\): "
+        "finish it with the code version that started it, or delete the folder",
+    ):
         _collect(out)
+
+
+_SOURCE_HASH = "ab" * 32
+
+
+def _identified_by_source_hash(meta: dict) -> None:
+    """Make ``metadata.json`` of a dataset name its code by a sha256 of its source (no data versions)."""
+    del meta["settings"][VERSIONS_KEY]
+    meta["settings"]["code_sha256"] = _SOURCE_HASH
+
+
+def test_a_complete_dataset_identified_by_a_source_hash_opens_and_is_reused(reference, tmp_path):
+    root = tmp_path / "e"
+    shutil.copytree(reference, root)
+    _edit_metadata(_identified_by_source_hash)(root)
+    before = (root / "metadata.json").read_bytes()
+    fresh = open_dataset(reference, verify=True)
+    old = open_dataset(root, verify=True)
+    assert old.num_trajectories == fresh.num_trajectories == 5
+    assert torch.equal(old.rows["action"], fresh.rows["action"]) and torch.equal(old.targets, fresh.targets)
+    with pytest.warns(UserWarning, match=r"code_sha256 abababababab, a hash of its source files; now data"):
+        assert _collect(root) == root
+    assert (root / "metadata.json").read_bytes() == before
+
+
+def test_an_unfinished_collection_identified_by_a_source_hash_is_refused_in_one_line(resumable):
+    _edit_metadata(_identified_by_source_hash)(resumable)
+    with pytest.raises(ValueError) as err:
+        _collect(resumable)
+    message = str(err.value)
+    assert "\n" not in message
+    assert re.fullmatch(
+        rf"{re.escape(str(resumable))} is an unfinished collection started by other code \(code_sha256 "
+        r"abababababab, a hash of its source files; now data versions\): finish it with the code version "
+        r"that started it, or delete the folder to collect anew",
+        message,
+    ), message
+    assert sorted(p.name for p in (resumable / "shards").iterdir()) == [f"unit-{u:06d}" for u in range(3)]

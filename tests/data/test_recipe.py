@@ -38,9 +38,14 @@ def test_recipe_reports_a_mistake_in_one_line_and_leaves_no_folder(tmp_path, ove
 
 
 def test_user_errors_exits_with_one_line_and_passes_other_errors(capsys, monkeypatch):
-    """The recipes' shared handler: a user mistake -> one line on stderr and status 2; anything else (a bug)
-    keeps its traceback; NAVFORMER_DEBUG=1 re-raises the mistake too."""
-    from navformer_rl.recipe_errors import user_errors
+    """The recipes' shared handler (recipes/recipe_errors.py): a user mistake -> one line on stderr and status
+    2; anything else (a bug) keeps its traceback; NAVFORMER_DEBUG=1 re-raises the mistake too."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("recipe_errors", RECIPES / "recipe_errors.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    user_errors = module.user_errors
 
     monkeypatch.delenv("NAVFORMER_DEBUG", raising=False)
     with pytest.raises(SystemExit) as exit_info, user_errors("demo.py"):
@@ -52,3 +57,24 @@ def test_user_errors_exits_with_one_line_and_passes_other_errors(capsys, monkeyp
     monkeypatch.setenv("NAVFORMER_DEBUG", "1")
     with pytest.raises(ValueError), user_errors("demo.py"):
         raise ValueError("shown with its traceback")
+
+
+def test_the_library_imports_neither_hydra_nor_the_recipes():
+    """Hydra and recipes/ (recipe_errors.py included) stay on the recipes' side of the package."""
+    import ast
+
+    package = RECIPES.parent / "navformer_rl"
+    offenders = []
+    for path in sorted(package.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names = [node.module or ""]
+            else:
+                continue
+            top = {name.split(".")[0] for name in names}
+            offenders += [
+                f"{path.relative_to(package)}: {name}" for name in top & {"hydra", "recipes", "recipe_errors"}
+            ]
+    assert offenders == []

@@ -203,15 +203,15 @@ def test_reused_buffers_grow_to_the_batch_and_never_past_the_context(e_dataset):
 
 
 def test_torchrl_buffer_feeds_the_loss_with_its_mask(e_dataset):
-    # the buffer writes the validity mask under "mask" (what NavFormerLoss and the actor read), not only
+    # the buffer writes the validity mask under "mask" (what ActionMSELoss and the actor read), not only
     # under TorchRL's ("collector", "mask"): padded steps must not count
     from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
-    from navformer_rl.objectives import NavFormerLoss
+    from navformer_rl.objectives import ActionMSELoss
 
     batch = open_dataset(e_dataset).trajectory_buffer(3, context_steps=12, seed=1).sample().reshape(3, -1)
     assert torch.equal(batch["mask"], batch["collector", "mask"]) and not bool(batch["mask"].all())
     torch.manual_seed(0)
-    loss = NavFormerLoss(
+    loss = ActionMSELoss(
         make_navformer_actor(
             NavFormerModel(NavFormerConfig(d_embed=16, n_blocks=1, n_heads=1, d_head=16, dropout=0.0))
         )

@@ -1,0 +1,122 @@
+"""What a collection of D_e, D_ca or D_ssl is asked for: its settings, the two scales, the unit seeds.
+
+A dataset is a sequence of deterministic **work units**; item ``k`` of unit ``u`` is seeded from
+``(seed, kind, u, k)`` (:func:`unit_seed`), so a unit's content depends on its settings and index alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from navformer_rl.checks import check_number
+from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.data.schema import DatasetKind
+
+MAZE_SIZES = (5.0, 7.5, 10.0, 12.5, 15.0, 17.5)
+"""World sides for D_e and D_ssl: the paper's 5-17.5 m range on the 2.5 m maze-cell grid."""
+
+KIND_CODE = {DatasetKind.EXPLORATION: 1, DatasetKind.COLLISION_AVOIDANCE: 2, DatasetKind.SSL: 3}
+"""The kind's entry of every unit seed's ``spawn_key`` (:func:`unit_seed`)."""
+
+SEED_DERIVATION = (
+    "item k of unit u uses SeedSequence(entropy=seed, spawn_key=(kind_code, u, k)).generate_state(1)[0]"
+)
+"""How :func:`unit_seed` derives the seeds, as recorded in a dataset's ``metadata.json``."""
+
+
+@dataclass(frozen=True)
+class ExplorationSettings:
+    """D_e: ``n_trajectories`` successful episodes (paper: 3,496), one maze per episode."""
+
+    n_trajectories: int = 32
+    world_sizes: tuple[float, ...] = MAZE_SIZES
+    episodes_per_unit: int = 4
+    max_steps: int = MAX_EPISODE_STEPS
+    robot: str = "jackal"
+    seed: int = 0
+    action_noise: float = 0.0
+    """Std of the Gaussian noise added to the *executed* normalised actions; the stored labels stay the
+    expert's (DART, Laskey et al. 2017; not in the paper). 0 (default) records the plain expert."""
+
+
+@dataclass(frozen=True)
+class CollisionAvoidanceSettings:
+    """D_ca: ``n_trajectories`` robot trajectories (paper: 7,467) from 12.5 m arena episodes with the ego
+    robot plus ``other_robots`` (inclusive range; paper: 2-8) others."""
+
+    n_trajectories: int = 64
+    arena_size: float = 12.5
+    other_robots: tuple[int, int] = (2, 8)
+    max_steps: int = MAX_EPISODE_STEPS
+    robot: str = "jackal"
+    seed: int = 0
+    action_noise: float = 0.0
+    """As in :class:`ExplorationSettings` (every robot's executed actions are perturbed)."""
+
+
+@dataclass(frozen=True)
+class SSLSettings:
+    """D_ssl: ``n_worlds`` worlds (paper: 1,000) x ``pairs_per_world`` pairs (paper: 98,000 in total) with
+    ``robots`` (inclusive range; paper: 4-25) robots."""
+
+    n_worlds: int = 8
+    pairs_per_world: int = 98
+    world_sizes: tuple[float, ...] = MAZE_SIZES
+    robots: tuple[int, int] = (4, 25)
+    robot: str = "jackal"
+    seed: int = 0
+
+
+CollectionSettings = ExplorationSettings | CollisionAvoidanceSettings | SSLSettings
+"""The settings of one dataset kind."""
+
+SCALES: dict[str, dict[DatasetKind, CollectionSettings]] = {
+    "small": {
+        DatasetKind.EXPLORATION: ExplorationSettings(n_trajectories=32),
+        DatasetKind.COLLISION_AVOIDANCE: CollisionAvoidanceSettings(n_trajectories=64),
+        DatasetKind.SSL: SSLSettings(n_worlds=8),
+    },
+    "paper": {
+        DatasetKind.EXPLORATION: ExplorationSettings(n_trajectories=3496),
+        DatasetKind.COLLISION_AVOIDANCE: CollisionAvoidanceSettings(n_trajectories=7467),
+        DatasetKind.SSL: SSLSettings(n_worlds=1000),
+    },
+}
+"""``small``: minutes on a laptop; ``paper``: the sizes of paper §V."""
+
+
+def settings_for(kind: DatasetKind | str, scale: str = "small", seed: int = 0, **overrides: Any) -> Any:
+    """The settings dataclass of ``kind`` at ``scale`` with ``seed`` and any field ``overrides``."""
+    kind = DatasetKind.parse(kind)
+    if scale not in SCALES:
+        raise ValueError(f"unknown scale {scale!r}; expected one of {sorted(SCALES)}")
+    base = SCALES[scale][kind]
+    unknown = set(overrides) - {f.name for f in dataclasses.fields(base)}
+    if unknown:
+        raise ValueError(f"unknown {kind.value} collection setting(s) {sorted(unknown)}")
+    if "action_noise" in overrides:
+        check_number(overrides["action_noise"], f"{kind.value} action_noise", at_least=0.0, at_most=1.0)
+    return dataclasses.replace(base, seed=seed, **overrides)
+
+
+def target_count(kind: DatasetKind, settings: CollectionSettings) -> int:
+    """Items of the finished dataset: trajectories (D_e, D_ca) or pairs (D_ssl)."""
+    if kind is DatasetKind.SSL:
+        return settings.n_worlds * settings.pairs_per_world
+    return settings.n_trajectories
+
+
+def unit_seed(seed: int, kind: DatasetKind, unit: int, index: int = 0) -> int:
+    """Deterministic 32-bit seed of item ``index`` of work unit ``unit`` (:data:`SEED_DERIVATION`)."""
+    ss = np.random.SeedSequence(entropy=int(seed), spawn_key=(KIND_CODE[kind], int(unit), int(index)))
+    return int(ss.generate_state(1)[0])
+
+
+def noise_generator(seed: int, kind: DatasetKind, unit: int, index: int = 0) -> np.random.Generator:
+    """The generator of the action noise of item ``index`` of unit ``unit`` (apart from the world's and the
+    expert's streams, so the noise changes no other draw)."""
+    return np.random.default_rng(np.random.SeedSequence([unit_seed(seed, kind, unit, index), 0xDA27]))
