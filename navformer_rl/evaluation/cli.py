@@ -4,6 +4,7 @@ Examples::
 
     navformer evaluate --method fca --protocol table1 --out runs/eval/fca --workers 2
     navformer evaluate --method navformer --checkpoint runs/train --episodes table1.json --out runs/eval/nf
+    navformer evaluate --method dt --checkpoint pretrained:dt --protocol table1 --out runs/eval/dt_shipped
     navformer evaluate make-episodes --protocol table1 --out table1.json
     navformer evaluate report runs/eval/vrw runs/eval/fca runs/eval/nf --out runs/eval/README.md
     navformer evaluate seeds --group navformer runs/eval/nf_s0 runs/eval/nf_s1 --group dt runs/eval/dt_s0
@@ -25,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     Every parser sets ``run`` (``args.run(args) -> int``), the convention of ``navformer_rl.cli``.
     """
     from navformer_rl.evaluation.episodes import PROTOCOLS
-    from navformer_rl.evaluation.harness import METHODS
+    from navformer_rl.evaluation.policy_spec import METHODS
 
     parser = subparsers.add_parser(
         "evaluate",
@@ -34,23 +35,34 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "fly) and write per-robot-trial JSONL, a Table I-layout CSV/markdown with 95 % CIs, bar plots, "
         "top-down maps and videos into --out.",
     )
-    parser.add_argument("--method", help=f"one of: {', '.join(METHODS)}")
+    parser.add_argument("--method", choices=METHODS, help=f"one of: {', '.join(METHODS)}")
     parser.add_argument(
         "--checkpoint",
         help="navformer, dt: a run dir, its checkpoints/ or checkpoints/latest, a checkpoint folder "
-        "(checkpoints/iter_XXXXXX) or its model.safetensors",
+        "(checkpoints/iter_XXXXXX) or its model.safetensors; or shipped weights: pretrained:navformer, "
+        "pretrained:dt (`navformer pretrained list`)",
     )
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--episodes", type=Path, help="episode-set JSON file (from `evaluate make-episodes`)")
-    source.add_argument("--protocol", help=f"generate the episodes of a protocol: {', '.join(PROTOCOLS)}")
+    source.add_argument(
+        "--protocol", choices=PROTOCOLS, help=f"generate the episodes of a protocol: {', '.join(PROTOCOLS)}"
+    )
     _add_generation_options(parser)
     parser.add_argument("--out", type=cli_args.output_folder, help="output folder")
-    parser.add_argument("--workers", type=int, default=1, help="parallel processes (default 1)")
     parser.add_argument(
-        "--videos", type=int, default=1, help="episodes per setup recorded as mp4 (default 1)"
+        "--workers", type=cli_args.int_at_least(1), default=1, help="parallel processes (default 1)"
     )
     parser.add_argument(
-        "--maps", type=int, default=2, help="episodes per setup drawn as top-down maps (default 2)"
+        "--videos",
+        type=cli_args.int_at_least(0),
+        default=1,
+        help="episodes per setup recorded as mp4 (default 1)",
+    )
+    parser.add_argument(
+        "--maps",
+        type=cli_args.int_at_least(0),
+        default=2,
+        help="episodes per setup drawn as top-down maps (default 2)",
     )
     parser.add_argument(
         "--label",
@@ -73,18 +85,20 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     parser.set_defaults(run=_run_evaluate)
 
-    commands = parser.add_subparsers(dest="evaluate_command", metavar="{make-episodes,report,seeds}")
+    commands = parser.add_subparsers(dest="evaluate_command", metavar="{make-episodes,report,seeds,diagnose}")
     make = commands.add_parser(
         "make-episodes",
         help="write a fixed, versioned episode-set file",
         description="Generate the episodes of a protocol (seeded, deterministic) and save them as JSON.",
     )
-    make.add_argument("--protocol", dest="make_protocol", required=True, help=", ".join(PROTOCOLS))
+    make.add_argument(
+        "--protocol", dest="make_protocol", choices=PROTOCOLS, required=True, help=", ".join(PROTOCOLS)
+    )
     make.add_argument(
         "--out", dest="make_out", type=Path, required=True, help="episode-set JSON file to write"
     )
     make.add_argument(
-        "--workers", dest="make_workers", type=int, default=1,
+        "--workers", dest="make_workers", type=cli_args.int_at_least(1), default=1,
         help="parallel processes (default 1); the episodes do not depend on it",
     )  # fmt: skip
     _add_generation_options(make)
@@ -132,7 +146,45 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     _add_cluster_option(seeds, "trial")
     seeds.set_defaults(run=_run_seeds)
+    _register_diagnose(commands, METHODS)
     return parser
+
+
+def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str, ...]) -> None:
+    """``evaluate diagnose``: per-step records and failure measures (``navformer_rl.evaluation.diagnose``)."""
+    diagnose = commands.add_parser(
+        "diagnose",
+        help="where and how a method fails: walls, circling, target in view, progress, turns",
+        description="Run a method on an episode set recording every robot's every step, and write "
+        "diagnosis.json / diagnosis.md (docs/evaluation.md, 'Diagnosing failures').",
+    )
+    diagnose.add_argument("--method", dest="diag_method", choices=methods, required=True)
+    diagnose.add_argument("--checkpoint", dest="diag_checkpoint", help="navformer, dt: as for `evaluate`")
+    diagnose.add_argument(
+        "--episodes", dest="diag_episodes", type=Path, required=True, help="episode-set file"
+    )
+    diagnose.add_argument("--out", dest="diag_out", type=cli_args.output_folder, required=True)
+    diagnose.add_argument("--workers", dest="diag_workers", type=cli_args.int_at_least(1), default=1)
+    diagnose.add_argument("--label", dest="diag_label", help="name in the tables (default: --method)")
+    diagnose.add_argument("--seed", dest="diag_seed", type=cli_args.seed, default=0, help="as for `evaluate`")
+    diagnose.add_argument("--device", dest="diag_device", default="cpu", help="as for `evaluate`")
+    diagnose.add_argument(
+        "--expert-data", dest="diag_expert_data", nargs=2, type=Path, metavar=("DIR_E", "DIR_CA"),
+        help="D_e and D_ca folders whose actions are set beside the policy's commands",
+    )  # fmt: skip
+    diagnose.add_argument(
+        "--held-out", dest="diag_held_out", nargs=2, type=Path, metavar=("DIR_E", "DIR_CA"),
+        help="held-out D_e and D_ca folders for the teacher-forced turns (navformer, dt)",
+    )  # fmt: skip
+    diagnose.add_argument(
+        "--compare", dest="diag_compare", nargs="+", type=Path, default=[], metavar="DIR",
+        help="other diagnosis folders of the same episodes (e.g. fca, vrw), shown beside this one",
+    )  # fmt: skip
+    diagnose.add_argument("--no-progress", dest="diag_no_progress", action="store_true")
+    diagnose.add_argument(
+        "--fresh", dest="diag_fresh", action="store_true", help="recompute every episode's trace"
+    )
+    diagnose.set_defaults(run=_run_diagnose)
 
 
 def _add_cluster_option(parser: argparse.ArgumentParser, default: str | None) -> None:
@@ -154,12 +206,12 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument(
         "--trials-per-setup",
-        type=int,
+        type=cli_args.int_at_least(1),
         help=f"with --protocol: trials per setup (default and paper: {PAPER_TRIALS_PER_SETUP})",
     )
     parser.add_argument(
         "--trials-per-world",
-        type=int,
+        type=cli_args.int_at_least(1),
         help=f"with --protocol: trials per world (default and paper: {PAPER_TRIALS_PER_WORLD})",
     )
     parser.add_argument(
@@ -167,7 +219,7 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--max-steps",
-        type=int,
+        type=cli_args.int_at_least(1),
         help=f"with --protocol: steps per trial (default and paper: {MAX_EPISODE_STEPS})",
     )
     parser.add_argument(
@@ -179,6 +231,21 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
 
 def _setup_names(text: str) -> list[str]:
     return [name.strip() for name in text.split(",") if name.strip()]
+
+
+def _check_setups(protocol: str, setups: list[str] | None) -> None:
+    """ValueError naming ``--setups`` when it lists a setup that ``protocol`` lacks (or none at all)."""
+    from navformer_rl.evaluation.episodes import protocol_setups
+
+    if setups is None:
+        return
+    names = [setup.name for setup in protocol_setups(protocol)]
+    unknown = [name for name in setups if name not in names]
+    if unknown or not setups:
+        raise ValueError(
+            f"--setups {','.join(setups)!r}: expected setups of --protocol {protocol}, comma-separated: "
+            f"{','.join(names)}"
+        )
 
 
 _GENERATION_OPTIONS = ("trials_per_setup", "trials_per_world", "episode_seed", "max_steps")
@@ -218,6 +285,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
             )
         episode_set = load_episode_set(args.episodes)
     else:
+        _check_setups(args.protocol, args.setups)
         episode_set = make_protocol_episodes(
             args.protocol, *_generation(args), workers=args.workers, setups=args.setups
         )
@@ -252,6 +320,7 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes, save_episode_set
 
     out = _output_file(args.make_out, "--out")
+    _check_setups(args.make_protocol, args.setups)
     episode_set = make_protocol_episodes(
         args.make_protocol, *_generation(args), workers=args.make_workers, setups=args.setups
     )
@@ -299,4 +368,30 @@ def _run_report(args: argparse.Namespace) -> int:
         args.folders, _output_file(args.report_out, "--out"), title=args.title, cluster=args.cluster_by
     )
     print(f"wrote {path}")
+    return 0
+
+
+def _run_diagnose(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.diagnose import SUMMARY_MD, diagnose
+
+    def kinds(folders):
+        return None if folders is None else dict(zip(("e", "ca"), folders))
+
+    diagnose(
+        args.diag_method,
+        args.diag_episodes,
+        args.diag_out,
+        checkpoint=args.diag_checkpoint,
+        workers=args.diag_workers,
+        label=args.diag_label,
+        seed=args.diag_seed,
+        device=args.diag_device,
+        expert_data=kinds(args.diag_expert_data),
+        held_out=kinds(args.diag_held_out),
+        compare=args.diag_compare,
+        progress=not args.diag_no_progress,
+        resume=not args.diag_fresh,
+    )
+    print((args.diag_out / SUMMARY_MD).read_text(), end="")
+    print(f"diagnosis in {args.diag_out / SUMMARY_MD}")
     return 0

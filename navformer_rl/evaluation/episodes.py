@@ -308,11 +308,14 @@ def make_episode_set(
             trials = tuple(range(first, min(first + trials_per_world, trials_per_setup)))
             worlds.append((setup, world_index, seed, trials))
     if workers > 1 and len(worlds) > 1:
-        import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
-        context = multiprocessing.get_context("spawn")  # no forked pybullet / torch state
-        with ProcessPoolExecutor(min(workers, len(worlds)), mp_context=context) as pool:
+        from navformer_rl.interrupts import exit_on_sigint, spawn_context
+
+        context = spawn_context()  # no forked pybullet / torch state; Ctrl-C ends the workers quietly
+        with ProcessPoolExecutor(
+            min(workers, len(worlds)), mp_context=context, initializer=exit_on_sigint
+        ) as pool:
             per_world = list(pool.map(_make_world_episodes, worlds))
     else:
         per_world = [_make_world_episodes(world) for world in worlds]

@@ -33,7 +33,8 @@ class PolicySpec:
 
     Attributes:
         method: one of :data:`METHODS`.
-        checkpoint: run dir / checkpoint folder / ``model.safetensors`` for ``navformer`` and ``dt``.
+        checkpoint: run dir / checkpoint folder / ``model.safetensors`` / ``pretrained:NAME`` (shipped weights)
+            for ``navformer`` and ``dt``.
         seed: base seed of stochastic policies (VRW, FCA's noise); each episode adds its own seed.
         device: where ``navformer`` / ``dt`` run their model (``cpu``, ``cuda``, ``cuda:N``, ``auto``); the
             other methods have no model and ignore it.
@@ -74,21 +75,20 @@ class PolicySpec:
         if self.method in CHECKPOINT_METHODS:
             if self.checkpoint is None:
                 raise ValueError(
-                    f"method {self.method!r} needs a checkpoint: a run directory or checkpoint folder "
-                    "(CLI --checkpoint PATH, recipe checkpoint=PATH)"
+                    f"method {self.method!r} needs a checkpoint: a run directory, a checkpoint folder or "
+                    f"shipped weights pretrained:{self.method} (CLI --checkpoint PATH, recipe checkpoint=PATH)"
                 )
             from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
-            from navformer_rl.modules.models.incremental import use_native_kernel
 
             policy, config = self._load_checkpoint()  # on the CPU: this process only checks it
+            policy.native = self.native
             weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
-            native = use_native_kernel(self.native, policy.model, resolve_device(self.device))
             description = {
                 "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
                 "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
                 "ablation": checkpoint_ablation(self.checkpoint),
-                # the compiled kernel or the torch path: equal results up to float rounding only
-                "transformer_step": "native" if native else "torch",
+                # the transformer-step path: the compiled kernel or torch, equal results up to float rounding
+                **policy.describe(resolve_device(self.device)),
             }
         elif self.checkpoint is not None:
             raise ValueError(f"method {self.method!r} takes no checkpoint (got {self.checkpoint!r})")

@@ -21,6 +21,7 @@ from navformer_rl.evaluation.episodes import Episode
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
 from navformer_rl.evaluation.policy_spec import PolicySpec
 from navformer_rl.evaluation.video import MAP_PNG_PX, compose_frame, draw_map, save_map_png
+from navformer_rl.interrupts import exit_on_sigint
 from navformer_rl.mp4 import Mp4Writer
 
 
@@ -51,8 +52,10 @@ _WORKER_RUNNER: EpisodeRunner | None = None
 
 
 def _init_worker(spec: PolicySpec, max_steps: int, video_fps: float) -> None:
-    """Pool initialiser: build this worker process's :class:`EpisodeRunner` once (one torch thread)."""
+    """Pool initialiser: build this worker process's :class:`EpisodeRunner` once (one torch thread). Ctrl-C
+    ends the worker quietly, from its start-up on (the harness reports the interruption)."""
     global _WORKER_RUNNER
+    exit_on_sigint()
     import torch
 
     torch.set_num_threads(1)

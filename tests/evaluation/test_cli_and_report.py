@@ -69,9 +69,16 @@ def test_negative_seeds_are_refused_by_every_command(capsys):
         assert "seed must be a non-negative integer, got -1" in capsys.readouterr().err
 
 
-def test_cli_errors(tmp_path):
-    with pytest.raises(ValueError, match="expected one of navformer, dt, vrw, fca"):
-        _run(["evaluate", "--method", "random", "--protocol", "smoke", "--out", str(tmp_path)])
+def test_cli_errors(tmp_path, capsys):
+    for argv in (
+        ["evaluate", "--method", "random", "--protocol", "smoke", "--out", str(tmp_path)],
+        ["evaluate", "make-episodes", "--protocol", "table2", "--out", str(tmp_path / "x.json")],
+    ):
+        with pytest.raises(SystemExit):
+            _run(argv)
+    err = capsys.readouterr().err
+    assert "argument --method: invalid choice: 'random' (choose from 'navformer', 'dt', 'vrw', 'fca')" in err
+    assert "argument --protocol: invalid choice: 'table2'" in err
     with pytest.raises(ValueError, match="--episodes FILE or --protocol"):
         _run(["evaluate", "--method", "vrw", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="--setups: only with --protocol"):
@@ -92,8 +99,6 @@ def test_cli_errors(tmp_path):
         _run(
             ["evaluate", "--method", "vrw", "--protocol", "smoke", "--device", "tpu", "--out", str(tmp_path)]
         )
-    with pytest.raises(ValueError, match="unknown protocol"):
-        _run(["evaluate", "make-episodes", "--protocol", "table2", "--out", str(tmp_path / "x.json")])
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"format": "navformer_rl.dataset", "version": 1}))
     with pytest.raises(ValueError, match="not an episode-set file"):

@@ -262,3 +262,95 @@ def test_held_out_sets_come_from_other_mazes_and_validate_the_training(tmp_path,
     assert sorted(data) == ["ca", "e", "ssl"] and len(calls) == 3
     demo.train_stage(without, data, "dt", progress=False)
     assert configs[-1].validation.exploration_path is None and not configs[-1].validation.enabled
+
+
+def test_the_demo_ends_with_a_table_of_its_stage_times(tmp_path, clock, monkeypatch):
+    cfg = DemoConfig.preset("quick", out_dir=tmp_path, methods=("navformer", "vrw"))
+
+    def takes(seconds, value):
+        def stage(*args, **kwargs):
+            clock.now += seconds
+            return value
+
+        return stage
+
+    monkeypatch.setattr(demo, "collect_stage", takes(61.0, {}))
+    monkeypatch.setattr(demo, "train_stage", takes(600.0, tmp_path / "train" / "navformer"))
+    monkeypatch.setattr(demo, "evaluate_stage", takes(30.0, []))
+    monkeypatch.setattr(
+        "navformer_rl.demo_report.write_demo_report",
+        lambda *args: takes(4.0, tmp_path / "report.md")(),
+    )
+    printed = []
+    demo.run_demo(cfg, progress=False, log=printed.append)
+    assert printed[-1].splitlines() == [
+        "stage            this run  computing the result",
+        "collect              1:01                  1:01",
+        "train navformer     10:00                 10:00",
+        "evaluate             0:30                  0:00",  # no evaluation folder recorded a time
+        "report               0:04                     -",
+        "total               11:35",
+    ]
+
+
+def test_stage_times_read_as_minutes_and_seconds():
+    table = demo.stage_time_table({"collect": (4000.0, 0.4), "evaluate": (None, 59.6)})
+    assert table.splitlines()[1:] == [
+        "collect       0:00               1:06:40",
+        "evaluate      1:00                     -",
+        "total         1:00",
+    ]
+
+
+def _trial(robot, **fields):
+    row = {
+        "episode_id": "smoke/7.5m-2r/w000/t001",
+        "size": 7.5,
+        "n_robots": 2,
+        "robot": robot,
+        "measured": True,
+        "success": False,
+        "success_step": None,
+        "steps": 500,
+        "collisions": 0,
+        "final_distance": 3.21,
+    }
+    return {**row, **fields}
+
+
+def test_the_video_captions_say_what_happens_from_the_episode_records(tmp_path):
+    from navformer_rl.demo_report import robot_outcome, video_captions
+
+    folder = tmp_path / "eval" / "navformer"
+    folder.mkdir(parents=True)
+    video = "videos/smoke_7.5m-2r_w000_t001.mp4"
+    (folder / "run.json").write_text(json.dumps({"label": "navformer", "files": {"videos": [video]}}))
+    rows = [
+        _trial(1, collisions=400),
+        _trial(0, success=True, success_step=123, steps=123, collisions=2, final_distance=1.2),
+        {**_trial(0), "episode_id": "smoke/7.5m-2r/w000/t002"},  # another episode, without a video
+    ]
+    (folder / "episodes.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
+    lines = video_captions([folder], tmp_path)
+    assert lines[0] == "### What the videos show\n"
+    assert lines[2] == (
+        f"- [navformer, episode smoke/7.5m-2r/w000/t001](eval/navformer/{video}) (7.5 m maze, 2 robots): "
+        "robot 0 reaches its target at step 123 (in contact on 2 of its steps); robot 1 does not reach its "
+        "target in 500 steps: it ends 3.2 m from it, in contact on 400 of its 500 steps."
+    )
+    assert len(lines) == 4  # one video, one caption
+    obstacle = _trial(1, measured=False, steps=80, collisions=0)
+    assert (
+        robot_outcome(obstacle) == "robot 1 is a scripted moving obstacle (in contact on 0 of its 80 steps)"
+    )
+
+
+def test_the_video_captions_of_a_real_evaluation_name_its_method_and_robots(tmp_path, vrw_run):
+    from navformer_rl.demo_report import video_captions
+
+    folder, result = vrw_run
+    lines = video_captions([folder], folder.parent)
+    videos = result.files["videos"]
+    assert videos and len(lines) == 3 + len(videos)
+    assert all(line.startswith("- [vrw, episode ") for line in lines[2 : 2 + len(videos)])
+    assert "robot 0 " in lines[2]

@@ -14,7 +14,7 @@ from navformer_rl.evaluation import harness
 from navformer_rl.evaluation.episodes import load_episode_set
 from navformer_rl.evaluation.harness import evaluate, make_eval_env
 from navformer_rl.evaluation.measures import clustered_wilson_interval, collision_rate, spl
-from navformer_rl.modules.models.native import native_status
+from navformer_rl.modules.decoding.native import native_status
 
 
 def test_writes_every_output(vrw_run, tiny_episodes):

@@ -1,0 +1,144 @@
+"""The action side of a diagnosis: the experts' command distribution, and the model's teacher-forced turns.
+
+An MSE action head trained on demonstrations that turn left *or* right at a junction predicts their mean:
+a smaller, centred turn. Two signatures are measured here:
+
+- :func:`expert_command_statistics`: the distribution of the actions in D_e / D_ca (``action`` of every
+  row, normalised), to set beside the policy's closed-loop commands
+  (:func:`~navformer_rl.evaluation.diagnose_measures.command_statistics`): a narrower ``|angular|``
+  distribution than the experts' is what averaging modes would give.
+- :func:`teacher_forced_turns`: on held-out expert trajectories (the windows ``navformer validate`` scores,
+  :class:`~navformer_rl.validation.FixedTrajectoryBatches`), the model's predicted angular action at the
+  steps where the expert turns hard (``|a_angular| >`` :data:`~navformer_rl.evaluation.diagnose_measures.LARGE_TURN`):
+  ``magnitude_ratio`` = mean ``|predicted|`` / mean ``|expert|`` (1 = as hard as the expert, near 0 = the
+  turn averaged away) and ``sign_agreement`` (the fraction turning the expert's way).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from navformer_rl.evaluation.diagnose_measures import LARGE_TURN, command_statistics
+
+DATASET_KINDS = ("e", "ca")
+
+
+def _open(datasets: Mapping[str, str | os.PathLike]) -> dict[str, Any]:
+    """``{kind: NavDataset}``; ValueError for an unknown kind, FileNotFoundError for a missing folder."""
+    from navformer_rl.data import open_dataset
+
+    unknown = sorted(set(datasets) - set(DATASET_KINDS))
+    if unknown or not datasets:
+        raise ValueError(
+            f"dataset kinds {unknown or '(none)'}: expected one or more of {list(DATASET_KINDS)}"
+        )
+    opened = {}
+    for kind, path in datasets.items():
+        if not os.path.exists(path):
+            raise FileNotFoundError(f"{kind} dataset {str(path)!r} does not exist")
+        opened[kind] = open_dataset(path, kind=kind)
+    return opened
+
+
+def expert_command_statistics(datasets: Mapping[str, str | os.PathLike]) -> dict[str, Any]:
+    """``{kind: command_statistics(every row's action)}`` of the datasets ``{kind: folder}`` (kinds ``e``,
+    ``ca``)."""
+    return {
+        kind: command_statistics(dataset.rows["action"].numpy()) for kind, dataset in _open(datasets).items()
+    }
+
+
+def turn_agreement(
+    predicted: np.ndarray, expert: np.ndarray, threshold: float = LARGE_TURN
+) -> dict[str, Any]:
+    """Predicted vs expert angular actions (float ``[N]`` each, normalised) at the ``N`` valid steps:
+    ``steps``, ``large_turns`` (``|expert| > threshold``), and at those ``mean_abs_expert``,
+    ``mean_abs_predicted``, ``magnitude_ratio`` (their quotient) and ``sign_agreement``; ``mse`` over all
+    steps."""
+    predicted = np.asarray(predicted, dtype=np.float64).reshape(-1)
+    expert = np.asarray(expert, dtype=np.float64).reshape(-1)
+    if predicted.shape != expert.shape:
+        raise ValueError(
+            f"predicted {predicted.shape} and expert {expert.shape} angular actions differ in shape"
+        )
+    large = np.abs(expert) > threshold
+    out: dict[str, Any] = {
+        "steps": int(expert.size),
+        "large_turns": int(large.sum()),
+        "mse": float(np.mean((predicted - expert) ** 2)) if expert.size else None,
+        "mean_abs_expert": None,
+        "mean_abs_predicted": None,
+        "magnitude_ratio": None,
+        "sign_agreement": None,
+    }
+    if large.any():
+        abs_expert = float(np.abs(expert[large]).mean())
+        abs_predicted = float(np.abs(predicted[large]).mean())
+        out.update(
+            mean_abs_expert=abs_expert,
+            mean_abs_predicted=abs_predicted,
+            magnitude_ratio=abs_predicted / abs_expert,
+            sign_agreement=float(np.mean(np.sign(predicted[large]) == np.sign(expert[large]))),
+        )
+    return out
+
+
+def teacher_forced_turns(
+    checkpoint: str | os.PathLike,
+    datasets: Mapping[str, str | os.PathLike],
+    threshold: float = LARGE_TURN,
+    batch_trajs: int = 16,
+    max_trajectories: int | None = None,
+    seed: int = 0,
+    device: str = "cpu",
+) -> dict[str, Any]:
+    """``{kind: turn_agreement(...) + loss_dt}`` of a checkpoint's teacher-forced predictions on held-out
+    trajectories; ``loss_dt`` is eq. 10 over every valid step (``navformer validate``'s number).
+
+    The windows are those of :func:`navformer_rl.validation.score_checkpoints` with the same ``seed`` /
+    ``max_trajectories`` (one per trajectory, at most the model's context); the model runs in eval mode
+    and reads the expert's past actions (teacher forcing), writing ``action_pred`` ``[N, T, 2]``.
+
+    Args:
+        checkpoint: any form :func:`~navformer_rl.checkpoint.resolve_checkpoint` takes (``pretrained:NAME``
+            too).
+        datasets: ``{kind: folder}`` of held-out D_e (``e``) / D_ca (``ca``).
+    """
+
+    from navformer_rl import checkpoint as ckpt
+    from navformer_rl.data.fit import check_model_reads
+    from navformer_rl.devices import check_device, resolve_device
+    from navformer_rl.modules import make_navformer_actor
+    from navformer_rl.validation import FixedTrajectoryBatches, evaluation_mode
+
+    torch_device = resolve_device(check_device(device))
+    opened = _open(datasets)
+    config, model = ckpt.load_policy_model(ckpt.resolve_checkpoint(checkpoint))
+    check_model_reads(
+        config, opened, {k: f"{k} dataset {str(p)!r}" for k, p in datasets.items()}, tunable=False
+    )
+    model.to(torch_device)
+    actor = make_navformer_actor(model)
+    out = {}
+    with evaluation_mode(model):
+        for kind, dataset in opened.items():
+            batches = FixedTrajectoryBatches(
+                dataset, batch_trajs, config.window_steps, seed, max_trajectories=max_trajectories
+            )
+            predicted, expert = [], []
+            for batch in batches:
+                batch = batch.to(torch_device)
+                mask = batch["mask"]
+                prediction = actor(batch.copy())["action_pred"]
+                predicted.append(prediction[mask].float().cpu().numpy())
+                expert.append(batch["action"][mask].float().cpu().numpy())
+            predicted, expert = np.concatenate(predicted), np.concatenate(expert)
+            out[kind] = {
+                **turn_agreement(predicted[:, 1], expert[:, 1], threshold),
+                "loss_dt": float(np.mean(np.sum((predicted - expert) ** 2, axis=1))),
+            }
+    return out
