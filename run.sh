@@ -1,13 +1,23 @@
 #!/usr/bin/env bash
-# One entry point for a fresh machine: creates .venv next to this script, installs navformer_rl (CPU torch),
-# then runs
-#   ./run.sh demo [navformer demo options]   - the end-to-end demo
-#   ./run.sh test [pytest options]           - the test suite (run from the repository root)
-# Any other first word is passed to the `navformer` CLI (e.g. ./run.sh collect --help). Relative paths in
-# the arguments (--out, --checkpoint, data.*_path=, output_dir=) are read from the directory you are in.
+# One entry point for a fresh machine: creates .venv next to this script, installs navformer_rl (CPU torch;
+# about 2 minutes the first time), then runs a command:
+#   ./run.sh demo [options]         end to end: collect -> train -> evaluate -> report (8-15 min, 2 cores)
+#   ./run.sh test [pytest options]  the test suite (run from the repository root)
+# and every other `navformer` command:
+#   world-demo   a seeded maze with moving robots: top-down map + egocentric video
+#   collect      collect the offline datasets (D_e, D_ca, D_ssl)
+#   train        train NavFormer (or an ablation / the DT baseline) on D_e / D_ca / D_ssl
+#   validate     teacher-forced action loss of checkpoints on held-out D_e / D_ca
+#   evaluate     measure SR / SPL / CR of a method on fixed episodes (and make-episodes / report / seeds)
+#   pretrained   list the shipped weights (pretrained:NAME), or ship a trained run
+# `./run.sh COMMAND --help` shows a command's options. Relative paths in the arguments (--out,
+# --checkpoint, data.*_path=, output_dir=) are read from the directory you are in.
 set -euo pipefail
 usage() {
-    sed -n '2,7p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'
+}
+say() {
+    echo "run.sh: $*" >&2
 }
 if [ $# -eq 0 ] || [ "$1" = "-h" ] || [ "$1" = "--help" ]; then
     usage
@@ -17,6 +27,7 @@ REPO="$(cd "$(dirname "$0")" && pwd)"
 VENV="${NAVFORMER_VENV:-$REPO/.venv}"
 PY="${PYTHON:-python3}"
 if [ ! -x "$VENV/bin/python" ]; then
+    say "creating the virtual environment $VENV"
     "$PY" -m venv "$VENV"
 fi
 pip_install() {
@@ -31,9 +42,12 @@ if [ ! -f "$stamp" ]; then
     torch_args=("torch==2.13.0")
     if [ -d /opt/wheels ]; then torch_args+=(--find-links /opt/wheels); fi
     if [ -n "${NAVFORMER_TORCH_INDEX:-}" ]; then torch_args+=(--extra-index-url "$NAVFORMER_TORCH_INDEX"); fi
+    say "installing torch 2.13.0, CPU build (1 of 2, about a minute)"
     pip_install "${torch_args[@]}"
+    say "installing navformer_rl and its dependencies: torchrl, tensordict, pybullet, ... (2 of 2, about a minute)"
     pip_install -e "$REPO[dev]"
     touch "$stamp"
+    say "installed; later runs start at once"
 fi
 export RL_LOGGING_LEVEL="${RL_LOGGING_LEVEL:-WARNING}"
 # transparent huge pages for malloc (glibc >= 2.35; older glibc ignores it): big tensors are not page-faulted

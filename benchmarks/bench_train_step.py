@@ -45,7 +45,7 @@ from torchrl.objectives import SoftUpdate
 
 from navformer_rl.allocator import keep_freed_memory
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
-from navformer_rl.objectives import BYOLLoss, NavFormerLoss, joint_parameters
+from navformer_rl.objectives import ActionMSELoss, BYOLLoss, joint_parameters
 
 CONFIGS = {
     "fp32": {"channels_last": False, "space_to_depth": False},
@@ -136,7 +136,7 @@ class Trainer:
         for _, encoder in self.model.observation_encoders():
             if hasattr(encoder, "matmul_weight_grad"):
                 encoder.matmul_weight_grad = matmul_weight_grad
-        self.dt_loss = NavFormerLoss(make_navformer_actor(self.model))
+        self.dt_loss = ActionMSELoss(make_navformer_actor(self.model))
         self.byol_loss = BYOLLoss(
             self.model.static_encoder, self.model.general_encoder, autocast_dtype=config.autocast_dtype
         )

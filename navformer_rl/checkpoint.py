@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from navformer_rl.durable import atomic_write_text, dir_mode, file_mode, fsync_dir, fsync_file
+from navformer_rl.pretrained.registry import PRETRAINED_PREFIX, is_pretrained, resolve_pretrained
 
 RUN_FORMAT = "navformer_rl.run/1"
 """Format tag written into every run part; a file without it is refused."""
@@ -160,7 +161,8 @@ ACCEPTED_CHECKPOINT_PATHS = (
     f"a run directory (its {CHECKPOINTS_DIRNAME}/{LATEST_FILENAME}), its {CHECKPOINTS_DIRNAME}/ folder "
     f"or the {CHECKPOINTS_DIRNAME}/{LATEST_FILENAME} file (the latest checkpoint), a checkpoint folder "
     f"({CHECKPOINTS_DIRNAME}/iter_XXXXXX, holding {CONFIG_FILENAME} and {WEIGHTS_FILENAME}) "
-    f"or a file in it such as {WEIGHTS_FILENAME}"
+    f"or a file in it such as {WEIGHTS_FILENAME}; or {PRETRAINED_PREFIX}NAME (shipped weights, e.g. "
+    f"{PRETRAINED_PREFIX}navformer)"
 )
 """The path forms :func:`resolve_checkpoint` accepts, in words (for error messages and ``--help``)."""
 
@@ -171,12 +173,17 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
     Accepted: a run directory (its latest checkpoint); its ``checkpoints/`` folder or the
     ``checkpoints/latest`` pointer file (the checkpoint ``latest`` names); a checkpoint folder
     ``checkpoints/iter_XXXXXX``; or one of that folder's files (``model.safetensors``, ``config.json``,
-    ``resume.pt``).
+    ``resume.pt``); or ``pretrained:NAME``, the folder of shipped weights
+    (:func:`~navformer_rl.pretrained.registry.resolve_pretrained`: its files checked against their sha256).
 
     Raises:
         FileNotFoundError: ``path`` is none of these (the message lists the accepted forms), or it has
-            checkpoints but no completed one, or ``latest`` names a folder that is not a checkpoint.
+            checkpoints but no completed one, or ``latest`` names a folder that is not a checkpoint, or
+            the shipped weights it names are missing from this installation.
+        ValueError: ``pretrained:NAME`` names no shipped weights (the message lists them) or a corrupt file.
     """
+    if is_pretrained(path):
+        return resolve_pretrained(path)
     path = Path(path)
     if path.is_file() and path.name in (WEIGHTS_FILENAME, CONFIG_FILENAME, RESUME_FILENAME):
         path = path.parent
@@ -292,11 +299,17 @@ def load_policy_model(path: str | os.PathLike, expected_config: Any | None = Non
 def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str | os.PathLike) -> None:
     """``model.load_state_dict(state)`` after checking that the keys and shapes match exactly.
 
+    Names of the single-module model (checkpoints written before it was split into its DVE, causal
+    transformer and head) are mapped to the parts' names first (``upgrade_state_dict``).
+
     Raises:
         ValueError: naming the first missing, unexpected and wrongly shaped entries - e.g. for weights written
             by another version of the model code (a ResNet18 checkpoint from before its BatchNorm became
             GroupNorm carries running statistics the model no longer has).
     """
+    from navformer_rl.modules.models.navformer import upgrade_state_dict
+
+    state = upgrade_state_dict(state)
     expected = model.state_dict()
     missing = sorted(set(expected) - set(state))
     unexpected = sorted(set(state) - set(expected))

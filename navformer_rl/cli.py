@@ -1,8 +1,10 @@
-"""The ``navformer`` command: ``demo``, ``world-demo``, ``collect``, ``train``, ``validate``, ``evaluate``.
+"""The ``navformer`` command: ``demo``, ``world-demo``, ``collect``, ``train``, ``validate``, ``evaluate``,
+``pretrained``.
 
 Each subcommand is a thin layer over a library function; its parser lives next to that function
 (``register(subparsers)`` in ``navformer_rl.data.cli``, ``navformer_rl.training_cli``,
-``navformer_rl.validation_cli``, ``navformer_rl.evaluation.cli``, ``navformer_rl.demo``). Heavy imports
+``navformer_rl.validation_cli``, ``navformer_rl.evaluation.cli``, ``navformer_rl.demo``,
+``navformer_rl.pretrained_cli``). Heavy imports
 happen only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
@@ -26,6 +28,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.training_cli",
     "navformer_rl.validation_cli",
     "navformer_rl.evaluation.cli",
+    "navformer_rl.pretrained_cli",
 )
 
 USER_ERRORS = (

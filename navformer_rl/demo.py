@@ -16,7 +16,8 @@ The report's stage times are the wall-clock time that computed each stage's resu
 (an interrupted run plus the rerun that finished it), beside this invocation's own time: a rerun that
 reuses everything leaves the first ones unchanged. Collection and training keep theirs in
 ``<out>/stage_times.json`` (:class:`StageTimes`); evaluation's is the sum of the methods' ``run.json``
-``seconds``, which each evaluation keeps with its finished episodes.
+``seconds``, which each evaluation keeps with its finished episodes. The demo ends by printing both times
+per stage (:func:`stage_time_table`).
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ class DemoConfig:
 
     @staticmethod
     def preset(name: str, **overrides) -> DemoConfig:
-        """``default`` (about 15 minutes on 2 CPU cores) or ``quick`` (a few minutes: a smoke check)."""
+        """``default`` (8-15 minutes on 2 CPU cores, README.md) or ``quick`` (a few minutes: a smoke check)."""
         presets = {
             "default": {},
             "quick": {
@@ -366,12 +367,35 @@ def run_demo(cfg: DemoConfig, progress: bool = True, log: Callable[[str], None] 
     folders = evaluate_stage(cfg, train_dirs, progress)
     timings["evaluate"] = (_evaluation_seconds(folders), time.perf_counter() - started)
 
+    started = time.perf_counter()
     log("[4/4] writing the report")
     from navformer_rl.demo_report import write_demo_report
 
     report = write_demo_report(cfg, data, train_dirs, folders, timings)
     log(f"done: {report}")
+    log(stage_time_table({**timings, "report": (None, time.perf_counter() - started)}))
     return report
+
+
+def stage_time_table(timings: dict[str, tuple[float | None, float]]) -> str:
+    """The table printed at the end of the demo: per stage (``timings``: ``(seconds that computed its result,
+    None when not recorded; seconds in this invocation)``) both times as ``m:ss``, and this invocation's
+    total."""
+    width = max(len(stage) for stage in [*timings, "total"])
+    rows = [f"{'stage':<{width}}  {'this run':>8}  {'computing the result':>20}"]
+    for stage, (computed, now) in timings.items():
+        rows.append(f"{stage:<{width}}  {_minutes(now):>8}  {_minutes(computed):>20}")
+    rows.append(f"{'total':<{width}}  {_minutes(sum(now for _, now in timings.values())):>8}")
+    return "\n".join(rows)
+
+
+def _minutes(seconds: float | None) -> str:
+    """``seconds`` as ``m:ss`` (``h:mm:ss`` from an hour on); ``-`` for None."""
+    if seconds is None:
+        return "-"
+    minutes, secs = divmod(round(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
 
 def _demo_config_from_args(args: argparse.Namespace) -> DemoConfig:
@@ -411,7 +435,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``demo`` and ``world-demo`` to the ``navformer`` CLI."""
     demo = subparsers.add_parser(
         "demo",
-        help="end to end: collect -> train -> evaluate -> report (about 15 min on 2 CPU cores)",
+        help="end to end: collect -> train -> evaluate -> report (8-15 min on 2 CPU cores)",
         description="Collect small D_e / D_ca / D_ssl with the experts, train NavFormer and the DT baseline, "
         "evaluate them with VRW and FCA on fixed episodes, and write report.md in --out. Rerun the same "
         "command to resume after an interruption.",
@@ -423,11 +447,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--preset",
         default="default",
         choices=("default", "quick"),
-        help="default: ~15 min on 2 cores; quick: a few minutes, a smoke check",
+        help="default: 8-15 min on 2 cores; quick: a few minutes, a smoke check",
     )
     demo.add_argument("--seed", type=cli_args.seed, help="base seed (default 0)")
-    demo.add_argument("--workers", type=int, help="processes for collection and evaluation (default 2)")
-    demo.add_argument("--iterations", type=int, help="training iterations per model")
+    demo.add_argument(
+        "--workers", type=cli_args.int_at_least(1), help="processes for collection and evaluation (default 2)"
+    )
+    demo.add_argument("--iterations", type=cli_args.int_at_least(1), help="training iterations per model")
     demo.add_argument("--methods", help=f"comma-separated subset of {','.join(TRAINED_METHODS + BASELINES)}")
     demo.add_argument("--no-progress", action="store_true", help="no progress bars")
     demo.set_defaults(run=_run_demo_command)
@@ -445,8 +471,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="output folder (default runs/world-demo)",
     )
     world.add_argument("--size", type=float, default=12.5, help="maze side in metres, 5-17.5 (default 12.5)")
-    world.add_argument("--robots", type=int, default=4, help="number of robots (default 4)")
-    world.add_argument("--steps", type=int, default=200, help="steps of 0.2 s (default 200)")
+    world.add_argument(
+        "--robots", type=cli_args.int_at_least(1), default=4, help="number of robots (default 4)"
+    )
+    world.add_argument(
+        "--steps", type=cli_args.int_at_least(1), default=200, help="steps of 0.2 s (default 200)"
+    )
     world.add_argument("--seed", type=cli_args.seed, default=0, help="world seed (default 0)")
     world.add_argument("--no-progress", action="store_true", help="no progress bar")
     world.set_defaults(run=_run_world_demo_command)

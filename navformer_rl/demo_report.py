@@ -2,12 +2,14 @@
 
 The evaluation part (tables in the paper's Table I layout with confidence intervals, the paper's numbers
 beside ours, bar plots) comes from :func:`navformer_rl.evaluation.report.write_report`; this module adds
-what the pipeline knows around it: dataset statistics and sample sheets, loss curves, stage timings.
+what the pipeline knows around it: dataset statistics and sample sheets, loss curves, stage timings and
+what each video shows.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import os
 import re
 from collections.abc import Sequence
@@ -178,6 +180,57 @@ def timings_markdown(timings: dict[str, tuple[float | None, float]]) -> list[str
     ]
 
 
+def robot_outcome(row: dict) -> str:
+    """What one robot does in an episode, from its per-robot-trial row (``episodes.jsonl``), e.g. "robot 0
+    reaches its target at step 123 (in contact on 2 of its steps)"."""
+    contact = f"in contact on {row['collisions']} of its {row['steps']} steps"
+    if not row.get("measured", True):
+        return f"robot {row['robot']} is a scripted moving obstacle ({contact})"
+    if row["success"]:
+        touched = f" (in contact on {row['collisions']} of its steps)" if row["collisions"] else ""
+        return f"robot {row['robot']} reaches its target at step {row['success_step']}{touched}"
+    return (
+        f"robot {row['robot']} does not reach its target in {row['steps']} steps: it ends "
+        f"{row['final_distance']:.1f} m from it, {contact}"
+    )
+
+
+def video_captions(eval_dirs: Sequence[Path], report_dir: Path) -> list[str]:
+    """The "What the videos show" section: per recorded episode, the method (the run's label), the maze and
+    what every robot does, read from each evaluation folder's ``run.json`` (its videos) and
+    ``episodes.jsonl`` (the records)."""
+    from navformer_rl.evaluation.runner import _file_stem
+
+    lines = []
+    for folder in eval_dirs:
+        run = json.loads((folder / "run.json").read_text())
+        rows: dict[str, list[dict]] = {}
+        with (folder / "episodes.jsonl").open() as handle:
+            for line in handle:
+                if line.strip():
+                    row = json.loads(line)
+                    rows.setdefault(_file_stem(row["episode_id"]), []).append(row)
+        for video in run["files"].get("videos", []):
+            robots = sorted(rows.get(Path(video).stem, []), key=lambda row: row["robot"])
+            if not robots:
+                continue
+            first, link = robots[0], os.path.relpath(folder / video, report_dir)
+            lines.append(
+                f"- [{run['label']}, episode {first['episode_id']}]({link}) ({first['size']:g} m maze, "
+                f"{first['n_robots']} robots): " + "; ".join(robot_outcome(row) for row in robots) + "."
+            )
+    if not lines:
+        return []
+    return [
+        "### What the videos show\n",
+        "Each video shows every robot's camera beside the top-down map of one episode; below, what happens in "
+        "it, from the episode's records (`episodes.jsonl`: reaching the 1.5 m target disc, steps in contact "
+        "with a wall or a robot).\n",
+        *lines,
+        "",
+    ]
+
+
 def nested_report(markdown: str) -> str:
     """A ``write_report`` report as a section body: its marker line and ``# title`` dropped, every heading
     one level deeper (to sit under the demo report's ``## Evaluation``)."""
@@ -223,7 +276,7 @@ def write_demo_report(
     ]
     lines += _dataset_section(data, report_dir)
     lines += _training_section(train_dirs, report_dir)
-    lines += ["## Evaluation\n", evaluation]
+    lines += ["## Evaluation\n", evaluation, *video_captions(eval_dirs, report_dir)]
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()}
     write_json(report_dir / "demo_config.json", {"config": settings, "machine": environment_summary()})
     lines += [

@@ -1,13 +1,16 @@
 """Device names accepted by training and evaluation, checked before any work starts.
 
-``auto`` picks CUDA when torch sees a GPU, else the CPU; ``cpu``, ``cuda`` and ``cuda:N`` name one.
+``auto`` picks CUDA when torch sees a GPU, else the CPU; ``cpu``, ``cuda`` and ``cuda:N`` name one. torch is
+imported only to check a CUDA name or resolve a device, so parsing command lines stays light.
 """
 
 from __future__ import annotations
 
 import re
+from typing import TYPE_CHECKING
 
-import torch
+if TYPE_CHECKING:
+    import torch
 
 DEVICES = ("auto", "cpu", "cuda")
 """The device names a configuration may give (``cuda:N`` also works: GPU number N)."""
@@ -21,6 +24,8 @@ def check_device(name: object, option: str = "device") -> str:
     if not isinstance(name, str) or not (name in DEVICES or _CUDA_INDEX.match(name)):
         raise ValueError(f"{option}={name!r}: expected one of {list(DEVICES)} or 'cuda:N' (GPU number N)")
     if name.startswith("cuda"):
+        import torch
+
         if not torch.cuda.is_available():
             raise ValueError(
                 f"{option}={name} but torch sees no CUDA device (torch {torch.__version__}); use "
@@ -36,6 +41,8 @@ def check_device(name: object, option: str = "device") -> str:
 
 def resolve_device(name: str) -> torch.device:
     """The torch device of a checked name: ``auto`` -> CUDA when available, else CPU."""
+    import torch
+
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)

@@ -168,7 +168,7 @@ def teacher_forced_loss(loss_module: Any, batches: FixedTrajectoryBatches, devic
     """Eq. 10 over every window of ``batches``: the squared action error summed over the action dims and
     averaged over all valid steps (each batch's masked mean weighted by its valid steps).
 
-    ``loss_module``: a :class:`~navformer_rl.objectives.NavFormerLoss` (reads the batch keys, writes
+    ``loss_module``: a :class:`~navformer_rl.objectives.ActionMSELoss` (reads the batch keys, writes
     ``loss_dt``). Call it inside :func:`evaluation_mode`.
     """
     total = 0.0
@@ -268,7 +268,7 @@ def score_checkpoints(
     from navformer_rl.data.fit import check_model_reads
     from navformer_rl.devices import check_device, resolve_device
     from navformer_rl.modules import make_navformer_actor
-    from navformer_rl.objectives import NavFormerLoss
+    from navformer_rl.objectives import ActionMSELoss
 
     unknown = sorted(set(datasets) - set(TASK_OF_KIND))
     if unknown or not datasets:
@@ -293,7 +293,7 @@ def score_checkpoints(
     rows = []
     for folder, (config, model) in zip(folders, models, strict=True):
         model.to(torch_device)
-        loss = NavFormerLoss(make_navformer_actor(model))
+        loss = ActionMSELoss(make_navformer_actor(model))
         row: dict[str, Any] = {
             "checkpoint": str(folder),
             "iteration": int(ckpt.read_checkpoint_config(folder)["iteration"]),

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 
+from navformer_rl import cli_args
+
 EPILOG = """\
 examples:
   navformer validate --checkpoint runs/navformer --exploration data/val_e --collision data/val_ca
@@ -34,15 +36,21 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         nargs="+",
         required=True,
         metavar="PATH",
-        help="run directories (their latest checkpoint) or checkpoint folders, e.g. runs/nf/checkpoints/iter_*",
+        help="run directories (their latest checkpoint), checkpoint folders (e.g. runs/nf/checkpoints/iter_*) "
+        "or shipped weights (pretrained:navformer, pretrained:dt)",
     )
     parser.add_argument("--exploration", metavar="DIR", help="a D_e dataset folder (held out)")
     parser.add_argument("--collision", metavar="DIR", help="a D_ca dataset folder (held out)")
-    parser.add_argument("--batch-trajs", type=int, default=16, help="trajectories per forward pass (16)")
     parser.add_argument(
-        "--max-trajectories", type=int, default=None, help="a seeded subset of this many per dataset (all)"
+        "--batch-trajs", type=cli_args.int_at_least(1), default=16, help="trajectories per forward pass (16)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="subsets and window offsets (0)")
+    parser.add_argument(
+        "--max-trajectories",
+        type=cli_args.int_at_least(1),
+        default=None,
+        help="a seeded subset of this many per dataset (all)",
+    )
+    parser.add_argument("--seed", type=cli_args.seed, default=0, help="subsets and window offsets (0)")
     parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or auto")
     parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON to FILE")
     parser.set_defaults(run=run)

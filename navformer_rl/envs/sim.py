@@ -9,7 +9,10 @@ right before either. ``step`` never renders.
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Sequence
+from types import ModuleType
 from typing import NamedTuple
 
 import numpy as np
@@ -32,6 +35,31 @@ _PATH_SAMPLE = 0.05  # metres between collision checks along a step's arc
 _REFINE = 32
 _BUCKET = 0.5  # metres, spatial hash of the static boxes
 _HIDDEN_Z = -50.0
+
+
+def import_pybullet() -> ModuleType:
+    """The ``pybullet`` module, imported with this process's stdout and stderr silenced at the file-descriptor
+    level: its C code prints a "pybullet build time" line on import, once in every worker process."""
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    import ctypes
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        import pybullet
+
+        ctypes.CDLL(None).fflush(None)  # C stdio may hold the line until after the descriptors are back
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)
+    return pybullet
 
 
 class StepContacts(NamedTuple):
@@ -183,8 +211,7 @@ class Simulator:
         self._circle_list = [tuple(float(v) for v in c) for c in self._circles]
         self._build_box_buckets()
         self._textured = textured
-        import pybullet  # lazy: importing this module starts nothing
-
+        pybullet = import_pybullet()  # lazy: importing this module starts nothing
         self._p = pybullet
         self._client = pybullet.connect(pybullet.DIRECT)
         self._robot_bodies: list[int] = []

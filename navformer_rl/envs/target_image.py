@@ -14,6 +14,7 @@ import numpy as np
 from navformer_rl.constants import IMAGE_SIZE
 from navformer_rl.envs.robots import JACKAL
 from navformer_rl.envs.scene import add_floor, add_target
+from navformer_rl.envs.sim import import_pybullet
 from navformer_rl.envs.world import TARGET_HALF_EXTENT, TARGET_RGBA
 
 VIEW_DISTANCE = 0.9
@@ -34,7 +35,7 @@ def render_target_image(shape: str, color: str) -> np.ndarray:
 
 @functools.cache
 def _cached_target_image(shape: str, color: str) -> np.ndarray:
-    import pybullet as p  # lazy: importing this module starts nothing
+    p = import_pybullet()  # lazy: importing this module starts nothing
 
     c = p.connect(p.DIRECT)
     try:

@@ -2,14 +2,17 @@
 
 Each control step samples ``(v, w)`` in the dynamic window (velocity limits intersected with what the
 acceleration limits reach in one control period), rolls each sample out as a constant-velocity arc,
-rejects samples that come closer to an obstacle than the safety distance, and picks the lowest cost:
+rejects samples that come closer to an obstacle than the safety distance within their check horizon
+(``predict_time``, stretched to cover the braking distance at ``a_max`` and, for slow samples, a minimum
+path length), and picks the lowest cost over ``predict_time``:
 
     cost = k_goal * |end - goal| + k_heading * |bearing(goal) - yaw_end| / pi
            + k_speed * (v_max - v) / v_max + k_clear * (c_cap - min(clearance, c_cap)) / c_cap
 
 Obstacles come from a bool occupied grid (clearance = Euclidean distance transform, in metres). When no
-sample that moves forward is admissible the planner enters *recovery*: it turns in place toward the goal,
-or backs off slowly when backing increases clearance.
+sample faster than ``forward_speed`` (which follows ``a_max * dt`` and ``v_max``) is admissible the
+planner enters *recovery*: it turns in place toward the goal, or backs off slowly when backing increases
+clearance.
 """
 
 from __future__ import annotations
@@ -44,6 +47,35 @@ class DWAConfig:
     k_clear: float = 0.4
     clearance_cap: float = 0.9
     backoff_speed: float = 0.2
+    creep_speed: float = 0.05
+    """Slowest speed (m/s) that counts as forward motion for a robot that reaches it within one period."""
+
+    @property
+    def forward_speed(self) -> float:
+        """Speed (m/s) a sample must exceed to count as forward motion: ``creep_speed``, lowered to half of
+        one period's speed change ``a_max * dt`` (the window's top from rest) and to half of ``v_max``."""
+        return min(self.creep_speed, 0.5 * self.a_max * self.dt, 0.5 * self.v_max)
+
+    @property
+    def check_distance(self) -> float:
+        """Shortest path (m) a forward sample is checked along: what ``creep_speed`` covers in ``predict_time``."""
+        return self.creep_speed * self.predict_time
+
+    @property
+    def safety_horizon(self) -> float:
+        """Seconds a sample is checked for at least: ``predict_time``, longer when the braking distance
+        ``v**2 / (2 a_max)`` exceeds what ``v <= v_max`` covers in ``predict_time``."""
+        return max(self.predict_time, self.v_max / (2.0 * self.a_max))
+
+    def check_horizon(self, v: np.ndarray) -> np.ndarray:
+        """Seconds (float64 ``[N]``) each sample speed ``v`` ``[N]`` is checked for obstacles: the
+        ``safety_horizon``, longer for slow samples so each covers ``check_distance``."""
+        return np.maximum(self.safety_horizon, self.check_distance / np.maximum(v, self.forward_speed))
+
+    @property
+    def reach(self) -> float:
+        """Farthest (m) a checked rollout ends from the robot (size a :class:`ClearanceMap` window with it)."""
+        return max(self.v_max * self.safety_horizon, self.check_distance)
 
 
 class ClearanceMap:
@@ -155,15 +187,21 @@ class DWAPlanner:
         vs, ws = self.window(velocity)
         v_grid, w_grid = np.meshgrid(vs, ws, indexing="ij")
         v, w = v_grid.ravel(), w_grid.ravel()
-        traj = rollout(pose, v, w, c.predict_time, c.rollout_dt)  # [N, S, 3]
-        clear = clearance(traj[..., :2]).min(axis=1)  # [N]
+        horizon = c.check_horizon(v)  # [N]
+        n_steps = max(1, math.ceil(float(horizon.max()) / c.rollout_dt - 1e-9))
+        traj = rollout(pose, v, w, n_steps * c.rollout_dt, c.rollout_dt)  # [N, S, 3]
+        t = c.rollout_dt * np.arange(1, n_steps + 1)  # [S]
+        along = clearance(traj[..., :2])  # [N, S]
+        n_predict = max(1, round(c.predict_time / c.rollout_dt))
         here = float(clearance(pose[None, :2])[0])
         safe = c.robot_radius + c.safety_margin
         # Already inside the safety distance: accept only samples that do not get closer.
-        admissible = clear >= min(safe, here - 1e-3)
-        moving = admissible & (v > 0.05)
+        checked = t[None, :] <= horizon[:, None] + 1e-9  # [N, S]
+        admissible = np.where(checked, along, np.inf).min(axis=1) >= min(safe, here - 1e-3)
+        moving = admissible & (v > c.forward_speed)
         if moving.any():
-            end = traj[:, -1, :]
+            clear = along[:, :n_predict].min(axis=1)  # [N]
+            end = traj[:, n_predict - 1, :]
             to_goal = goal[None, :] - end[:, :2]
             dist = np.hypot(to_goal[:, 0], to_goal[:, 1])
             heading = np.abs(wrap_angle(np.arctan2(to_goal[:, 1], to_goal[:, 0]) - end[:, 2])) / np.pi

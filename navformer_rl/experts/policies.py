@@ -178,7 +178,7 @@ class ExplorationExpert(_ExpertBase):
             nav.map.resolution,
             tuple(nav.map.origin),
             pose[:2],
-            cfg.v_max * cfg.predict_time + cfg.clearance_cap + cfg.robot_radius,
+            cfg.reach + cfg.clearance_cap + cfg.robot_radius,
             cfg.clearance_cap,
         )
         res = self.dwas[i].plan(pose, vel, carrot, clearance)

@@ -4,19 +4,18 @@ One iteration (eq. 11)::
 
     task, batch = cross_task.sample()            # 25 trajectories of D_e or 150 of D_ca, alternating
     pairs       = ssl_batcher.sample()           # 512 (o^s, o^d) pairs of D_ssl     (unless SSL is ablated)
-    L = NavFormerLoss(batch)["loss_dt"] + BYOLLoss(pairs)["loss_byol"]
+    L = ActionMSELoss(batch)["loss_dt"] + BYOLLoss(pairs)["loss_byol"]
     L.backward(); AdamW.step() (NavFormer); Adam.step() (DVE: BYOL projector/predictor [+ encoders])
     SoftUpdate.step(); tau <- cosine schedule    # BYOL's EMA target
 
-The pieces are exposed so that a recipe can show the loop top to bottom (``recipes/navformer``):
-:func:`load_train_config` (YAML/dict -> dataclasses), :func:`build_trainer` (validates everything, opens the
-datasets, builds model, losses, optimisers, logger, restores a checkpoint when resuming), ``Trainer.step()``,
-``Trainer.record()`` (adds the iteration's metrics to the log window and writes a row every
-``logger.log_interval`` iterations), ``Trainer.save_checkpoint()``. :func:`train` is that loop with tqdm
-progress.
+:func:`train` is the one training loop; ``navformer train`` and the hydra recipe (``recipes/navformer``)
+both call it. Its pieces: :func:`load_train_config` (YAML/dict -> dataclasses), :func:`build_trainer`
+(validates everything, opens the datasets, builds model, losses, optimisers, logger, restores a checkpoint
+when resuming), ``Trainer.step()``, ``Trainer.record()`` (adds the iteration's metrics to the log window and
+writes a row every ``logger.log_interval`` iterations), ``Trainer.save_checkpoint()``.
 
 Library code: no hydra here. Configuration comes as plain dataclasses; ``navformer train`` and the hydra
-recipe both build them from the packaged ``navformer_rl/config/train.yaml`` layout.
+recipe both build them from the packaged ``navformer_rl/config/train.yaml`` (the recipe composes it).
 
 Modules (one job each):
 

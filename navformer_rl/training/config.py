@@ -9,28 +9,18 @@ Plain dataclasses, no hydra; :mod:`~navformer_rl.training.config_io` reads them 
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from navformer_rl.checks import check_int, check_number
+from navformer_rl.constants import ABLATIONS
 from navformer_rl.devices import check_device
 from navformer_rl.validation import ValidationConfig, validate_validation_config
 
 if TYPE_CHECKING:
     from navformer_rl.modules import NavFormerConfig
-
-ABLATIONS: dict[str, str] = {
-    "none": "NavFormer as in the paper",
-    "no_ssl": "w/o SSL: trained with L_DT only (no BYOL, no D_ssl)",
-    "no_thsc": "w/o THSC: the action head reads h^ca_{o,t} only",
-    "no_de": "w/o tau^e: L_DT on D_ca trajectories only",
-    "no_dca": "w/o tau^ca: L_DT on D_e trajectories only",
-    "no_fs": "w/o f_s: no static encoder (and no static BYOL)",
-    "no_fg": "w/o f_g: no general encoder (target image through f_s)",
-    "resnet18": "w ResNet18: a single, randomly initialised ResNet18 replaces the DVE",
-    "dt": "DT baseline: single encoder, no THSC, trained with eq. 10 only",
-}
-"""Every value of ``TrainConfig.ablation``: the rows of paper Table IV plus the DT baseline (Table I)."""
 
 _MODEL_ABLATION = {
     "none": "navformer",
@@ -127,11 +117,12 @@ class OptimConfig:
 @dataclass
 class LoggerConfig:
     """``backend``: ``csv`` (TorchRL ``CSVLogger``), ``tensorboard`` (needs the ``tensorboard`` package) or
-    ``none``; scalars go to ``<run_dir>/logs/<exp_name>``. ``log_interval``: iterations between log writes.
-    ``progress``: tqdm progress bar."""
+    ``none``; scalars go to ``<run_dir>/logs/<exp_name>``, the progress bar reads ``train <exp_name>``
+    (None: named after the ablation, see :func:`named_run`). ``log_interval``: iterations between log
+    writes. ``progress``: tqdm progress bar."""
 
     backend: str = "csv"
-    exp_name: str = "navformer"
+    exp_name: str | None = None
     log_interval: int = 1
     progress: bool = True
 
@@ -197,6 +188,26 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-serialisable dict (the layout of ``train.yaml``)."""
         return dataclasses.asdict(self)
+
+
+def default_exp_name(ablation: str) -> str:
+    """A run's name after its ablation, as evaluation labels it: ``navformer`` for ``none``, ``dt``, else
+    ``navformer-<ablation>``."""
+    return {"none": "navformer", "dt": "dt"}.get(ablation, f"navformer-{ablation}")
+
+
+def named_run(cfg: TrainConfig, resuming: bool) -> TrainConfig:
+    """``cfg`` with ``logger.exp_name`` filled in when it is None: a resumed run keeps the name its folder's
+    ``train_config.json`` recorded (its logs continue in the same folder), a new one takes
+    :func:`default_exp_name`."""
+    if cfg.logger.exp_name is not None:
+        return cfg
+    name = None
+    recorded = Path(cfg.output_dir) / "train_config.json"
+    if resuming and recorded.is_file():
+        name = (json.loads(recorded.read_text()).get("logger") or {}).get("exp_name")
+    logger = dataclasses.replace(cfg.logger, exp_name=name or default_exp_name(cfg.ablation))
+    return dataclasses.replace(cfg, logger=logger)
 
 
 def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:

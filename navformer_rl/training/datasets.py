@@ -74,7 +74,9 @@ def _head(dataset: Any, key: str, first: int | None, path: str) -> Any:
         return dataset
     total = dataset.num_trajectories if key != "ssl_pairs" else len(dataset)
     if isinstance(first, bool) or not isinstance(first, int) or not 1 <= first <= total:
-        raise ValueError(f"data.{key}={first!r}: expected null or an integer in [1, {total}] (what {path!r} holds)")
+        raise ValueError(
+            f"data.{key}={first!r}: expected null or an integer in [1, {total}] (what {path!r} holds)"
+        )
     return dataset.head(first)
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from navformer_rl import checkpoint as ckpt
 from navformer_rl.allocator import keep_freed_memory, release_free_memory
 from navformer_rl.durable import atomic_write_text
-from navformer_rl.training.config import TrainConfig, validate_config
+from navformer_rl.training.config import TrainConfig, named_run, validate_config
 from navformer_rl.training.datasets import check_datasets_fit_model, open_datasets, open_validation_datasets
 from navformer_rl.training.trainer import Trainer
 
@@ -27,6 +27,17 @@ class TrainResult:
     iterations: int
     metrics: dict[str, float]
     checkpoint: Path | None
+
+    def summary(self) -> str:
+        """Three lines for the terminal: iterations and last losses, the run directory, the last checkpoint."""
+        losses = ", ".join(
+            f"{k}={self.metrics[k]:.4g}" for k in ("loss", "loss_dt", "loss_byol") if k in self.metrics
+        )
+        return (
+            f"trained {self.iterations} iterations; {losses}\n"
+            f"run directory: {self.run_dir}\n"
+            f"checkpoint:    {self.checkpoint}"
+        )
 
 
 def build_trainer(cfg: TrainConfig) -> Trainer:
@@ -58,6 +69,7 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
     check_datasets_fit_model(cfg, datasets)
     validation_datasets = open_validation_datasets(cfg)
     check_datasets_fit_model(cfg, validation_datasets, section="validation")
+    cfg = named_run(cfg, resuming=latest is not None)
     trainer = Trainer(cfg, datasets=datasets, validation_datasets=validation_datasets)
     if latest is not None:
         trainer.restore(latest)
@@ -87,9 +99,14 @@ def _truncate_csv_scalars(folder: Path, last_step: int) -> None:
 def train(cfg: TrainConfig) -> TrainResult:
     """Train NavFormer as configured; see :mod:`navformer_rl.training` for one iteration.
 
-    Returns a :class:`TrainResult`. Checkpoints are written every ``checkpoint.interval`` iterations and at
-    the end; with ``resume=True`` the run continues from the latest one and produces the same subsequent
-    losses and weights as an uninterrupted run.
+    The one training loop: ``navformer train`` and the hydra recipe (``recipes/navformer``) both call it.
+    Per iteration: ``Trainer.step()``, ``Trainer.record()`` (a log row every ``logger.log_interval``
+    iterations), validation when due, a checkpoint every ``checkpoint.interval`` iterations and at the end
+    (then, with ``keep_freed_memory``, ``malloc_trim`` hands the free heap back), a tqdm bar named after
+    ``logger.exp_name``. ``timeit`` times the phases (``time/<phase>`` in the log rows).
+
+    Returns a :class:`TrainResult`. With ``resume=True`` the run continues from the latest checkpoint and
+    produces the same subsequent losses and weights as an uninterrupted run.
     """
     from torchrl._utils import timeit
     from tqdm import tqdm
@@ -100,7 +117,10 @@ def train(cfg: TrainConfig) -> TrainResult:
     last_checkpoint = None
     total = cfg.optim.iterations
     bar = tqdm(
-        total=total, initial=trainer.iteration, disable=not cfg.logger.progress, desc="navformer train"
+        total=total,
+        initial=trainer.iteration,
+        disable=not cfg.logger.progress,
+        desc=f"train {trainer.cfg.logger.exp_name}",
     )
     with contextlib.closing(bar), contextlib.closing(trainer):
         while trainer.iteration < total:
@@ -110,9 +130,10 @@ def train(cfg: TrainConfig) -> TrainResult:
                 with timeit("validation"):
                     trainer.log(trainer.validate(), timings=False)
             if trainer.iteration % cfg.checkpoint.interval == 0 or trainer.iteration == total:
-                last_checkpoint = trainer.save_checkpoint()
-                if cfg.keep_freed_memory:  # the kept heap's fragmentation must not grow for the whole run
-                    release_free_memory()
+                with timeit("checkpoint"):
+                    last_checkpoint = trainer.save_checkpoint()
+                    if cfg.keep_freed_memory:  # the kept heap's fragmentation must not grow for the whole run
+                        release_free_memory()
             bar.update(1)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}", fps=f"{metrics['frames_per_s']:.0f}")
     if last_checkpoint is None:

@@ -89,7 +89,9 @@ class Trainer:
 
     Attributes:
         cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
-        model: ``NavFormerModel``.  dt_loss: ``NavFormerLoss``.  byol_loss: ``BYOLLoss`` or None (no SSL).
+        model: ``NavFormerModel`` (the parameters).  actor: its parts composed as TensorDict modules
+            (``make_navformer_actor``), what the DT loss runs.  dt_loss: ``ActionMSELoss``.
+        byol_loss: ``BYOLLoss`` or None (no SSL).
         cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
             (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
@@ -108,7 +110,7 @@ class Trainer:
 
         from navformer_rl.data import CrossTaskSampler
         from navformer_rl.modules import NavFormerModel, make_navformer_actor
-        from navformer_rl.objectives import BYOLLoss, BYOLTauSchedule, NavFormerLoss
+        from navformer_rl.objectives import ActionMSELoss, BYOLLoss, BYOLTauSchedule
 
         self.cfg = cfg
         self.run_dir = Path(cfg.output_dir)
@@ -145,14 +147,14 @@ class Trainer:
 
         self.model = NavFormerModel(self.model_config).to(self.device)
         self.model.train()
-        self.dt_loss = NavFormerLoss(make_navformer_actor(self.model))
+        self.actor = make_navformer_actor(self.model)
+        self.dt_loss = ActionMSELoss(self.actor)
         self.byol_loss = None
         self.updater = None
         self.tau_schedule = None
         if cfg.uses_ssl:
             self.byol_loss = BYOLLoss(
-                self.model.static_encoder,
-                self.model.general_encoder,
+                self.model.dve,
                 projection_dim=cfg.ssl.projection_dim,
                 hidden_dim=cfg.ssl.hidden_dim,
                 seed=cfg.seed + 4,
@@ -174,8 +176,7 @@ class Trainer:
     # -- construction helpers -------------------------------------------------------------------------
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
         """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint)."""
-        encoders = [m for _, m in self.model.observation_encoders()]
-        encoder_ids = {id(p) for enc in encoders for p in enc.parameters()}
+        encoder_ids = {id(p) for p in self.model.dve.parameters()}
         model_params = [p for p in self.model.parameters() if p.requires_grad]
         frozen = self.cfg.encoder_training == "frozen"
         navformer = [p for p in model_params if not (frozen and id(p) in encoder_ids)]
@@ -228,7 +229,7 @@ class Trainer:
         """Run one training iteration (eq. 11) and return its metrics as floats.
 
         Keys: ``loss`` (L), ``loss_dt``, ``loss_dt_<task>`` (task of this iteration), ``loss_byol``,
-        ``loss_byol_<encoder>``, ``projection_std_<encoder>``, ``tau``, ``lr``, ``lr_dve``, ``frames``
+        ``byol_<encoder>``, ``projection_std_<encoder>``, ``tau``, ``lr``, ``lr_dve``, ``frames``
         (valid trajectory steps + 2 x pairs), ``frames_per_s``, ``iteration_s``.
         """
         from torchrl._utils import timeit

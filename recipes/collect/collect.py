@@ -9,6 +9,7 @@ A mistake the user can fix is printed as one line, ``collect.py: error: <message
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import hydra
@@ -17,7 +18,10 @@ from omegaconf import OmegaConf
 from navformer_rl.data.collect import collect, default_workers, settings_for
 from navformer_rl.data.dataset import open_dataset
 from navformer_rl.data.schema import DatasetKind
-from navformer_rl.recipe_errors import user_errors
+
+# recipes/ holds recipe_errors.py, which the recipes share
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from recipe_errors import user_errors  # noqa: E402
 
 
 def make_jobs(cfg) -> list[tuple[DatasetKind, Path, object]]:

@@ -15,12 +15,15 @@ and a refused run leaves no output folder behind.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from utils import check_policy, make_episode_set, resume_hint, run_evaluation
 
-from navformer_rl.recipe_errors import user_errors
+# recipes/ holds recipe_errors.py, which the recipes share
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from recipe_errors import user_errors  # noqa: E402
 
 
 @hydra.main(config_path="", config_name="config", version_base="1.3")

@@ -1,4 +1,4 @@
-"""DWA: limits, reaching a free-space goal, recovery when boxed in."""
+"""DWA: limits, reaching a free-space goal, recovery when boxed in, slowly accelerating robots."""
 
 import math
 
@@ -86,3 +86,59 @@ def test_clearance_map_values():
     cm = ClearanceMap(occ, RES, (0.0, 0.0), (2.0, 2.0), 2.0, 1.0)
     assert cm(np.array([[2.55, 2.0]]))[0] == pytest.approx(0.45)
     assert cm(np.array([[0.5, 2.0]]))[0] == pytest.approx(1.0)  # capped
+
+
+# PythonRobotics' classic limits: 0.2 m/s^2 x 0.1 s = 0.02 m/s of speed change per step.
+SLOW = DWAConfig(v_max=1.0, w_max=math.radians(40), a_max=0.2, alpha_max=math.radians(40), dt=0.1)
+TURTLEBOT = {"v_max": 0.26, "w_max": 1.82, "a_max": 1.0, "alpha_max": 3.0, "robot_radius": 0.2}
+
+
+def test_thresholds_follow_the_limits():
+    assert DWAConfig().forward_speed == pytest.approx(0.05)
+    assert DWAConfig().safety_horizon == pytest.approx(1.6)
+    assert DWAConfig().reach == pytest.approx(1.6)
+    assert SLOW.forward_speed == pytest.approx(0.01)  # half of a_max * dt
+    assert SLOW.safety_horizon == pytest.approx(2.5)  # covers the 2.5 m braking distance from 1 m/s
+    assert SLOW.reach == pytest.approx(2.5)
+    np.testing.assert_allclose(SLOW.check_horizon(np.array([0.0, 0.02, 0.5])), [8.0, 4.0, 2.5])
+
+
+def test_slowly_accelerating_robot_leaves_rest_and_reaches_goal():
+    occ = room(8.0)
+    pose, min_clear, recovered = drive(occ, (1.5, 1.5, math.pi / 8), np.array([6.0, 5.5]), 300, SLOW)
+    assert np.hypot(*(pose[:2] - [6.0, 5.5])) < 0.25
+    assert recovered == 0
+    assert min_clear >= SLOW.robot_radius + SLOW.safety_margin
+
+
+def test_slowly_braking_robot_stops_before_the_wall():
+    """Goal beyond the wall: at 0.2 m/s^2 the robot needs 2.5 m to stop from full speed and must plan for it."""
+    occ = room(8.0)
+    pose, min_clear, _ = drive(occ, (1.0, 4.0, 0.0), np.array([9.0, 4.0]), 300, SLOW)
+    assert min_clear >= SLOW.robot_radius
+    assert pose[0] > 7.0  # it did drive up to the wall
+
+
+@pytest.mark.parametrize(
+    ("robot", "pose", "velocity", "goal", "expected"),
+    [
+        ({}, (1.5, 1.5, 0.3), (0.0, 0.0), (4.5, 4.0), (0.4, 0.22857142857142865, False)),
+        ({}, (3.0, 3.0, 2.0), (0.6, -0.4), (1.0, 1.0), (0.2, 0.4, False)),
+        ({}, (5.2, 3.0, 0.0), (0.5, 0.2), (1.0, 3.5), (0.1, 1.0, False)),
+        ({}, (5.66, 3.0, 0.0), (0.0, 0.0), (7.0, 3.0), (-0.2, 0.0, True)),
+        ({}, (1.0, 4.5, -1.0), (0.3, 1.0), (5.0, 1.0), (0.7, 0.2, False)),
+        ({}, (4.9, 1.0, -0.3), (1.0, 0.0), (5.0, 5.0), (0.6, 0.8, True)),
+        (TURTLEBOT, (1.5, 1.5, 0.3), (0.0, 0.0), (4.5, 4.0), (0.2, 0.25714285714285723, False)),
+        (TURTLEBOT, (3.0, 3.0, 2.0), (0.6, -0.4), (1.0, 1.0), (0.26, 0.2, False)),
+        (TURTLEBOT, (5.66, 3.0, 0.0), (0.0, 0.0), (7.0, 3.0), (-0.2, 0.0, True)),
+        (TURTLEBOT, (4.9, 1.0, -0.3), (1.0, 0.0), (5.0, 5.0), (0.26, 0.6, False)),
+    ],
+)
+def test_jackal_and_turtlebot_plans_are_unchanged(robot, pose, velocity, goal, expected):
+    """Commands of the planner before its thresholds followed the limits (both robots reach 0.05 m/s in a step)."""
+    cfg = DWAConfig(**robot)
+    pose = np.array(pose)
+    clear = ClearanceMap(room(6.0), RES, (0.0, 0.0), pose[:2], 3.0, cfg.clearance_cap)
+    res = DWAPlanner(cfg).plan(pose, np.array(velocity), np.array(goal), clear)
+    v, w, recovering = expected
+    assert (res.v, res.w, res.recovering) == (pytest.approx(v), pytest.approx(w), recovering)

@@ -39,7 +39,7 @@ def test_every_ablation_trains_two_iterations(tiny_config, ablation):
     }.get(ablation, ["static", "general"])
     assert encoders == expected_encoders
     # BYOL trains exactly the encoders the model has (eq. 8 per encoder)
-    byol_terms = sorted(k.removeprefix("loss_byol_") for k in metrics if k.startswith("loss_byol_"))
+    byol_terms = sorted(k.removeprefix("byol_") for k in metrics if k.startswith("byol_"))
     assert byol_terms == (sorted(expected_encoders) if with_ssl else [])
     assert config.thsc is (ablation not in ("no_thsc", "dt"))
     assert config.encoder == ("resnet18" if ablation == "resnet18" else "cnn")

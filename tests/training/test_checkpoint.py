@@ -154,9 +154,13 @@ def test_a_batchnorm_resnet18_checkpoint_is_refused_clearly(tiny_config):
         metadata = handle.metadata()
         state = {k: handle.get_tensor(k) for k in handle.keys()}
     old = _as_batchnorm_resnet18(state)
-    assert "general_encoder.stem.1.running_mean" in old and "general_encoder.stages.0.bn1.weight" in old
+    assert (
+        "dve.general_encoder.stem.1.running_mean" in old and "dve.general_encoder.stages.0.bn1.weight" in old
+    )
     save_file(old, str(weights_path), metadata=metadata)
-    match = r"does not match NavFormerModel.*missing \['general_encoder.stages.0.norm1.bias'.*running_mean"
+    match = (
+        r"does not match NavFormerModel.*missing \['dve.general_encoder.stages.0.norm1.bias'.*running_mean"
+    )
     with pytest.raises(ValueError, match=match):
         ckpt.load_policy_model(result.run_dir)
     with pytest.raises(ValueError, match=match):

@@ -1,5 +1,6 @@
-"""Smoke runs of the two front ends: the hydra recipe (subprocess) and ``navformer train`` (library CLI).
-Both must write the same layout: config, checkpoint (run + resume parts), CSV scalars."""
+"""The two front ends of the one training loop: the hydra recipe (subprocess) and ``navformer train`` (library
+CLI). Both resolve the packaged train.yaml to the same configuration and write the same layout: config,
+checkpoint (run + resume parts), CSV scalars."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import pytest
 
 from navformer_rl import checkpoint as ckpt
 from navformer_rl import training_cli
+from navformer_rl.training import TrainConfig, load_train_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -160,15 +162,69 @@ def test_navformer_cli_reports_bad_config_in_one_line(capsys):
     assert err.startswith("navformer train: error: unknown ablation 'no_attention'")
 
 
-def test_recipe_refuses_resume_without_a_run_directory():
+def recipe_config(*overrides: str) -> TrainConfig:
+    """What the recipe trains with for ``overrides``: hydra composes ``recipes/navformer/config.yaml`` (the
+    packaged train.yaml + hydra settings) as ``@hydra.main`` does, then the recipe's ``make_train_config``."""
     import importlib.util
 
-    from omegaconf import OmegaConf
+    from hydra import compose, initialize_config_dir
 
     spec = importlib.util.spec_from_file_location("recipe_utils", ROOT / "recipes/navformer/utils.py")
     utils = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(utils)
-    cfg = OmegaConf.load(ROOT / "recipes/navformer/config.yaml")
-    cfg.resume = True  # output_dir left at hydra's per-launch folder: nothing to resume there
+    with initialize_config_dir(config_dir=str(ROOT / "recipes/navformer"), version_base="1.3"):
+        return utils.make_train_config(compose("config", overrides=list(overrides)))
+
+
+def changed_overrides(node: dict, prefix: str = "") -> list[str]:
+    """``key=value`` for every leaf of a train.yaml mapping, each value changed from its default where its type
+    allows (bools flipped, ints + 1, floats halved in exponent notation, null paths set; strings and other
+    nulls kept)."""
+    items = []
+    for key, value in node.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            items += changed_overrides(value, f"{name}.")
+        elif isinstance(value, bool):
+            items.append(f"{name}={str(not value).lower()}")
+        elif isinstance(value, int):
+            items.append(f"{name}={value + 1}")
+        elif isinstance(value, float):
+            items.append(f"{name}={value / 2:e}")
+        elif value is None:
+            items.append(f"{name}=/data/{key}" if key.endswith("_path") else f"{name}=null")
+        else:
+            items.append(f"{name}={value}")
+    return items
+
+
+def test_recipe_accepts_every_packaged_key_and_resolves_as_navformer_train():
+    """The recipe composes the packaged train.yaml: each of its keys (a new one included, with no edit of the
+    recipe) is accepted, and the same overrides give `navformer train`'s configuration."""
+    import yaml
+
+    packaged = yaml.safe_load((ROOT / "navformer_rl/config/train.yaml").read_text())
+    overrides = changed_overrides(packaged)
+    assert len(overrides) > 50 and "optim.lr=1.000000e-04" in overrides
+    assert "data.exploration_path=/data/exploration_path" in overrides
+    recipe = recipe_config(*overrides)
+    assert recipe.to_dict() == load_train_config(overrides).to_dict()
+    assert (recipe.optim.lr, recipe.optim.iterations, recipe.data.prefetch) == (1e-4, 10_001, False)
+    # defaults: only output_dir differs (hydra's run folder unless given)
+    assert (
+        recipe_config("output_dir=/runs/a").to_dict() == load_train_config(["output_dir=/runs/a"]).to_dict()
+    )
+
+
+def test_recipe_sets_other_model_fields_with_a_plus():
+    """model.* fields not listed in train.yaml: `+model.<field>=` in hydra, `model.<field>=` in navformer
+    train; the same configuration."""
+    recipe = recipe_config("+model.thsc=false", "ablation=no_ssl", "output_dir=/runs/a")
+    cli = load_train_config(["model.thsc=false", "ablation=no_ssl", "output_dir=/runs/a"])
+    assert recipe == cli and recipe.model == {**load_train_config().model, "thsc": False}
+
+
+def test_recipe_refuses_resume_without_a_run_directory():
+    # output_dir left at hydra's per-launch folder: nothing to resume there
     with pytest.raises(ValueError, match="resume=true needs output_dir="):
-        utils.make_train_config(cfg)
+        recipe_config("resume=true")

@@ -254,7 +254,6 @@ def test_scoring_a_checkpoint_offline_gives_the_logged_validation(tiny_config, h
         ([], "give --exploration DIR and / or --collision DIR"),
         (["--exploration", "{ca}"], "holds a 'ca' dataset, expected 'e'"),
         (["--collision", "/nonexistent/ca"], "ca dataset '/nonexistent/ca' does not exist"),
-        (["--collision", "{ca}", "--batch-trajs", "0"], "batch_trajs must be an integer >= 1"),
         (["--collision", "{ca}", "--device", "tpu"], "device"),
     ],
 )
@@ -269,4 +268,15 @@ def test_validate_command_refuses_bad_input_in_one_line(
     error = capsys.readouterr().err
     assert (
         error.startswith("navformer validate: error:") and message in error and len(error.splitlines()) == 1
+    )
+
+
+def test_validate_command_names_a_bad_flag(held_out, capsys):
+    from navformer_rl.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["validate", "--checkpoint", "x", "--collision", str(held_out["ca"]), "--batch-trajs", "0"])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "navformer validate: error: argument --batch-trajs: expected an integer >= 1, got 0"
     )

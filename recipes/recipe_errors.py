@@ -1,6 +1,7 @@
-"""Hydra recipes' handling of user mistakes: one line and exit status 2, like the ``navformer`` command.
+"""The recipes' handling of user mistakes: one line and exit status 2, like the ``navformer`` command.
 
-The recipes (``recipes/{collect,navformer,evaluate}``) wrap their ``main`` in :func:`user_errors`.
+Shared by the hydra recipes (``recipes/{collect,navformer,evaluate}``): each script puts ``recipes/`` on
+``sys.path`` and wraps its ``main`` in :func:`user_errors`. Hydra stays out of the ``navformer_rl`` library.
 """
 
 from __future__ import annotations
