@@ -43,6 +43,8 @@ from navformer_rl.objectives import ActionMSELoss
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_PACKAGE = "navformer_reference_modules"
+MOVED_MODULES = {"durable": "utils.durable", "checks": "utils.checks", "devices": "utils.devices"}
+"""Top-level modules of older commits and where they are now."""
 KEYS = ["target_pixels", "pixels", "return_to_go", "action", "step", "mask"]
 
 
@@ -59,6 +61,14 @@ def import_reference(commit: str, folder: Path):
     (folder / "navformer_rl" / "modules").rename(package)
     for source in package.rglob("*.py"):
         text = source.read_text().replace("navformer_rl.modules", REFERENCE_PACKAGE)
+        for (
+            old,
+            new,
+        ) in MOVED_MODULES.items():  # package modules the reference imports, at their current place
+            text = text.replace(f"navformer_rl.{old}", f"navformer_rl.{new}")
+            text = text.replace(
+                f"from navformer_rl import {old}", f"from navformer_rl.{new.rpartition('.')[0]} import {old}"
+            )
         source.write_text(text)
     sys.path.insert(0, str(folder))
     return importlib.import_module(REFERENCE_PACKAGE)

@@ -25,7 +25,7 @@ into the encoders).
 Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
 (``--device cuda`` on a GPU machine: everything, the matmul floors included, runs there; times are synchronised)
 (``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors, and
-``--malloc keep`` (default: ``navformer_rl.allocator.keep_freed_memory``, as ``navformer train`` does) keeps
+``--malloc keep`` (default: ``navformer_rl.utils.allocator.keep_freed_memory``, as ``navformer train`` does) keeps
 freed big blocks for reuse; ``--malloc default`` measures glibc's own behaviour;
 ``--min-valid 0.5`` right-pads the trajectory batches, whose padded frames the encoders skip.)
 """
@@ -43,9 +43,9 @@ from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.flop_counter import flop_registry
 from torchrl.objectives import SoftUpdate
 
-from navformer_rl.allocator import keep_freed_memory
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import ActionMSELoss, BYOLLoss, joint_parameters
+from navformer_rl.utils.allocator import keep_freed_memory
 
 CONFIGS = {
     "fp32": {"channels_last": False, "space_to_depth": False},

@@ -31,9 +31,9 @@ from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import InitTracker, SerialEnv, TransformedEnv
 
-from navformer_rl.checkpoint import load_policy_model
 from navformer_rl.envs.multi_robot import MultiRobotNavEnv
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, NavFormerPolicy
+from navformer_rl.training.checkpoint import load_policy_model
 
 
 def make_env(env_seed: int, size: float, robots: int, max_steps: int):

@@ -2,7 +2,7 @@
 
 ``make_navformer_actor(model)`` is a ``TensorDictSequential`` of three ``TensorDictModule``s: the dual
 visual encoder, the causal transformer and the action head. ``--ablation`` shows how an ablation of Table IV
-or the DT baseline is composed (``no_static_encoder``, ``dt``, ...); ``--full`` prints torch's whole repr.
+or the DT baseline is composed (``no_fs``, ``dt``, ...); ``--full`` prints torch's whole repr.
 
     .venv/bin/python examples/print_module_tree.py --ablation dt
 """
@@ -40,7 +40,7 @@ def print_tree(model: NavFormerModel) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ablation", choices=MODEL_ABLATIONS, default="navformer")
+    parser.add_argument("--ablation", choices=MODEL_ABLATIONS, default="none")
     parser.add_argument("--full", action="store_true", help="print torch's repr of the whole actor")
     args = parser.parse_args()
     model = NavFormerModel(NavFormerConfig.ablation(args.ablation))

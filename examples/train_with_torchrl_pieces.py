@@ -22,7 +22,7 @@ from navformer_rl.data import CrossTaskSampler, open_dataset
 from navformer_rl.data.synthetic import make_synthetic_dataset
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import ActionMSELoss, BYOLLoss, BYOLTauSchedule
-from navformer_rl.validation import FixedTrajectoryBatches, evaluation_mode, teacher_forced_loss
+from navformer_rl.training.validation import FixedTrajectoryBatches, evaluation_mode, teacher_forced_loss
 
 
 def main() -> None:

@@ -9,7 +9,7 @@ import textwrap
 
 import pytest
 
-from navformer_rl import allocator
+from navformer_rl.utils import allocator
 
 # A child process allocates, touches and frees a 64 MiB tensor six times and prints the minor page faults of
 # the last five rounds: a block that size is above glibc's largest mmap threshold (32 MiB), so by default
@@ -19,7 +19,7 @@ from navformer_rl import allocator
 _FAULTS = textwrap.dedent(
     """
     import resource, sys, torch
-    from navformer_rl.allocator import keep_freed_memory
+    from navformer_rl.utils.allocator import keep_freed_memory
     if sys.argv[1] == "keep":
         assert keep_freed_memory()
     def faults():
@@ -60,7 +60,7 @@ def test_keep_freed_memory_reuses_big_blocks_instead_of_mapping_fresh_pages():
 _TRAIN = textwrap.dedent(
     """
     import sys, torch
-    from navformer_rl.allocator import keep_freed_memory
+    from navformer_rl.utils.allocator import keep_freed_memory
     from navformer_rl.modules.models.cnn import ConvEncoder
     if sys.argv[1] == "keep":
         assert keep_freed_memory()
@@ -96,7 +96,7 @@ def test_keep_freed_memory_gives_the_same_training_values(tmp_path):
 _RELEASE = textwrap.dedent(
     """
     import torch
-    from navformer_rl.allocator import keep_freed_memory, release_free_memory
+    from navformer_rl.utils.allocator import keep_freed_memory, release_free_memory
     def resident_mib():
         return int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20
     assert keep_freed_memory()

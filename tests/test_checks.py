@@ -1,4 +1,4 @@
-"""navformer_rl.checks: the shared value checks (bools refused, numpy scalars accepted and converted, messages
+"""navformer_rl.utils.checks: the shared value checks (bools refused, numpy scalars accepted and converted, messages
 naming the argument, the value and what was expected) and the CLI's seed type built on them."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import re
 import numpy as np
 import pytest
 
-from navformer_rl import cli_args
-from navformer_rl.checks import check_int, check_number, check_seed, is_count, is_integer, is_real
+from navformer_rl.cli import args as cli_args
+from navformer_rl.utils.checks import check_int, check_number, check_seed, is_count, is_integer, is_real
 
 
 @pytest.mark.parametrize("value", [0, 3, np.int64(3), np.uint8(0), 2**40])

@@ -1,4 +1,4 @@
-"""navformer_rl.durable's JSON writer and leftover finder (the rest is tested through its users:
+"""navformer_rl.utils.durable's JSON writer and leftover finder (the rest is tested through its users:
 checkpoints, datasets, evaluation outputs)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import stat
 
 import pytest
 
-from navformer_rl import durable
+from navformer_rl.utils import durable
 
 PAYLOAD = {
     "schema_version": 1,

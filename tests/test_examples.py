@@ -54,7 +54,7 @@ def test_pretrain_dve_example_feeds_a_frozen_dve_to_a_torchrl_actor():
 
 @pytest.mark.parametrize(
     ("ablation", "parts"),
-    [("navformer", ["DualVisualEncoder", "CausalTransformer", "THSCHead"]), ("dt", ["ObservationHead"])],
+    [("none", ["DualVisualEncoder", "CausalTransformer", "THSCHead"]), ("dt", ["ObservationHead"])],
 )
 def test_module_tree_example_prints_every_part_with_its_keys(ablation, parts):
     out = run("examples/print_module_tree.py", "--ablation", ablation)
@@ -62,7 +62,7 @@ def test_module_tree_example_prints_every_part_with_its_keys(ablation, parts):
     for part in parts:
         assert f"  {part}  (" in out.stdout
     assert out.stdout.count("reads:") == 3 and "writes: action_pred" in out.stdout
-    assert ("('embed', 'static')" in out.stdout) == (ablation == "navformer")
+    assert ("('embed', 'static')" in out.stdout) == (ablation == "none")
 
 
 def test_custom_policy_example_is_evaluated(tmp_path):

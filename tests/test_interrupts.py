@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from navformer_rl.interrupts import exit_on_sigint, spawn_context
+from navformer_rl.utils.interrupts import exit_on_sigint, spawn_context
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -7,7 +7,7 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from navformer_rl.mp4 import Mp4Writer, video_codec
+from navformer_rl.utils.mp4 import Mp4Writer, video_codec
 
 
 def _frames(count: int, height: int, width: int) -> list[np.ndarray]:
@@ -116,7 +116,7 @@ def test_a_dropped_writer_stops_its_encoder_and_leaves_no_file(tmp_path):
 def test_a_missing_encoder_is_a_named_error(tmp_path, monkeypatch):
     import imageio_ffmpeg
 
-    from navformer_rl.mp4 import VideoEncoderError
+    from navformer_rl.utils.mp4 import VideoEncoderError
 
     def missing():
         raise RuntimeError("No ffmpeg exe could be found")

@@ -14,14 +14,14 @@ def is_dt_config(config) -> bool:
 
 def load_dt_policy(checkpoint: str | os.PathLike):
     """``(NavFormerPolicy, NavFormerConfig)`` from a DT checkpoint (any path
-    ``navformer_rl.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...).
+    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...).
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.
         ValueError: not a navformer_rl checkpoint, or a NavFormer (not DT) model.
     """
-    from navformer_rl.checkpoint import load_policy_model
     from navformer_rl.modules import NavFormerPolicy
+    from navformer_rl.training.checkpoint import load_policy_model
 
     config, model = load_policy_model(checkpoint)
     if not is_dt_config(config):

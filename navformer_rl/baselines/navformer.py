@@ -9,14 +9,14 @@ from navformer_rl.baselines.dt import is_dt_config
 
 def load_navformer_policy(checkpoint: str | os.PathLike):
     """``(NavFormerPolicy, NavFormerConfig)`` from a NavFormer checkpoint (any path
-    ``navformer_rl.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...). The policy conditions on R-hat_1 = 1 and uses the KV cache.
+    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...). The policy conditions on R-hat_1 = 1 and uses the KV cache.
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.
         ValueError: not a navformer_rl checkpoint (foreign or corrupt), or a DT-baseline model.
     """
-    from navformer_rl.checkpoint import load_policy_model
     from navformer_rl.modules import NavFormerPolicy
+    from navformer_rl.training.checkpoint import load_policy_model
 
     config, model = load_policy_model(checkpoint)
     if is_dt_config(config):

@@ -1,6 +1,6 @@
 """``navformer collect``: the dataset collection subcommand.
 
-``register(subparsers)`` adds ``collect`` to the package CLI (``navformer_rl/cli.py``); this module also
+``register(subparsers)`` adds ``collect`` to the package CLI (``navformer_rl/cli/main.py``); this module also
 runs alone: ``python -m navformer_rl.data.cli collect e --out data/e``.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from navformer_rl import cli_args
+from navformer_rl.cli import args as cli_args
 
 KINDS = ("e", "ca", "ssl", "all")
 

@@ -66,7 +66,7 @@ def collect(
     ``workers`` processes (``spawn``, at most 2 per CPU) run work units; ``workers=1`` runs them in this
     process. Rerunning the same call after an interruption continues where it stopped and ends with the
     same bytes. The folder is locked meanwhile (:func:`~navformer_rl.data.writer.folder_lock`): a second
-    collection into it raises :class:`~navformer_rl.durable.FolderLockedError` instead of deleting the
+    collection into it raises :class:`~navformer_rl.utils.durable.FolderLockedError` instead of deleting the
     first one's shards in progress.
     """
     kind = DatasetKind.parse(kind)
@@ -201,7 +201,7 @@ def _terminate_workers(pool: ProcessPoolExecutor) -> None:
 
 
 def _spawn():
-    from navformer_rl.interrupts import spawn_context
+    from navformer_rl.utils.interrupts import spawn_context
 
     return spawn_context()
 

@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from navformer_rl.checks import check_number
 from navformer_rl.constants import MAX_EPISODE_STEPS
 from navformer_rl.data.schema import DatasetKind
+from navformer_rl.utils.checks import check_number
 
 MAZE_SIZES = (5.0, 7.5, 10.0, 12.5, 15.0, 17.5)
 """World sides for D_e and D_ssl: the paper's 5-17.5 m range on the 2.5 m maze-cell grid."""

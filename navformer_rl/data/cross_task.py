@@ -13,9 +13,10 @@ from typing import Any
 from tensordict import TensorDict
 
 from navformer_rl.data.samplers import TrajectoryBatcher
+from navformer_rl.tasks import DATASETS
 
-EXPLORATION = "exploration"
-COLLISION_AVOIDANCE = "collision_avoidance"
+EXPLORATION = DATASETS["e"].task
+COLLISION_AVOIDANCE = DATASETS["ca"].task
 
 
 class CrossTaskSampler:

@@ -20,7 +20,6 @@ from torchrl.data.replay_buffers import ImmutableDatasetWriter, SamplerWithoutRe
 from torchrl.data.replay_buffers.checkpointers import StorageCheckpointerBase
 from torchrl.envs.transforms import Transform
 
-from navformer_rl.checks import is_count
 from navformer_rl.data.integrity import (
     HASHES_KEY,
     hashes_problem,
@@ -43,7 +42,8 @@ from navformer_rl.data.writer import (
     load_checked,
     read_json_object,
 )
-from navformer_rl.durable import atomic_write_json
+from navformer_rl.utils.checks import is_count
+from navformer_rl.utils.durable import atomic_write_json
 
 _DAMAGED = (
     "the dataset folder was damaged after it was written (its files are written atomically): restore it "

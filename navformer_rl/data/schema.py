@@ -39,6 +39,7 @@ import torch
 from tensordict import TensorDict
 
 from navformer_rl.constants import IMAGE_SIZE
+from navformer_rl.tasks import DATASETS
 
 SCHEMA_VERSION = 1
 """Bump whenever a key, dtype or shape changes; loaders refuse versions they do not know."""
@@ -68,7 +69,7 @@ class DatasetKind(str, Enum):
         return self is not DatasetKind.SSL
 
 
-TASK_ID = {DatasetKind.EXPLORATION: 0, DatasetKind.COLLISION_AVOIDANCE: 1}
+TASK_ID = {DatasetKind(kind): d.task_id for kind, d in DATASETS.items() if d.task_id is not None}
 """Value of the ``task`` key for each trajectory dataset."""
 
 

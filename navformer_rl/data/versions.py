@@ -31,13 +31,19 @@ class DataVersion:
 
 
 _EXPERTS = ("experts/policies.py",)
-_EPISODES = ("data/collect.py", "data/collect_settings.py", "data/expert_episodes.py", "data/schema.py")
+_EPISODES = (
+    "data/collect.py",
+    "data/collect_settings.py",
+    "data/expert_episodes.py",
+    "data/schema.py",
+    "tasks.py",
+)
 
 DATA_VERSIONS: dict[str, DataVersion] = {
     "world": DataVersion(
         1,
         "mazes and arenas, start poses, targets (positions, shapes, colours) from a seed",
-        ("envs/world.py", "envs/occupancy.py", "checks.py"),
+        ("envs/world.py", "envs/occupancy.py", "utils/checks.py"),
     ),
     "simulator": DataVersion(
         1,

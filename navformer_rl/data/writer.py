@@ -26,7 +26,7 @@ overwritten in place) is found too: when a collection resumes and when the shard
 ``finalize`` records the sha256 of every consolidated memmap file in ``metadata.json`` (checked by
 ``open_dataset(..., verify=True)``). Temp folders
 (``shards/.tmp-*``) and temp files of interrupted ``metadata.json`` rewrites (``.metadata.*.tmp.json``,
-see :func:`navformer_rl.durable.atomic_leftovers`) are provably uncommitted and are deleted silently.
+see :func:`navformer_rl.utils.durable.atomic_leftovers`) are provably uncommitted and are deleted silently.
 """
 
 from __future__ import annotations
@@ -43,7 +43,6 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from navformer_rl.checks import check_int, is_count
 from navformer_rl.data.integrity import (
     HASHES_KEY,
     check_sorted,
@@ -63,9 +62,10 @@ from navformer_rl.data.schema import (
     key_name,
 )
 from navformer_rl.data.versions import VERSIONS_KEY
-from navformer_rl.durable import FolderLockedError as FolderLockedError  # re-exported
-from navformer_rl.durable import atomic_leftovers, atomic_write_json, fsync_dir, fsync_tree
-from navformer_rl.durable import folder_lock as durable_folder_lock
+from navformer_rl.utils.checks import check_int, is_count
+from navformer_rl.utils.durable import FolderLockedError as FolderLockedError  # re-exported
+from navformer_rl.utils.durable import atomic_leftovers, atomic_write_json, fsync_dir, fsync_tree
+from navformer_rl.utils.durable import folder_lock as durable_folder_lock
 
 METADATA_FILE = "metadata.json"
 SHARDS_DIR = "shards"
@@ -118,8 +118,8 @@ def code_change(old: dict[str, Any], header: dict[str, Any]) -> str | None:
 
 
 def folder_lock(root: str | Path) -> contextlib.AbstractContextManager[Path]:
-    """Hold ``root/.collect.lock`` while collecting into ``root`` (:func:`navformer_rl.durable.folder_lock`:
-    a second live collection gets :class:`~navformer_rl.durable.FolderLockedError` naming the holder's pid; a killed one's lock is
+    """Hold ``root/.collect.lock`` while collecting into ``root`` (:func:`navformer_rl.utils.durable.folder_lock`:
+    a second live collection gets :class:`~navformer_rl.utils.durable.FolderLockedError` naming the holder's pid; a killed one's lock is
     taken over with a warning)."""
     return durable_folder_lock(root, LOCK_FILE, "collected")
 

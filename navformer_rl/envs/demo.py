@@ -13,15 +13,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from navformer_rl.checks import check_int
 from navformer_rl.constants import CONTROL_DT, SUCCESS_RADIUS
-from navformer_rl.durable import atomic_path
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy
 from navformer_rl.envs.robots import JACKAL
 from navformer_rl.envs.sim import Simulator
 from navformer_rl.envs.topdown import ROBOT_COLORS, draw_topdown
 from navformer_rl.envs.world import WorldConfig, generate_world
-from navformer_rl.mp4 import Mp4Writer
+from navformer_rl.utils.checks import check_int
+from navformer_rl.utils.durable import atomic_path
+from navformer_rl.utils.mp4 import Mp4Writer
 
 _MAP_PX = 600
 _CAMERA_PX = 168

@@ -37,7 +37,6 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from navformer_rl.checks import check_int, check_seed
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.envs.robots import get_robot_spec
 from navformer_rl.envs.sim import Simulator, simulator_for_world, validate_actions
@@ -50,6 +49,7 @@ from navformer_rl.envs.world import (
     generate_world,
     sample_start_poses,
 )
+from navformer_rl.utils.checks import check_int, check_seed
 
 _SEED_HIGH = 2**31 - 1
 _ACTION_KEY = ("agents", "action")

@@ -14,11 +14,11 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from navformer_rl.checks import check_int, check_number
 from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.envs.occupancy import OccupancyMap
 from navformer_rl.envs.sim import Simulator, wrap_angle
 from navformer_rl.envs.world import WorldSpec
+from navformer_rl.utils.checks import check_int, check_number
 
 
 @runtime_checkable

@@ -24,7 +24,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from navformer_rl.checks import check_int, check_number
+from navformer_rl.utils.checks import check_int, check_number
 
 _FIELD_CACHE_SIZE = 16
 

@@ -17,11 +17,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navformer_rl.checks import check_int, check_number
 from navformer_rl.constants import CONTROL_DT, IMAGE_SIZE
 from navformer_rl.envs.robots import RobotSpec
 from navformer_rl.envs.scene import WALL_PALETTE, add_box, add_floor, add_robot, add_target
 from navformer_rl.envs.world import WorldSpec
+from navformer_rl.utils.checks import check_int, check_number
 
 COLLISION_NONE, COLLISION_WALL, COLLISION_ROBOT = 0, 1, 2
 """Collision kinds: static obstacles (walls and solid targets) count as walls."""

@@ -16,7 +16,6 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-from navformer_rl.checks import check_int, check_seed
 from navformer_rl.constants import IMAGE_SIZE, MAX_EPISODE_STEPS, SUCCESS_RADIUS
 from navformer_rl.envs.obstacle_policy import GoalSeekingPolicy, ObstaclePolicy
 from navformer_rl.envs.robots import RobotSpec, get_robot_spec
@@ -31,6 +30,7 @@ from navformer_rl.envs.world import (
     generate_world,
     sample_start_poses,
 )
+from navformer_rl.utils.checks import check_int, check_seed
 
 _SEED_HIGH = 2**31 - 1
 

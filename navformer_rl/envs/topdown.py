@@ -12,10 +12,10 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from navformer_rl.checks import check_int, check_number
 from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.envs.robots import JACKAL, RobotSpec
 from navformer_rl.envs.world import WorldSpec
+from navformer_rl.utils.checks import check_int, check_number
 
 ROBOT_COLORS = np.array(
     [

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from navformer_rl.checks import check_int, check_number, check_seed, is_integer, is_real
 from navformer_rl.constants import (
     MAX_WORLD_SIZE,
     MIN_WORLD_SIZE,
@@ -25,6 +24,7 @@ from navformer_rl.constants import (
 )
 from navformer_rl.envs.occupancy import OccupancyMap
 from navformer_rl.envs.robots import JACKAL, RobotSpec
+from navformer_rl.utils.checks import check_int, check_number, check_seed, is_integer, is_real
 
 TARGET_RGBA: dict[str, tuple[float, float, float, float]] = {
     "green": (0.10, 0.80, 0.15, 1.0),

@@ -16,7 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
-from navformer_rl import cli_args
+from navformer_rl.cli import args as cli_args
 from navformer_rl.constants import MAX_EPISODE_STEPS
 
 
@@ -339,8 +339,8 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
 
 
 def _run_seeds(args: argparse.Namespace) -> int:
-    from navformer_rl.durable import atomic_write_text
     from navformer_rl.evaluation.seeds import seed_table_markdown, summarize_seed_groups
+    from navformer_rl.utils.durable import atomic_write_text
 
     groups: dict[str, list[Path]] = {}
     for name, *folders in args.seed_groups:

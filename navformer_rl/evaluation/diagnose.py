@@ -31,14 +31,14 @@ from pathlib import Path
 from typing import Any
 
 from navformer_rl import __version__
-from navformer_rl.checks import check_int
-from navformer_rl.devices import resolve_device
-from navformer_rl.durable import atomic_write_json, atomic_write_text, folder_lock
 from navformer_rl.evaluation.diagnose_runner import TraceRunner, TraceTask, _init_worker, _run_in_worker
 from navformer_rl.evaluation.diagnose_trace import TRACE_VERSION, load_trace, save_trace
 from navformer_rl.evaluation.episodes import EpisodeSet, load_episode_set
 from navformer_rl.evaluation.policy_spec import CHECKPOINT_METHODS, PolicySpec
-from navformer_rl.interrupts import spawn_context
+from navformer_rl.utils.checks import check_int
+from navformer_rl.utils.devices import resolve_device
+from navformer_rl.utils.durable import atomic_write_json, atomic_write_text, folder_lock
+from navformer_rl.utils.interrupts import spawn_context
 
 FORMAT = "navformer_rl.diagnosis"
 FORMAT_VERSION = 1
@@ -107,7 +107,7 @@ def diagnose(
     episode_hash = episode_set.content_hash()
     others = [_load_comparison(Path(folder), episode_hash) for folder in compare]
     if checkpoint is not None and method in CHECKPOINT_METHODS:
-        from navformer_rl.checkpoint import resolve_checkpoint
+        from navformer_rl.training.checkpoint import resolve_checkpoint
 
         checkpoint = resolve_checkpoint(checkpoint)
     spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), device=device)

@@ -8,7 +8,7 @@ a smaller, centred turn. Two signatures are measured here:
   (:func:`~navformer_rl.evaluation.diagnose_measures.command_statistics`): a narrower ``|angular|``
   distribution than the experts' is what averaging modes would give.
 - :func:`teacher_forced_turns`: on held-out expert trajectories (the windows ``navformer validate`` scores,
-  :class:`~navformer_rl.validation.FixedTrajectoryBatches`), the model's predicted angular action at the
+  :class:`~navformer_rl.training.validation.FixedTrajectoryBatches`), the model's predicted angular action at the
   steps where the expert turns hard (``|a_angular| >`` :data:`~navformer_rl.evaluation.diagnose_measures.LARGE_TURN`):
   ``magnitude_ratio`` = mean ``|predicted|`` / mean ``|expert|`` (1 = as hard as the expert, near 0 = the
   turn averaged away) and ``sign_agreement`` (the fraction turning the expert's way).
@@ -99,21 +99,21 @@ def teacher_forced_turns(
     """``{kind: turn_agreement(...) + loss_dt}`` of a checkpoint's teacher-forced predictions on held-out
     trajectories; ``loss_dt`` is eq. 10 over every valid step (``navformer validate``'s number).
 
-    The windows are those of :func:`navformer_rl.validation.score_checkpoints` with the same ``seed`` /
+    The windows are those of :func:`navformer_rl.training.validation.score_checkpoints` with the same ``seed`` /
     ``max_trajectories`` (one per trajectory, at most the model's context); the model runs in eval mode
     and reads the expert's past actions (teacher forcing), writing ``action_pred`` ``[N, T, 2]``.
 
     Args:
-        checkpoint: any form :func:`~navformer_rl.checkpoint.resolve_checkpoint` takes (``pretrained:NAME``
+        checkpoint: any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes (``pretrained:NAME``
             too).
         datasets: ``{kind: folder}`` of held-out D_e (``e``) / D_ca (``ca``).
     """
 
-    from navformer_rl import checkpoint as ckpt
     from navformer_rl.data.fit import check_model_reads
-    from navformer_rl.devices import check_device, resolve_device
     from navformer_rl.modules import make_navformer_actor
-    from navformer_rl.validation import FixedTrajectoryBatches, evaluation_mode
+    from navformer_rl.training import checkpoint as ckpt
+    from navformer_rl.training.validation import FixedTrajectoryBatches, evaluation_mode
+    from navformer_rl.utils.devices import check_device, resolve_device
 
     torch_device = resolve_device(check_device(device))
     opened = _open(datasets)

@@ -15,7 +15,7 @@ from navformer_rl.evaluation.diagnose_trace import EpisodeGeometry, EpisodeTrace
 from navformer_rl.evaluation.episodes import Episode
 from navformer_rl.evaluation.policy_spec import PolicySpec
 from navformer_rl.evaluation.runner import make_eval_env
-from navformer_rl.interrupts import exit_on_sigint
+from navformer_rl.utils.interrupts import exit_on_sigint
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from navformer_rl.durable import atomic_path
+from navformer_rl.utils.durable import atomic_path
 
 TRACE_VERSION = 1
 """Bump when the fields of :class:`EpisodeTrace` change (stored traces of another version are recomputed)."""

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from navformer_rl.constants import EVAL_ROBOT_COUNTS, EVAL_SIZES, MAX_EPISODE_STEPS, SUCCESS_RADIUS
-from navformer_rl.durable import atomic_write_text
+from navformer_rl.utils.durable import atomic_write_text
 
 FORMAT = "navformer_rl.episode_set"
 FORMAT_VERSION = 2
@@ -292,7 +292,7 @@ def make_episode_set(
     worlds in that many spawned processes.
     """
     from navformer_rl import __version__
-    from navformer_rl.checks import check_int
+    from navformer_rl.utils.checks import check_int
 
     if trials_per_setup < 1 or trials_per_world < 1:
         raise ValueError(
@@ -310,7 +310,7 @@ def make_episode_set(
     if workers > 1 and len(worlds) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
-        from navformer_rl.interrupts import exit_on_sigint, spawn_context
+        from navformer_rl.utils.interrupts import exit_on_sigint, spawn_context
 
         context = spawn_context()  # no forked pybullet / torch state; Ctrl-C ends the workers quietly
         with ProcessPoolExecutor(

@@ -47,9 +47,6 @@ from pathlib import Path
 from typing import Any
 
 from navformer_rl import __version__
-from navformer_rl.checks import check_int
-from navformer_rl.devices import resolve_device
-from navformer_rl.durable import atomic_write_text, folder_lock
 from navformer_rl.evaluation.episodes import EpisodeSet, load_episode_set, save_episode_set
 from navformer_rl.evaluation.measures import RobotTrial, check_cluster
 from navformer_rl.evaluation.policy_spec import (
@@ -69,8 +66,11 @@ from navformer_rl.evaluation.runner import (
     make_eval_env,
 )
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
-from navformer_rl.interrupts import spawn_context
-from navformer_rl.mp4 import ffmpeg_executable
+from navformer_rl.utils.checks import check_int
+from navformer_rl.utils.devices import resolve_device
+from navformer_rl.utils.durable import atomic_write_text, folder_lock
+from navformer_rl.utils.interrupts import spawn_context
+from navformer_rl.utils.mp4 import ffmpeg_executable
 
 __all__ = [
     "LOCK_FILENAME",
@@ -253,7 +253,7 @@ def _resolved_checkpoint(
     worker (a run directory's latest, fixed now even while that run keeps training); else ``checkpoint``."""
     if checkpoint is None or factory is not None or method not in CHECKPOINT_METHODS:
         return checkpoint
-    from navformer_rl.checkpoint import resolve_checkpoint
+    from navformer_rl.training.checkpoint import resolve_checkpoint
 
     return resolve_checkpoint(checkpoint)
 

@@ -7,6 +7,8 @@ SPL and CR as published.
 
 from __future__ import annotations
 
+from navformer_rl.tasks import ABLATIONS
+
 PAPER_SOURCE = "Wang, Tan, Nejat, NavFormer (RA-L 2024), Gazebo simulator"
 
 TABLE1_METHODS: tuple[str, ...] = ("VRW", "DSAC", "MA-TDN", "DT", "FCA", "NavFormer")
@@ -67,30 +69,7 @@ TABLE4: dict[str, tuple[float, float, float]] = {
 METHOD_TO_PAPER_COLUMN: dict[str, str] = {"vrw": "VRW", "dt": "DT", "fca": "FCA", "navformer": "NavFormer"}
 """Our method names -> the paper's column names."""
 
-ABLATION_TO_TABLE4: dict[str, str] = {
-    "no_ssl": "NavFormer w/o SSL",
-    "no_thsc": "NavFormer w/o THSC",
-    "no_de": "NavFormer w/o tau^e",
-    "no_dca": "NavFormer w/o tau^ca",
-    "no_fs": "NavFormer w/o f_s",
-    "no_fg": "NavFormer w/o f_g",
-    "resnet18": "NavFormer w ResNet18",
-}
-"""The training recipe's ablation names -> their Table IV rows."""
+ABLATION_TO_TABLE4: dict[str, str] = {name: a.paper_row for name, a in ABLATIONS.items() if a.paper_row}
+"""The training recipe's ablation names -> their Table IV rows (:data:`navformer_rl.tasks.ABLATIONS`)."""
 TABLE4_SETUP: tuple[float, int] = (12.5, 4)
 """Table IV's setup: 60 trials in 12.5 m mazes with 4 robots (paper §VII.D)."""
-
-
-def label_ablation(label: str) -> str | None:
-    """The training ablation (a key of :data:`ABLATION_TO_TABLE4`) that a method label names, or None.
-
-    Only NavFormer labels name one: ``navformer-no_thsc`` and ``navformer_resnet18`` name ``no_thsc`` and
-    ``resnet18``; ``navformer``, ``navformer-seed1``, ``dt-no_thsc`` or ``vrw`` name none.
-    """
-    lowered = label.lower()
-    if METHOD_TO_PAPER_COLUMN.get(lowered.split("-")[0].split("_")[0]) != "NavFormer":
-        return None
-    for ablation in ABLATION_TO_TABLE4:
-        if ablation in lowered[len("navformer") :]:
-            return ablation
-    return None

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from navformer_rl.durable import atomic_path
 from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, ordered_setups
+from navformer_rl.utils.durable import atomic_path
 
 _METRICS = (("sr", "SR", "sr_ci"), ("spl", "SPL", "spl_ci"), ("cr", "CR", "cr_ci"))
 

@@ -17,8 +17,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from navformer_rl.devices import check_device, resolve_device
-from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, label_ablation
+from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4
+from navformer_rl.tasks import label_ablation
+from navformer_rl.utils.devices import check_device, resolve_device
 
 METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
 """Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
@@ -78,7 +79,7 @@ class PolicySpec:
                     f"method {self.method!r} needs a checkpoint: a run directory, a checkpoint folder or "
                     f"shipped weights pretrained:{self.method} (CLI --checkpoint PATH, recipe checkpoint=PATH)"
                 )
-            from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
+            from navformer_rl.training.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
 
             policy, config = self._load_checkpoint()  # on the CPU: this process only checks it
             policy.native = self.native
@@ -134,7 +135,11 @@ def checkpoint_ablation(checkpoint: str | os.PathLike) -> str | None:
     """The training ablation (``TrainConfig.ablation``: ``none``, ``no_thsc``, ..., ``dt``) a checkpoint was
     trained with: from the training config stored in its ``config.json``, else from the run directory's
     ``train_config.json``; None when neither records it (a checkpoint written by hand)."""
-    from navformer_rl.checkpoint import CHECKPOINTS_DIRNAME, read_checkpoint_config, resolve_checkpoint
+    from navformer_rl.training.checkpoint import (
+        CHECKPOINTS_DIRNAME,
+        read_checkpoint_config,
+        resolve_checkpoint,
+    )
 
     train_config = read_checkpoint_config(checkpoint).get("train_config")
     ablation = train_config.get("ablation") if isinstance(train_config, dict) else None
@@ -162,7 +167,7 @@ def label_ablation_problem(
 ) -> str | None:
     """Why ``label`` misnames the evaluated model, or None when it does not.
 
-    A label that names a training ablation (:func:`~navformer_rl.evaluation.paper_results.label_ablation`:
+    A label that names a training ablation (:func:`~navformer_rl.tasks.label_ablation`:
     ``navformer-no_thsc``) is compared in reports with that ablation's Table IV row, so it must be a
     ``navformer`` / ``dt`` checkpoint trained with that ablation: ``ablation`` (the checkpoint's
     ``TrainConfig.ablation``) must be the named one; when the checkpoint does not record it, its

@@ -27,7 +27,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.harness import checkpoint_ablation, label_ablation_problem
 from navformer_rl.evaluation.measures import RobotTrial, check_cluster
 from navformer_rl.evaluation.paper_results import (
@@ -38,7 +37,6 @@ from navformer_rl.evaluation.paper_results import (
     TABLE3,
     TABLE4,
     TABLE4_SETUP,
-    label_ablation,
 )
 from navformer_rl.evaluation.plots import plot_setup_bars
 from navformer_rl.evaluation.tables import (
@@ -53,7 +51,9 @@ from navformer_rl.evaluation.tables import (
     summarize_by_setup,
     table_markdown,
 )
-from navformer_rl.mp4 import video_codec
+from navformer_rl.tasks import label_ablation
+from navformer_rl.utils.durable import atomic_write_text
+from navformer_rl.utils.mp4 import video_codec
 
 PAPER_CAVEAT = (
     "Paper numbers come from {source}: other worlds, other robot models and the authors' fully trained "
@@ -89,7 +89,7 @@ def _recorded_ablation(run: dict[str, Any]) -> str | None:
     checkpoint, sha256 = run.get("checkpoint"), run.get("checkpoint_sha256")
     if not checkpoint or not sha256:
         return None
-    from navformer_rl.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
+    from navformer_rl.training.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
 
     try:
         folder = resolve_checkpoint(checkpoint)

@@ -21,8 +21,8 @@ from navformer_rl.evaluation.episodes import Episode
 from navformer_rl.evaluation.measures import RobotTrial, TrialTracker
 from navformer_rl.evaluation.policy_spec import PolicySpec
 from navformer_rl.evaluation.video import MAP_PNG_PX, compose_frame, draw_map, save_map_png
-from navformer_rl.interrupts import exit_on_sigint
-from navformer_rl.mp4 import Mp4Writer
+from navformer_rl.utils.interrupts import exit_on_sigint
+from navformer_rl.utils.mp4 import Mp4Writer
 
 
 @dataclass(frozen=True)

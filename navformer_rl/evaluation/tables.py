@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from navformer_rl.durable import atomic_write_text
 from navformer_rl.evaluation.measures import (
     MetricSummary,
     RobotTrial,
@@ -20,6 +19,7 @@ from navformer_rl.evaluation.measures import (
     min_trials_for_interval,
     summarize,
 )
+from navformer_rl.utils.durable import atomic_write_text
 
 ALL_SETUPS = "all"
 """Setup name of the row that pools every setup of a method."""

@@ -1,5 +1,5 @@
 """Episode visualisation: top-down trajectory maps (PNG) and video frames showing every robot's egocentric
-camera beside the top-down map (written as H.264 mp4 by :class:`navformer_rl.mp4.Mp4Writer`)."""
+camera beside the top-down map (written as H.264 mp4 by :class:`navformer_rl.utils.mp4.Mp4Writer`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from navformer_rl.durable import atomic_path
+from navformer_rl.utils.durable import atomic_path
 
 MAP_PX = 480
 """Side of the top-down map in video frames and map images, in pixels."""

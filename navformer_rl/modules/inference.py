@@ -85,17 +85,6 @@ class NavFormerPolicy(TensorDictModuleBase):
         self._return_to_go: Tensor | None = None
         self._prev_action: Tensor | None = None
 
-    @classmethod
-    def from_pretrained(cls, name: str, **kwargs) -> NavFormerPolicy:
-        """The policy of the shipped weights ``name`` (``"navformer"``, ``"dt"``, ...; see
-        ``navformer_rl.pretrained.shipped_names()``), its model in eval mode on the CPU; ``kwargs`` go to
-        the constructor. ValueError for an unknown name or a corrupt file, FileNotFoundError for a missing
-        one (docs/pretrained.md)."""
-        from navformer_rl.pretrained import load_pretrained
-
-        model, _ = load_pretrained(name)
-        return cls(model, **kwargs)
-
     @property
     def device(self) -> torch.device:
         return next(self.model.parameters()).device

@@ -14,10 +14,10 @@ from tensordict.utils import NestedKey
 from torch import Tensor, nn
 from torchrl.objectives import LossModule, SoftUpdate
 
-from navformer_rl.augment import BYOLAugmentation
 from navformer_rl.modules.models.cnn import ImageEncoder
 from navformer_rl.modules.models.config import AUTOCAST_DTYPES
 from navformer_rl.modules.models.dve import DualVisualEncoder
+from navformer_rl.objectives.byol_augment import BYOLAugmentation
 
 
 def byol_mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:

@@ -53,7 +53,7 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
     ``seed`` (the collection's) / ``training_seconds`` are None where the files that would give them are not
     there.
     """
-    from navformer_rl.checkpoint import CHECKPOINTS_DIRNAME
+    from navformer_rl.training.checkpoint import CHECKPOINTS_DIRNAME
 
     train_config = header.get("train_config") if isinstance(header.get("train_config"), dict) else {}
     data = train_config.get("data") or {}
@@ -203,7 +203,7 @@ def render_card(
         lines += [prose["summary"], ""]
     lines += [
         f"Evaluate with `navformer evaluate --method {method} --checkpoint {designation} ...`; load with "
-        f'`NavFormerPolicy.from_pretrained("{designation.split(":", 1)[1]}")` (docs/pretrained.md).',
+        f'`load_pretrained_policy("{designation.split(":", 1)[1]}")` (docs/pretrained.md).',
         "",
         "## Weights",
         "",

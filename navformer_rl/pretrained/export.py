@@ -10,9 +10,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from navformer_rl.durable import dir_mode, file_mode, fsync_dir, fsync_file
 from navformer_rl.pretrained.card import check_prose, evaluation_facts, render_card, training_facts
-from navformer_rl.pretrained.registry import (
+from navformer_rl.training.pretrained_registry import (
     CARD_FILENAME,
     PRETRAINED_PREFIX,
     check_name,
@@ -21,6 +20,7 @@ from navformer_rl.pretrained.registry import (
     read_registry,
     write_registry_entry,
 )
+from navformer_rl.utils.durable import dir_mode, file_mode, fsync_dir, fsync_file
 
 
 def write_pretrained(
@@ -40,9 +40,9 @@ def write_pretrained(
     (written aside, then renamed into place).
 
     Args:
-        checkpoint: any path :func:`~navformer_rl.checkpoint.resolve_checkpoint` accepts (a run directory:
+        checkpoint: any path :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` accepts (a run directory:
             its latest checkpoint).
-        name: the shipped name (``navformer``, ``dt``, ...; :data:`~navformer_rl.pretrained.registry.NAME_PATTERN`).
+        name: the shipped name (``navformer``, ``dt``, ...; :data:`~navformer_rl.training.pretrained_registry.NAME_PATTERN`).
         evaluations: ``navformer evaluate`` output folders of exactly these weights (their ``run.json``
             sha256 is checked); their SR / SPL / CR tables with intervals go on the card.
         card: the card's prose (:data:`~navformer_rl.pretrained.card.PROSE_FIELDS`), as a mapping or the path
@@ -55,7 +55,7 @@ def write_pretrained(
         The folder ``out_dir/NAME``.
     """
     from navformer_rl.baselines.dt import is_dt_config
-    from navformer_rl.checkpoint import (
+    from navformer_rl.training.checkpoint import (
         CONFIG_FILENAME,
         WEIGHTS_FILENAME,
         load_policy_model,

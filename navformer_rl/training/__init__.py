@@ -29,67 +29,59 @@ Modules (one job each):
 - :mod:`~navformer_rl.training.trainer`: :class:`Trainer`, one built run (``step``, logging, checkpoints,
   resume).
 - :mod:`~navformer_rl.training.run`: :func:`build_trainer` and :func:`train` (the loop), :class:`TrainResult`.
+- :mod:`~navformer_rl.training.checkpoint`: atomic checkpoint folders (run part + resume part), loading.
+- :mod:`~navformer_rl.training.validation`: teacher-forced L_DT on held-out trajectories (``validation.*``,
+  ``navformer validate``).
+- :mod:`~navformer_rl.training.cli`, :mod:`~navformer_rl.training.validate_cli`: ``navformer train`` and
+  ``navformer validate``.
+
+Names are imported lazily, so the commands answer ``--help`` and argument errors without importing torch.
 """
 
-from navformer_rl.training.config import (
-    ABLATIONS,
-    ENCODER_TRAINING,
-    LOGGER_BACKENDS,
-    MODEL_KEYS_SET_ELSEWHERE,
-    CheckpointConfig,
-    DataConfig,
-    LoggerConfig,
-    OptimConfig,
-    SSLConfig,
-    TrainConfig,
-    model_config,
-    validate_config,
-)
-from navformer_rl.training.config_io import (
-    RESOLVED_MODEL_KEY,
-    config_from_dict,
-    default_config_path,
-    load_train_config,
-    printable_config,
-)
-from navformer_rl.training.datasets import (
-    DATASET_KEYS,
-    check_datasets_fit_model,
-    open_datasets,
-    open_validation_datasets,
-)
-from navformer_rl.training.log_window import LogWindow
-from navformer_rl.training.run import TrainResult, build_trainer, train
-from navformer_rl.training.trainer import BATCH_KEYS, RESUME_MAY_CHANGE, TRAJECTORY_KEYS, Trainer
+from __future__ import annotations
 
-__all__ = [
-    "ABLATIONS",
-    "BATCH_KEYS",
-    "DATASET_KEYS",
-    "ENCODER_TRAINING",
-    "LOGGER_BACKENDS",
-    "MODEL_KEYS_SET_ELSEWHERE",
-    "RESOLVED_MODEL_KEY",
-    "RESUME_MAY_CHANGE",
-    "TRAJECTORY_KEYS",
-    "CheckpointConfig",
-    "DataConfig",
-    "LogWindow",
-    "LoggerConfig",
-    "OptimConfig",
-    "SSLConfig",
-    "TrainConfig",
-    "TrainResult",
-    "Trainer",
-    "build_trainer",
-    "check_datasets_fit_model",
-    "config_from_dict",
-    "default_config_path",
-    "load_train_config",
-    "model_config",
-    "open_datasets",
-    "open_validation_datasets",
-    "printable_config",
-    "train",
-    "validate_config",
-]
+import importlib
+
+_EXPORTS = {
+    "ABLATIONS": "navformer_rl.training.config",
+    "BATCH_KEYS": "navformer_rl.training.trainer",
+    "CheckpointConfig": "navformer_rl.training.config",
+    "DATASET_KEYS": "navformer_rl.training.datasets",
+    "DataConfig": "navformer_rl.training.config",
+    "ENCODER_TRAINING": "navformer_rl.training.config",
+    "LOGGER_BACKENDS": "navformer_rl.training.config",
+    "LogWindow": "navformer_rl.training.log_window",
+    "LoggerConfig": "navformer_rl.training.config",
+    "MODEL_KEYS_SET_ELSEWHERE": "navformer_rl.training.config",
+    "OptimConfig": "navformer_rl.training.config",
+    "RESOLVED_MODEL_KEY": "navformer_rl.training.config_io",
+    "RESUME_MAY_CHANGE": "navformer_rl.training.trainer",
+    "SSLConfig": "navformer_rl.training.config",
+    "TRAJECTORY_KEYS": "navformer_rl.training.trainer",
+    "TrainConfig": "navformer_rl.training.config",
+    "TrainResult": "navformer_rl.training.run",
+    "Trainer": "navformer_rl.training.trainer",
+    "build_trainer": "navformer_rl.training.run",
+    "check_datasets_fit_model": "navformer_rl.training.datasets",
+    "config_from_dict": "navformer_rl.training.config_io",
+    "default_config_path": "navformer_rl.training.config_io",
+    "load_train_config": "navformer_rl.training.config_io",
+    "model_config": "navformer_rl.training.config",
+    "open_datasets": "navformer_rl.training.datasets",
+    "open_validation_datasets": "navformer_rl.training.datasets",
+    "printable_config": "navformer_rl.training.config_io",
+    "train": "navformer_rl.training.run",
+    "validate_config": "navformer_rl.training.config",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'navformer_rl.training' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return __all__

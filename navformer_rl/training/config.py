@@ -14,28 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from navformer_rl.checks import check_int, check_number
-from navformer_rl.constants import ABLATIONS
-from navformer_rl.devices import check_device
-from navformer_rl.validation import ValidationConfig, validate_validation_config
+from navformer_rl.tasks import ABLATIONS
+from navformer_rl.training.validation import ValidationConfig, validate_validation_config
+from navformer_rl.utils.checks import check_int, check_number
+from navformer_rl.utils.devices import check_device
 
 if TYPE_CHECKING:
     from navformer_rl.modules import NavFormerConfig
 
-_MODEL_ABLATION = {
-    "none": "navformer",
-    "no_ssl": "navformer",
-    "no_de": "navformer",
-    "no_dca": "navformer",
-    "no_thsc": "no_thsc",
-    "no_fs": "no_static_encoder",
-    "no_fg": "no_general_encoder",
-    "resnet18": "resnet18",
-    "dt": "dt",
-}
-_NO_SSL = frozenset({"no_ssl", "dt"})
-_NO_EXPLORATION = frozenset({"no_de"})
-_NO_COLLISION = frozenset({"no_dca"})
 
 ENCODER_TRAINING = ("joint", "frozen")
 LOGGER_BACKENDS = ("csv", "tensorboard", "none")
@@ -142,7 +128,7 @@ class TrainConfig:
 
     Attributes:
         data / ssl / optim / logger / checkpoint / validation: see the section classes
-            (:class:`~navformer_rl.validation.ValidationConfig` for the last).
+            (:class:`~navformer_rl.training.validation.ValidationConfig` for the last).
         model: overrides of ``NavFormerConfig`` fields (architecture and perf levers: ``autocast_dtype``,
             ``channels_last``, ``encoder_micro_batch``), applied on top of the ablation's model.
         ablation: one of :data:`ABLATIONS`.
@@ -153,7 +139,7 @@ class TrainConfig:
         output_dir: the run directory (checkpoints, logs, config).
         resume: continue from the run directory's latest checkpoint (start fresh when it has none).
         keep_freed_memory: glibc's ``malloc`` serves big tensors from the heap and keeps freed memory
-            (:func:`navformer_rl.allocator.keep_freed_memory`): the same values, 0.8-0.95x the time of a CPU
+            (:func:`navformer_rl.utils.allocator.keep_freed_memory`): the same values, 0.8-0.95x the time of a CPU
             iteration, the process's memory stays at its peak between checkpoints (after each one
             ``release_free_memory`` hands the free pages back). No effect on other C libraries.
     """
@@ -175,15 +161,15 @@ class TrainConfig:
 
     @property
     def uses_ssl(self) -> bool:
-        return self.ablation not in _NO_SSL
+        return ABLATIONS[self.ablation].uses_ssl
 
     @property
     def uses_exploration(self) -> bool:
-        return self.ablation not in _NO_EXPLORATION
+        return "e" in ABLATIONS[self.ablation].datasets
 
     @property
     def uses_collision(self) -> bool:
-        return self.ablation not in _NO_COLLISION
+        return "ca" in ABLATIONS[self.ablation].datasets
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-serialisable dict (the layout of ``train.yaml``)."""
@@ -292,4 +278,4 @@ def model_config(cfg: TrainConfig) -> NavFormerConfig:
         )
     changes = dict(cfg.model)
     changes["detach_encoders"] = cfg.encoder_training == "frozen"
-    return NavFormerConfig.ablation(_MODEL_ABLATION[cfg.ablation], **changes)
+    return NavFormerConfig.ablation(cfg.ablation, **changes)

@@ -22,7 +22,7 @@ from navformer_rl.training.config import (
     TrainConfig,
     model_config,
 )
-from navformer_rl.validation import ValidationConfig
+from navformer_rl.training.validation import ValidationConfig
 
 _SECTIONS = {
     "data": DataConfig,

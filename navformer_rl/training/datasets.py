@@ -9,12 +9,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from navformer_rl.tasks import DATASETS
 from navformer_rl.training.config import TrainConfig, model_config
-from navformer_rl.validation import PATH_KEYS
+from navformer_rl.training.validation import PATH_KEYS
 
-DATASET_KEYS = {"e": "exploration_path", "ca": "collision_path", "ssl": "ssl_path"}
+DATASET_KEYS = {kind: d.path_key for kind, d in DATASETS.items()}
 """The config key (under ``data.``) of each dataset kind."""
-SUBSET_KEYS = {"e": "exploration_trajectories", "ca": "collision_trajectories", "ssl": "ssl_pairs"}
+SUBSET_KEYS = {kind: d.subset_key for kind, d in DATASETS.items()}
 """The config key (under ``data.``) that keeps only a dataset's first N items."""
 
 
@@ -24,15 +25,12 @@ def open_datasets(cfg: TrainConfig) -> dict[str, Any]:
     A dataset smaller than one batch is refused with the batch-size key to lower and the largest value that
     fits (every such dataset in one message, so that a single edit of the command line fixes them all).
     """
-    wanted = {
-        "e": (cfg.uses_exploration, "exploration_path", "exploration_batch_trajs"),
-        "ca": (cfg.uses_collision, "collision_path", "collision_batch_trajs"),
-        "ssl": (cfg.uses_ssl, "ssl_path", "ssl_batch_pairs"),
-    }
+    used = {"e": cfg.uses_exploration, "ca": cfg.uses_collision, "ssl": cfg.uses_ssl}
     datasets = {}
     too_small: list[tuple[str, str, int | None]] = []
-    for kind, (used, key, batch_key) in wanted.items():
-        if not used:
+    for kind, info in DATASETS.items():
+        key, batch_key = info.path_key, info.batch_key
+        if not used[kind]:
             continue
         path = getattr(cfg.data, key)
         dataset = _open_dataset(path, kind, f"data.{key}")

@@ -10,12 +10,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from navformer_rl import checkpoint as ckpt
-from navformer_rl.allocator import keep_freed_memory, release_free_memory
-from navformer_rl.durable import atomic_write_text
+from navformer_rl.training import checkpoint as ckpt
 from navformer_rl.training.config import TrainConfig, named_run, validate_config
 from navformer_rl.training.datasets import check_datasets_fit_model, open_datasets, open_validation_datasets
 from navformer_rl.training.trainer import Trainer
+from navformer_rl.utils.allocator import keep_freed_memory, release_free_memory
+from navformer_rl.utils.durable import atomic_write_text
 
 
 @dataclass

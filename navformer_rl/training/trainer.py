@@ -17,12 +17,13 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from navformer_rl import checkpoint as ckpt
 from navformer_rl.data.prefetch import Prefetcher
-from navformer_rl.devices import resolve_device
+from navformer_rl.tasks import DATASETS, TRAJECTORY_KINDS
+from navformer_rl.training import checkpoint as ckpt
 from navformer_rl.training.config import TrainConfig, model_config
 from navformer_rl.training.log_window import LogWindow
-from navformer_rl.validation import make_validator
+from navformer_rl.training.validation import make_validator
+from navformer_rl.utils.devices import resolve_device
 
 if TYPE_CHECKING:
     from torchrl.record.loggers import Logger
@@ -99,7 +100,7 @@ class Trainer:
         scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
         log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
-        validator: :class:`~navformer_rl.validation.Validator` of the held-out sets, or None
+        validator: :class:`~navformer_rl.training.validation.Validator` of the held-out sets, or None
             (:meth:`validation_due`, :meth:`validate`).
     """
 
@@ -123,19 +124,17 @@ class Trainer:
         # prefetching trains on one batch while the next is gathered: two buffer sets per batcher
         buffers = {"buffer_sets": 2 if cfg.data.prefetch else 1, "pin_memory": self.device.type == "cuda"}
         batchers = {}
-        for task, key, size, seed_offset in (
-            ("exploration", "e", cfg.data.exploration_batch_trajs, 1),
-            ("collision_avoidance", "ca", cfg.data.collision_batch_trajs, 2),
-        ):
-            dataset = datasets.get(key)
-            batchers[task] = (
+        for seed_offset, kind in enumerate(TRAJECTORY_KINDS, start=1):
+            size = getattr(cfg.data, DATASETS[kind].batch_key)
+            dataset = datasets.get(kind)
+            batchers[kind] = (
                 None
                 if dataset is None
                 else dataset.trajectory_batcher(
                     size, context, seed=cfg.seed + seed_offset, keys=TRAJECTORY_KEYS, **buffers
                 )
             )
-        self.cross_task = CrossTaskSampler(batchers["exploration"], batchers["collision_avoidance"])
+        self.cross_task = CrossTaskSampler(batchers["e"], batchers["ca"])
         self.pairs = (
             datasets["ssl"].pair_batcher(cfg.data.ssl_batch_pairs, seed=cfg.seed + 3, **buffers)
             if cfg.uses_ssl

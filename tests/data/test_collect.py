@@ -151,9 +151,10 @@ PACKAGE = REPO / "navformer_rl"
 COLLECTION_ROOTS = ("data/collect.py", "data/expert_episodes.py")
 NOT_SHAPING_DATA = {
     "__init__.py",
-    "durable.py",
-    "interrupts.py",
-    "mp4.py",
+    "utils/__init__.py",
+    "utils/durable.py",
+    "utils/interrupts.py",
+    "utils/mp4.py",
     "data/writer.py",
     "data/versions.py",
 }

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from navformer_rl import durable
 from navformer_rl.data import open_dataset
 from navformer_rl.data import synthetic as syn
 from navformer_rl.data import writer as writer_module
 from navformer_rl.data.schema import SCHEMA_VERSION
+from navformer_rl.utils import durable
 
 
 def test_round_trip_matches_generated_trajectories(e_dataset):

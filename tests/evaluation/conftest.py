@@ -5,10 +5,10 @@ import dataclasses
 import pytest
 import torch
 
-from navformer_rl.checkpoint import save_checkpoint
 from navformer_rl.evaluation.episodes import Setup, make_episode_set
 from navformer_rl.evaluation.harness import evaluate
 from navformer_rl.modules import NavFormerConfig, NavFormerModel
+from navformer_rl.training.checkpoint import save_checkpoint
 
 TINY_SETUP = Setup("7.5m-2r", 7.5, ("jackal", "jackal"), (True, True))
 

@@ -280,16 +280,24 @@ def test_report_warns_about_older_runs_whose_label_names_another_ablation(
 
 
 def test_the_recorded_ablation_decides_the_paper_column():
-    from navformer_rl.evaluation.paper_results import label_ablation
     from navformer_rl.evaluation.report import _paper_column
+    from navformer_rl.tasks import label_ablation
 
     assert _paper_column("navformer", "no_thsc") == "NavFormer w/o THSC"
     assert _paper_column("navformer-seed1", "none") == "NavFormer"
     assert _paper_column("dt", "dt") == "DT" and _paper_column("vrw") == "VRW"
     assert _paper_column("navformer_resnet18") == "NavFormer w ResNet18"
-    assert [label_ablation(x) for x in ("navformer-no_de", "navformer-seed1", "dt-no_thsc", "vrw")] == [
-        "no_de", None, None, None,
-    ]  # fmt: skip
+    labels = (
+        "navformer-no_de",
+        "navformer-seed1",
+        "dt-no_thsc",
+        "vrw",
+        "navformer-no_fs-seed1",
+        "navformer-byol_w0.1",
+    )
+    assert [label_ablation(x) for x in labels] == ["no_de", None, None, None, "no_fs", None]
+    # words, not substrings: a label that merely contains an ablation's name names none
+    assert label_ablation("navformer-no_fsx") is None and label_ablation("navformer-dt") is None
 
 
 def _records(methods_and_setups):

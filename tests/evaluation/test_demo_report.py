@@ -6,7 +6,7 @@ import pytest
 
 from navformer_rl import demo
 from navformer_rl.demo import DemoConfig, StageTimes
-from navformer_rl.demo_report import timings_markdown
+from navformer_rl.demo.report import timings_markdown
 
 
 @pytest.fixture
@@ -102,7 +102,7 @@ def test_a_rerun_of_the_demo_reports_the_first_runs_times(tmp_path, clock, monke
     monkeypatch.setattr(demo, "train_stage", train_stage)
     monkeypatch.setattr(demo, "evaluate_stage", evaluate_stage)
     monkeypatch.setattr(
-        "navformer_rl.demo_report.write_demo_report",
+        "navformer_rl.demo.report.write_demo_report",
         lambda cfg, data, train_dirs, folders, timings: reports.append(timings) or cfg.out_dir / "report.md",
     )
     for _ in range(2):
@@ -117,7 +117,7 @@ def test_a_rerun_of_the_demo_reports_the_first_runs_times(tmp_path, clock, monke
 
 
 def test_the_evaluation_report_is_nested_under_the_demo_reports_heading(tmp_path, vrw_run):
-    from navformer_rl.demo_report import nested_report
+    from navformer_rl.demo.report import nested_report
     from navformer_rl.evaluation.report import REPORT_MARKER, write_report
 
     text = write_report([vrw_run[0]], tmp_path / "evaluation.md", title="Evaluation").read_text()
@@ -163,7 +163,7 @@ def test_a_failing_time_file_does_not_hide_the_stages_error(tmp_path, clock, mon
 
 
 def test_the_training_section_tables_the_last_validation_of_each_model(tmp_path):
-    from navformer_rl.demo_report import _training_section
+    from navformer_rl.demo.report import _training_section
 
     logged = {
         "navformer": {"loss_dt_exploration": [(5, 0.5), (10, 0.4)], "train_loss_dt_exploration": [(10, 0.1)]},
@@ -189,7 +189,7 @@ def test_the_training_figure_gives_each_curve_one_colour_and_no_hidden_duplicate
     which would lie exactly on its ``loss_dt``."""
     from matplotlib.axes import Axes
 
-    from navformer_rl.demo_report import _training_section
+    from navformer_rl.demo.report import _training_section
 
     drawn: list[tuple[int, str, str]] = []
     plot = Axes.plot
@@ -278,7 +278,7 @@ def test_the_demo_ends_with_a_table_of_its_stage_times(tmp_path, clock, monkeypa
     monkeypatch.setattr(demo, "train_stage", takes(600.0, tmp_path / "train" / "navformer"))
     monkeypatch.setattr(demo, "evaluate_stage", takes(30.0, []))
     monkeypatch.setattr(
-        "navformer_rl.demo_report.write_demo_report",
+        "navformer_rl.demo.report.write_demo_report",
         lambda *args: takes(4.0, tmp_path / "report.md")(),
     )
     printed = []
@@ -319,7 +319,7 @@ def _trial(robot, **fields):
 
 
 def test_the_video_captions_say_what_happens_from_the_episode_records(tmp_path):
-    from navformer_rl.demo_report import robot_outcome, video_captions
+    from navformer_rl.demo.report import robot_outcome, video_captions
 
     folder = tmp_path / "eval" / "navformer"
     folder.mkdir(parents=True)
@@ -346,7 +346,7 @@ def test_the_video_captions_say_what_happens_from_the_episode_records(tmp_path):
 
 
 def test_the_video_captions_of_a_real_evaluation_name_its_method_and_robots(tmp_path, vrw_run):
-    from navformer_rl.demo_report import video_captions
+    from navformer_rl.demo.report import video_captions
 
     folder, result = vrw_run
     lines = video_captions([folder], folder.parent)

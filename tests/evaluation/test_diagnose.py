@@ -419,7 +419,7 @@ def test_teacher_forced_turns_score_the_windows_navformer_validate_scores(
 ):
     from navformer_rl.evaluation.diagnose_actions import teacher_forced_turns
     from navformer_rl.modules import NavFormerConfig
-    from navformer_rl.validation import score_checkpoints
+    from navformer_rl.training.validation import score_checkpoints
 
     run = checkpoint_factory(tmp_path / "run", NavFormerConfig(**TINY_MODEL))
     turns = teacher_forced_turns(str(run), expert_sets, batch_trajs=3)

@@ -225,12 +225,12 @@ def test_one_evaluation_per_folder_and_killed_writers_temporaries_are_removed(tm
     import subprocess
     import sys
 
-    from navformer_rl import durable
     from navformer_rl.evaluation.harness import LOCK_FILENAME
+    from navformer_rl.utils import durable
 
     out = tmp_path / "vrw"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nfrom navformer_rl.durable import folder_lock\n"
+        [sys.executable, "-c", "import sys, time\nfrom navformer_rl.utils.durable import folder_lock\n"
          f"with folder_lock(sys.argv[1], {LOCK_FILENAME!r}, 'evaluated'):\n"
          "    print('locked', flush=True); time.sleep(60)", str(out)],
         stdout=subprocess.PIPE, text=True,

@@ -28,8 +28,8 @@ def test_checkpoint_methods_run_every_robot(tmp_path, tiny_episodes, checkpoints
 def test_a_run_directory_is_resolved_once(tmp_path, tiny_episodes, checkpoint_factory, monkeypatch):
     """A run that is still training saves a newer checkpoint after the evaluation checked the one it named:
     the evaluation keeps driving (and reporting) the checkpoint it checked."""
-    from navformer_rl.checkpoint import save_checkpoint
     from navformer_rl.modules import NavFormerModel
+    from navformer_rl.training.checkpoint import save_checkpoint
 
     run_dir = checkpoint_factory(tmp_path / "run", NavFormerConfig())
     validate = PolicySpec.validate
@@ -129,7 +129,7 @@ def test_foreign_and_missing_checkpoints(tmp_path, tiny_episodes):
 def test_corrupt_checkpoints_name_the_file(tmp_path, tiny_episodes, checkpoints):
     import shutil
 
-    from navformer_rl.checkpoint import resolve_checkpoint
+    from navformer_rl.training.checkpoint import resolve_checkpoint
 
     def broken(name, config=None, weights=None):
         folder = tmp_path / name

@@ -63,8 +63,10 @@ def test_config_defaults_are_the_papers():
         False,
         3,
     )
-    with pytest.raises(ValueError, match="unknown model ablation"):
-        NavFormerConfig.ablation("no_ssl")
+    assert NavFormerConfig.ablation("no_ssl") == NavFormerConfig()  # a data ablation: the paper's model
+    assert NavFormerConfig.ablation("dt") == dt
+    with pytest.raises(ValueError, match="unknown ablation 'no_static_encoder'"):
+        NavFormerConfig.ablation("no_static_encoder")
     # §VII.D (7): "a single pre-trained ResNet18" replaces the DVE (f_s and f_g)
     resnet = NavFormerConfig.ablation("resnet18")
     assert resnet.encoder == "resnet18" and not resnet.use_static_encoder and resnet.use_general_encoder
@@ -335,10 +337,10 @@ def test_gradient_reaches_every_parameter_unless_encoders_are_detached(batch_fac
 # ---------------------------------------------------------------------------------------- ablations
 ABLATION_LAYOUT = {
     # name: (f_s, f_g, encoder class, THSC)
-    "navformer": (True, True, ConvEncoder, True),
+    **dict.fromkeys(("none", "no_ssl", "no_de", "no_dca"), (True, True, ConvEncoder, True)),
     "no_thsc": (True, True, ConvEncoder, False),
-    "no_static_encoder": (False, True, ConvEncoder, True),
-    "no_general_encoder": (True, False, ConvEncoder, True),
+    "no_fs": (False, True, ConvEncoder, True),
+    "no_fg": (True, False, ConvEncoder, True),
     "resnet18": (False, True, ResNet18Encoder, True),  # a single ResNet18 replaces the dual encoder
     "dt": (False, True, ConvEncoder, False),
 }

@@ -1,7 +1,7 @@
 """NavFormer's parts as TensorDict modules: composition, ablations, parts alone, old checkpoints, decoding.
 
 ``fixtures/pre_modules_checkpoints.tar.gz`` holds two checkpoints (``navformer``, ``dt``: d_embed 32, one
-block, 36 px images) written by ``navformer_rl.checkpoint.save_checkpoint`` with the single-module model of
+block, 36 px images) written by ``navformer_rl.training.checkpoint.save_checkpoint`` with the single-module model of
 commit 7605c27 (state-dict names such as ``static_encoder.*``, ``transformer.blocks.*``), and in
 ``expected.json`` that model's outputs on the inputs of ``fixture_batch`` (teacher-forced forward, windowed
 forward, ``IncrementalNavFormer`` torch path), its ``named_parameters`` order and the sums of the
@@ -19,7 +19,6 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import NormalParamExtractor, ProbabilisticActor, TanhNormal
 
-from navformer_rl import checkpoint as ckpt
 from navformer_rl.modules import (
     MODEL_ABLATIONS,
     ActionHead,
@@ -41,6 +40,7 @@ from navformer_rl.modules import (
 from navformer_rl.modules.decoding.native import native_status
 from navformer_rl.modules.models import upgrade_state_dict
 from navformer_rl.objectives import ActionMSELoss, BYOLLoss
+from navformer_rl.training import checkpoint as ckpt
 
 FIXTURE = Path(__file__).parent / "fixtures" / "pre_modules_checkpoints.tar.gz"
 SMALL = {
@@ -208,10 +208,10 @@ def test_every_ablation_is_a_composition_of_parts(name):
     dve, transformer, head = (part.module for part in actor)
     assert isinstance(dve, DualVisualEncoder) and isinstance(transformer, CausalTransformer)
     names = {
-        "navformer": ("static", "general"),
+        **dict.fromkeys(("none", "no_ssl", "no_de", "no_dca"), ("static", "general")),
         "no_thsc": ("static", "general"),
-        "no_static_encoder": ("general",),
-        "no_general_encoder": ("static",),
+        "no_fs": ("general",),
+        "no_fg": ("static",),
         "resnet18": ("general",),
         "dt": ("general",),
     }[name]

@@ -8,7 +8,6 @@ import torch
 from tensordict import TensorDict
 from torchrl.objectives import SoftUpdate
 
-from navformer_rl.augment import BYOLAugmentation
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import (
     ActionMSELoss,
@@ -18,6 +17,7 @@ from navformer_rl.objectives import (
     joint_parameters,
     normalized_mse,
 )
+from navformer_rl.objectives.byol_augment import BYOLAugmentation
 
 
 def pairs(n=8, seed=0):

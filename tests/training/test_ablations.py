@@ -8,8 +8,8 @@ import math
 import pytest
 import torch
 
-from navformer_rl.checkpoint import load_policy_model
 from navformer_rl.training import ABLATIONS, build_trainer, train
+from navformer_rl.training.checkpoint import load_policy_model
 
 EXPECTED_TASKS = {"no_de": ["collision_avoidance"] * 2, "no_dca": ["exploration"] * 2}
 

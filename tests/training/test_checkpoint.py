@@ -13,10 +13,10 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-from navformer_rl import checkpoint as ckpt
-from navformer_rl import durable
 from navformer_rl.modules import NavFormerConfig
 from navformer_rl.training import build_trainer, train
+from navformer_rl.training import checkpoint as ckpt
+from navformer_rl.utils import durable
 
 
 @pytest.fixture
@@ -181,7 +181,7 @@ def test_a_crash_mid_save_keeps_the_previous_checkpoint(tiny_config, monkeypatch
     target = {
         "weights": ("safetensors.torch.save_file", boom),
         "resume": ("torch.save", boom),
-        "latest": ("navformer_rl.checkpoint.atomic_write_text", boom),
+        "latest": ("navformer_rl.training.checkpoint.atomic_write_text", boom),
     }[crash_in]
     monkeypatch.setattr(*target)
     with pytest.raises(OSError, match="simulated"):
@@ -233,7 +233,7 @@ def test_other_paths_are_refused_with_the_accepted_forms(tmp_path):
 def test_checkpoints_get_the_modes_of_the_umask(tmp_path, monkeypatch, umask):
     """mkdtemp / mkstemp / safetensors create owner-only (0700 / 0600) entries; a checkpoint must be
     readable by whoever the umask lets read, like any file the run writes with open()."""
-    monkeypatch.setattr(durable, "_UMASK", umask)  # what navformer_rl.durable read at import time
+    monkeypatch.setattr(durable, "_UMASK", umask)  # what navformer_rl.utils.durable read at import time
     previous = os.umask(umask)
     try:
         folder = _save_tiny(tmp_path / "run")

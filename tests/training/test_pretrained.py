@@ -11,15 +11,20 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from navformer_rl import checkpoint as ckpt
 from navformer_rl.cli import main
 from navformer_rl.evaluation.episodes import Setup, make_episode_set, save_episode_set
 from navformer_rl.evaluation.tables import format_ratio, format_sr
-from navformer_rl.modules import NavFormerPolicy
-from navformer_rl.pretrained import PRETRAINED_DIR_ENV, load_pretrained, read_registry, shipped_names
+from navformer_rl.pretrained import (
+    PRETRAINED_DIR_ENV,
+    load_pretrained,
+    load_pretrained_policy,
+    read_registry,
+    shipped_names,
+)
 from navformer_rl.pretrained.export import write_pretrained
-from navformer_rl.pretrained.registry import PACKAGED_ROOT, file_sha256, resolve_pretrained
+from navformer_rl.training import checkpoint as ckpt
 from navformer_rl.training import load_train_config, train
+from navformer_rl.training.pretrained_registry import PACKAGED_ROOT, file_sha256, resolve_pretrained
 
 from .conftest import TINY_OVERRIDES, data_overrides
 
@@ -89,7 +94,7 @@ def test_pretrained_names_resolve_to_the_exact_weights(shipped, trained_run, mon
     model, config = load_pretrained("navformer")
     assert config.d_embed == 16 and not model.training
     assert all(torch.equal(model.state_dict()[key], saved[key]) for key in saved)
-    policy = NavFormerPolicy.from_pretrained("pretrained:navformer", native=False)
+    policy = load_pretrained_policy("pretrained:navformer", native=False)
     assert policy.native is False
     assert all(torch.equal(policy.model.state_dict()[key], saved[key]) for key in saved)
 
@@ -132,7 +137,7 @@ def test_unknown_and_missing_names_are_refused_clearly(shipped, tmp_path, monkey
         load_pretrained("navformer", root)
     monkeypatch.setenv(PRETRAINED_DIR_ENV, str(tmp_path / "absent"))
     with pytest.raises(NotADirectoryError, match=f"is not a folder .*{PRETRAINED_DIR_ENV}"):
-        NavFormerPolicy.from_pretrained("navformer")
+        load_pretrained_policy("navformer")
 
 
 def test_a_shipped_checkpoint_evaluates_end_to_end(shipped, shipped_evaluation):
@@ -143,7 +148,7 @@ def test_a_shipped_checkpoint_evaluates_end_to_end(shipped, shipped_evaluation):
 
 
 def test_a_shipped_checkpoint_validates_as_its_run(shipped, trained_run, datasets, monkeypatch):
-    from navformer_rl.validation import score_checkpoints
+    from navformer_rl.training.validation import score_checkpoints
 
     monkeypatch.setenv(PRETRAINED_DIR_ENV, str(shipped))
     sets = {"e": str(datasets["e"])}

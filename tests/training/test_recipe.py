@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from navformer_rl import checkpoint as ckpt
-from navformer_rl import training_cli
 from navformer_rl.training import TrainConfig, load_train_config
+from navformer_rl.training import checkpoint as ckpt
+from navformer_rl.training import cli as training_cli
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -9,8 +9,8 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from navformer_rl.checkpoint import load_resume_state
 from navformer_rl.training import LogWindow, build_trainer, train
+from navformer_rl.training.checkpoint import load_resume_state
 
 
 def scalars(run_dir: Path, name: str) -> list[tuple[int, float]]:
@@ -178,7 +178,7 @@ def test_a_run_that_crashed_before_its_first_checkpoint_restarts_its_logs(tiny_c
 
 def test_rng_restore_sets_the_states_of_the_gpus_it_sees(monkeypatch):
     """A checkpoint saved with 2 visible GPUs resumes where 1 is visible (and the other way round)."""
-    from navformer_rl.checkpoint import capture_rng_state, restore_rng_state
+    from navformer_rl.training.checkpoint import capture_rng_state, restore_rng_state
 
     state = capture_rng_state()
     state["cuda"] = [torch.zeros(16, dtype=torch.uint8), torch.ones(16, dtype=torch.uint8)]

@@ -1,4 +1,4 @@
-"""Held-out validation during training (navformer_rl.validation): fixed windows, the eq. 10 value, no effect
+"""Held-out validation during training (navformer_rl.training.validation): fixed windows, the eq. 10 value, no effect
 on the training, the logged rows and their resume, and the configuration errors."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from navformer_rl.checkpoint import capture_rng_state
 from navformer_rl.data import make_synthetic_dataset, open_dataset
 from navformer_rl.training import build_trainer, train
-from navformer_rl.validation import FixedTrajectoryBatches, evaluation_mode, teacher_forced_loss
+from navformer_rl.training.checkpoint import capture_rng_state
+from navformer_rl.training.validation import FixedTrajectoryBatches, evaluation_mode, teacher_forced_loss
 
 from .test_resume import scalars, weights
 
@@ -207,7 +207,7 @@ def test_a_held_out_dataset_of_the_wrong_kind_is_refused(tiny_config, held_out):
 
 def test_scoring_a_checkpoint_offline_gives_the_logged_validation(tiny_config, held_out, tmp_path, capsys):
     from navformer_rl.cli import main
-    from navformer_rl.validation import score_checkpoints
+    from navformer_rl.training.validation import score_checkpoints
 
     run = train(
         tiny_config(

@@ -8,10 +8,13 @@ from dataclasses import dataclass
 
 import torch
 
+from navformer_rl.tasks import ABLATIONS
+
 ENCODER_KINDS = ("cnn", "resnet18")
 AUTOCAST_DTYPES = {"bfloat16": torch.bfloat16, "float16": torch.float16}
-MODEL_ABLATIONS = ("navformer", "no_thsc", "no_static_encoder", "no_general_encoder", "resnet18", "dt")
-"""Model-level ablations of paper Table IV (the data/SSL ablations live in the training recipe)."""
+MODEL_ABLATIONS = tuple(ABLATIONS)
+"""Every ``ablation=`` name (:data:`navformer_rl.tasks.ABLATIONS`); the data / SSL ablations build the paper's
+model."""
 
 
 @dataclass(frozen=True)
@@ -134,20 +137,12 @@ class NavFormerConfig:
 
     @classmethod
     def ablation(cls, name: str, **changes) -> NavFormerConfig:
-        """The config of a model-level ablation of Table IV, by name (see ``MODEL_ABLATIONS``)."""
-        switches = {
-            "navformer": {},
-            "no_thsc": {"thsc": False},
-            "no_static_encoder": {"use_static_encoder": False},
-            "no_general_encoder": {"use_general_encoder": False},
-            # §VII.D (7): "a single pre-trained ResNet18" replaces the dual visual encoder
-            "resnet18": {"encoder": "resnet18", "use_static_encoder": False},
-        }
-        if name == "dt":
-            return cls.dt_baseline(**changes)
-        if name not in switches:
-            raise ValueError(f"unknown model ablation {name!r}: expected one of {MODEL_ABLATIONS}")
-        return cls(**{**switches[name], **changes})
+        """The model of ablation ``name`` (a key of :data:`navformer_rl.tasks.ABLATIONS`: ``none``, ``no_thsc``,
+        ``no_fs``, ``no_fg``, ``resnet18``, ``dt``, ...; the data / SSL ablations give the paper's model).
+        §VII.D (7): "a single pre-trained ResNet18" replaces the dual visual encoder."""
+        if name not in ABLATIONS:
+            raise ValueError(f"unknown ablation {name!r}: expected one of {list(ABLATIONS)}")
+        return cls(**{**ABLATIONS[name].model_switches, **changes})
 
 
 def autocast(device: torch.device, dtype: torch.dtype | None) -> contextlib.AbstractContextManager:

@@ -26,7 +26,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from navformer_rl.durable import atomic_path
+from navformer_rl.utils.durable import atomic_path
 
 SOURCE = Path(__file__).with_name("transformer_step.c")
 """The kernel's C source (package data)."""

@@ -1,6 +1,6 @@
 """``navformer validate``: the teacher-forced action loss of trained checkpoints on held-out trajectories.
 
-The offline form of training's ``validation.*`` (:func:`navformer_rl.validation.score_checkpoints`)::
+The offline form of training's ``validation.*`` (:func:`navformer_rl.training.validation.score_checkpoints`)::
 
     navformer validate --checkpoint runs/nf/checkpoints/iter_* --exploration data/val_e --collision data/val_ca
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from navformer_rl import cli_args
+from navformer_rl.cli import args as cli_args
 
 EPILOG = """\
 examples:
@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     """Score every checkpoint; print a markdown table (and write ``--json``)."""
     import json
 
-    from navformer_rl.durable import atomic_write_text
-    from navformer_rl.validation import score_checkpoints
+    from navformer_rl.training.validation import score_checkpoints
+    from navformer_rl.utils.durable import atomic_write_text
 
     datasets = {kind: path for kind, path in (("e", args.exploration), ("ca", args.collision)) if path}
     if not datasets:

@@ -47,7 +47,7 @@ def exit_on_sigint() -> None:
 
     The pool then reports its workers as gone and the parent, interrupted by the same Ctrl-C, stops waiting
     for them. Temporary files a task was writing stay behind, as after any killed process
-    (:func:`navformer_rl.durable.atomic_leftovers`)."""
+    (:func:`navformer_rl.utils.durable.atomic_leftovers`)."""
     signal.signal(signal.SIGINT, _exit_now)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGINT)
 

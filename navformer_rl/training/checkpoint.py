@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from navformer_rl.durable import atomic_write_text, dir_mode, file_mode, fsync_dir, fsync_file
-from navformer_rl.pretrained.registry import PRETRAINED_PREFIX, is_pretrained, resolve_pretrained
+from navformer_rl.training.pretrained_registry import PRETRAINED_PREFIX, is_pretrained, resolve_pretrained
+from navformer_rl.utils.durable import atomic_write_text, dir_mode, file_mode, fsync_dir, fsync_file
 
 RUN_FORMAT = "navformer_rl.run/1"
 """Format tag written into every run part; a file without it is refused."""
@@ -174,7 +174,7 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
     ``checkpoints/latest`` pointer file (the checkpoint ``latest`` names); a checkpoint folder
     ``checkpoints/iter_XXXXXX``; or one of that folder's files (``model.safetensors``, ``config.json``,
     ``resume.pt``); or ``pretrained:NAME``, the folder of shipped weights
-    (:func:`~navformer_rl.pretrained.registry.resolve_pretrained`: its files checked against their sha256).
+    (:func:`~navformer_rl.training.pretrained_registry.resolve_pretrained`: its files checked against their sha256).
 
     Raises:
         FileNotFoundError: ``path`` is none of these (the message lists the accepted forms), or it has

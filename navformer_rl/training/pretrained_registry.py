@@ -5,7 +5,7 @@ environment variable ``NAVFORMER_PRETRAINED_DIR`` names)::
 
     registry.json               {"format": REGISTRY_FORMAT, "models": {NAME: {"method", "files": {file: sha256}}}}
     <NAME>/
-        config.json             the run part of a training checkpoint (navformer_rl.checkpoint), byte for byte
+        config.json             the run part of a training checkpoint (navformer_rl.training.checkpoint), byte for byte
         model.safetensors
         MODEL_CARD.md           data, iterations, seeds, hardware, time, results, known failure modes
 
@@ -22,7 +22,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from navformer_rl.durable import atomic_write_json
+from navformer_rl.utils.durable import atomic_write_json
 
 PRETRAINED_PREFIX = "pretrained:"
 """``--checkpoint pretrained:NAME`` designates the shipped weights NAME."""
@@ -34,7 +34,7 @@ CARD_FILENAME = "MODEL_CARD.md"
 NAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9_.-]*$")
 """Shipped names: lower-case letters, digits, ``_ . -``; starting with a letter or digit."""
 
-PACKAGED_ROOT = Path(__file__).resolve().parent / "weights"
+PACKAGED_ROOT = Path(__file__).resolve().parents[1] / "pretrained" / "weights"
 
 
 def pretrained_root() -> Path:

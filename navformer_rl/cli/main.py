@@ -2,9 +2,9 @@
 ``pretrained``.
 
 Each subcommand is a thin layer over a library function; its parser lives next to that function
-(``register(subparsers)`` in ``navformer_rl.data.cli``, ``navformer_rl.training_cli``,
-``navformer_rl.validation_cli``, ``navformer_rl.evaluation.cli``, ``navformer_rl.demo``,
-``navformer_rl.pretrained_cli``). Heavy imports
+(``register(subparsers)`` in ``navformer_rl.data.cli``, ``navformer_rl.training.cli``,
+``navformer_rl.training.validate_cli``, ``navformer_rl.evaluation.cli``, ``navformer_rl.demo.cli``,
+``navformer_rl.pretrained.cli``). Heavy imports
 happen only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
@@ -19,16 +19,16 @@ import os
 import sys
 from collections.abc import Sequence
 
-from navformer_rl.durable import FolderLockedError
-from navformer_rl.mp4 import VideoEncoderError
+from navformer_rl.utils.durable import FolderLockedError
+from navformer_rl.utils.mp4 import VideoEncoderError
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
-    "navformer_rl.demo",
+    "navformer_rl.demo.cli",
     "navformer_rl.data.cli",
-    "navformer_rl.training_cli",
-    "navformer_rl.validation_cli",
+    "navformer_rl.training.cli",
+    "navformer_rl.training.validate_cli",
     "navformer_rl.evaluation.cli",
-    "navformer_rl.pretrained_cli",
+    "navformer_rl.pretrained.cli",
 )
 
 USER_ERRORS = (
@@ -95,6 +95,3 @@ def _report_interrupt(command: str) -> int:
     print(f"navformer {command}: interrupted (finished work is kept; rerun to resume)", file=sys.stderr)
     return 130
 
-
-if __name__ == "__main__":
-    sys.exit(main())

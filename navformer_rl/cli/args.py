@@ -7,11 +7,11 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from navformer_rl.checks import check_seed
+from navformer_rl.utils.checks import check_seed
 
 
 def seed(text: str) -> int:
-    """A seed: an integer >= 0 (:func:`navformer_rl.checks.check_seed`; numpy's generators refuse negative
+    """A seed: an integer >= 0 (:func:`navformer_rl.utils.checks.check_seed`; numpy's generators refuse negative
     ones)."""
     try:
         value: int | str = int(text)

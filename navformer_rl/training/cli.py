@@ -27,7 +27,7 @@ every key: docs/training.md
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``train`` subcommand to the ``navformer`` CLI."""
-    from navformer_rl.constants import ABLATIONS
+    from navformer_rl.tasks import ABLATIONS
 
     parser = subparsers.add_parser(
         "train",

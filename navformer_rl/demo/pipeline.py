@@ -22,124 +22,22 @@ per stage (:func:`stage_time_table`).
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import hashlib
 import json
-import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-from navformer_rl import cli_args
-from navformer_rl.durable import atomic_write_text
+from navformer_rl.demo.config import (
+    HELD_OUT_SEED_OFFSET,
+    STAGE_TIMES_FILENAME,
+    TRAINED_METHODS,
+    DemoConfig,
+    write_json,
+)
 
-BASELINES = ("vrw", "fca")
-HELD_OUT_SEED_OFFSET = 1000
-"""The held-out D_e / D_ca are collected with ``seed + HELD_OUT_SEED_OFFSET``: mazes the training never saw."""
-TRAINED_METHODS = ("navformer", "dt")
-STAGE_TIMES_FILENAME = "stage_times.json"
-"""File of the run folder keeping the seconds that computed each stage's result (:class:`StageTimes`)."""
 T = TypeVar("T")
-
-
-@dataclass(frozen=True)
-class DemoConfig:
-    """Sizes of the small end-to-end run (the paper-scale values are in ``docs/reproduce.md``).
-
-    Attributes:
-        out_dir: run folder.
-        seed: base seed of collection, training and evaluation.
-        workers: processes for collection and evaluation.
-        exploration_trajectories, collision_trajectories: D_e / D_ca trajectories (paper: 3,496 / 7,467).
-        ssl_worlds, ssl_pairs_per_world: D_ssl size (paper: 1,000 x 98).
-        held_out_exploration, held_out_collision: held-out D_e / D_ca trajectories for validation (0: none).
-        iterations: training iterations of NavFormer and of DT (paper: 10,000).
-        exploration_batch, collision_batch, ssl_batch: trajectories / pairs per iteration (paper: 25/150/512).
-        setups: evaluation protocol (a name of ``navformer_rl.evaluation.episodes.PROTOCOLS``).
-        trials_per_setup, trials_per_world: evaluation trials (paper: 60 per setup, new world every 10).
-        max_steps: steps per evaluation trial (paper: 500).
-        videos_per_setup: episodes recorded as mp4 per setup and method.
-    """
-
-    out_dir: Path = Path("runs/demo")
-    seed: int = 0
-    workers: int = 2
-    exploration_trajectories: int = 48
-    collision_trajectories: int = 96
-    ssl_worlds: int = 8
-    ssl_pairs_per_world: int = 64
-    held_out_exploration: int = 16
-    held_out_collision: int = 32
-    iterations: int = 200
-    exploration_batch: int = 8
-    collision_batch: int = 24
-    ssl_batch: int = 128
-    setups: str = "smoke"
-    trials_per_setup: int = 6
-    trials_per_world: int = 3
-    max_steps: int = 500
-    videos_per_setup: int = 1
-    methods: tuple[str, ...] = field(default=TRAINED_METHODS + BASELINES)
-
-    @staticmethod
-    def preset(name: str, **overrides) -> DemoConfig:
-        """``default`` (8-15 minutes on 2 CPU cores, README.md) or ``quick`` (a few minutes: a smoke check)."""
-        presets = {
-            "default": {},
-            "quick": {
-                "exploration_trajectories": 6,
-                "collision_trajectories": 12,
-                "ssl_worlds": 2,
-                "ssl_pairs_per_world": 32,
-                "held_out_exploration": 2,
-                "held_out_collision": 4,
-                "iterations": 20,
-                "exploration_batch": 4,
-                "collision_batch": 8,
-                "ssl_batch": 32,
-                "trials_per_setup": 2,
-                "trials_per_world": 2,
-                "max_steps": 120,
-            },
-        }
-        if name not in presets:
-            raise ValueError(f"unknown demo preset {name!r}; expected one of {sorted(presets)}")
-        return dataclasses.replace(DemoConfig(), **{**presets[name], **overrides})
-
-    def validate(self) -> None:
-        """Raise ``ValueError`` naming the first bad field."""
-        positive = (
-            "workers exploration_trajectories collision_trajectories ssl_worlds ssl_pairs_per_world "
-            "iterations exploration_batch collision_batch ssl_batch trials_per_setup trials_per_world "
-            "max_steps"
-        ).split()
-        for name in positive:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"demo setting {name}={value!r}: expected a positive integer")
-        for name in ("held_out_exploration", "held_out_collision"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"demo setting {name}={value!r}: expected an integer >= 0 (0: none)")
-        unknown = sorted(set(self.methods) - set(TRAINED_METHODS + BASELINES))
-        if unknown or not self.methods:
-            raise ValueError(
-                f"demo methods {list(self.methods)!r}: expected a non-empty subset of "
-                f"{list(TRAINED_METHODS + BASELINES)}"
-            )
-        if self.exploration_batch > self.exploration_trajectories:
-            raise ValueError(
-                f"exploration_batch={self.exploration_batch} exceeds exploration_trajectories="
-                f"{self.exploration_trajectories}"
-            )
-        if self.collision_batch > self.collision_trajectories:
-            raise ValueError(
-                f"collision_batch={self.collision_batch} exceeds collision_trajectories="
-                f"{self.collision_trajectories}"
-            )
 
 
 def collect_stage(cfg: DemoConfig, progress: bool = True) -> dict[str, Path]:
@@ -320,7 +218,7 @@ def _collect_fingerprint(cfg: DemoConfig) -> str | None:
 
 def _train_fingerprint(cfg: DemoConfig, method: str) -> str | None:
     """The training run's state: the name of its latest checkpoint."""
-    from navformer_rl.checkpoint import latest_checkpoint
+    from navformer_rl.training.checkpoint import latest_checkpoint
 
     try:
         latest = latest_checkpoint(cfg.out_dir / "train" / method)
@@ -369,7 +267,7 @@ def run_demo(cfg: DemoConfig, progress: bool = True, log: Callable[[str], None] 
 
     started = time.perf_counter()
     log("[4/4] writing the report")
-    from navformer_rl.demo_report import write_demo_report
+    from navformer_rl.demo.report import write_demo_report
 
     report = write_demo_report(cfg, data, train_dirs, folders, timings)
     log(f"done: {report}")
@@ -396,106 +294,3 @@ def _minutes(seconds: float | None) -> str:
     minutes, secs = divmod(round(seconds), 60)
     hours, minutes = divmod(minutes, 60)
     return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
-
-
-def _demo_config_from_args(args: argparse.Namespace) -> DemoConfig:
-    overrides = {
-        name: getattr(args, name)
-        for name in ("seed", "workers", "iterations")
-        if getattr(args, name, None) is not None
-    }
-    if args.methods:
-        overrides["methods"] = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    return DemoConfig.preset(args.preset, out_dir=Path(args.out), **overrides)
-
-
-def _run_demo_command(args: argparse.Namespace) -> int:
-    cfg = _demo_config_from_args(args)
-    run_demo(cfg, progress=not args.no_progress)
-    return 0
-
-
-def _run_world_demo_command(args: argparse.Namespace) -> int:
-    from navformer_rl.envs.demo import run_world_demo
-
-    paths = run_world_demo(
-        args.out,
-        size=args.size,
-        n_robots=args.robots,
-        steps=args.steps,
-        seed=args.seed,
-        progress=not args.no_progress,
-    )
-    for name, path in paths.items():
-        print(f"{name}: {path}")
-    return 0
-
-
-def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``demo`` and ``world-demo`` to the ``navformer`` CLI."""
-    demo = subparsers.add_parser(
-        "demo",
-        help="end to end: collect -> train -> evaluate -> report (8-15 min on 2 CPU cores)",
-        description="Collect small D_e / D_ca / D_ssl with the experts, train NavFormer and the DT baseline, "
-        "evaluate them with VRW and FCA on fixed episodes, and write report.md in --out. Rerun the same "
-        "command to resume after an interruption.",
-    )
-    demo.add_argument(
-        "--out", type=cli_args.output_folder, default="runs/demo", help="run folder (default runs/demo)"
-    )
-    demo.add_argument(
-        "--preset",
-        default="default",
-        choices=("default", "quick"),
-        help="default: 8-15 min on 2 cores; quick: a few minutes, a smoke check",
-    )
-    demo.add_argument("--seed", type=cli_args.seed, help="base seed (default 0)")
-    demo.add_argument(
-        "--workers", type=cli_args.int_at_least(1), help="processes for collection and evaluation (default 2)"
-    )
-    demo.add_argument("--iterations", type=cli_args.int_at_least(1), help="training iterations per model")
-    demo.add_argument("--methods", help=f"comma-separated subset of {','.join(TRAINED_METHODS + BASELINES)}")
-    demo.add_argument("--no-progress", action="store_true", help="no progress bars")
-    demo.set_defaults(run=_run_demo_command)
-
-    world = subparsers.add_parser(
-        "world-demo",
-        help="a seeded maze with moving robots: top-down map + egocentric video",
-        description="Generate a seeded maze with several robots, drive them with the goal-seeking obstacle "
-        "policy, and write map.png (trajectories) and egocentric.mp4 into --out.",
-    )
-    world.add_argument(
-        "--out",
-        type=cli_args.output_folder,
-        default="runs/world-demo",
-        help="output folder (default runs/world-demo)",
-    )
-    world.add_argument("--size", type=float, default=12.5, help="maze side in metres, 5-17.5 (default 12.5)")
-    world.add_argument(
-        "--robots", type=cli_args.int_at_least(1), default=4, help="number of robots (default 4)"
-    )
-    world.add_argument(
-        "--steps", type=cli_args.int_at_least(1), default=200, help="steps of 0.2 s (default 200)"
-    )
-    world.add_argument("--seed", type=cli_args.seed, default=0, help="world seed (default 0)")
-    world.add_argument("--no-progress", action="store_true", help="no progress bar")
-    world.set_defaults(run=_run_world_demo_command)
-
-
-def environment_summary() -> dict[str, str]:
-    """Machine facts recorded in the report (threads, torch version, device)."""
-    import platform
-
-    import torch
-
-    return {
-        "python": platform.python_version(),
-        "torch": torch.__version__,
-        "cpu_count": str(os.cpu_count()),
-        "cuda": str(torch.cuda.is_available()),
-    }
-
-
-def write_json(path: Path, payload: dict) -> None:
-    """Atomically and durably write ``payload`` as JSON."""
-    atomic_write_text(path, json.dumps(payload, indent=2, default=str) + "\n")

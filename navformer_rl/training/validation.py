@@ -31,12 +31,13 @@ from typing import Any
 import torch
 from tensordict import TensorDict
 
-from navformer_rl import checkpoint as ckpt
-from navformer_rl.checks import check_int, check_seed
+from navformer_rl.tasks import DATASETS, TRAJECTORY_KINDS
+from navformer_rl.training import checkpoint as ckpt
+from navformer_rl.utils.checks import check_int, check_seed
 
-TASK_OF_KIND = {"e": "exploration", "ca": "collision_avoidance"}
+TASK_OF_KIND = {kind: DATASETS[kind].task for kind in TRAJECTORY_KINDS}
 """The training task (metric suffix) of each trajectory dataset kind."""
-PATH_KEYS = {"e": "exploration_path", "ca": "collision_path"}
+PATH_KEYS = {kind: DATASETS[kind].path_key for kind in TRAJECTORY_KINDS}
 """The ``validation.`` key of each held-out dataset kind."""
 PREFIX = "validation"
 """Logged metric names start with ``validation/``."""
@@ -44,7 +45,7 @@ PREFIX = "validation"
 
 @dataclass
 class ValidationConfig:
-    """Held-out teacher-forced validation (:mod:`navformer_rl.validation`).
+    """Held-out teacher-forced validation (:mod:`navformer_rl.training.validation`).
 
     Attributes:
         exploration_path / collision_path: held-out D_e / D_ca dataset folders (collected with a seed other
@@ -252,7 +253,7 @@ def score_checkpoints(
     each window at most the model's context, ``NavFormerConfig.window_steps`` steps, as in training).
 
     Args:
-        checkpoints: checkpoint paths in any form :func:`~navformer_rl.checkpoint.resolve_checkpoint` takes.
+        checkpoints: checkpoint paths in any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes.
         datasets: ``{kind: folder}`` with kinds ``e`` (D_e) and / or ``ca`` (D_ca).
         batch_trajs / max_trajectories / seed: as in :class:`ValidationConfig`.
         device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``.
@@ -266,9 +267,9 @@ def score_checkpoints(
     """
     from navformer_rl.data import open_dataset
     from navformer_rl.data.fit import check_model_reads
-    from navformer_rl.devices import check_device, resolve_device
     from navformer_rl.modules import make_navformer_actor
     from navformer_rl.objectives import ActionMSELoss
+    from navformer_rl.utils.devices import check_device, resolve_device
 
     unknown = sorted(set(datasets) - set(TASK_OF_KIND))
     if unknown or not datasets:

@@ -20,7 +20,7 @@ from pathlib import Path
 import imageio_ffmpeg
 import numpy as np
 
-from navformer_rl.durable import atomic_path
+from navformer_rl.utils.durable import atomic_path
 
 CRF = 23
 """libx264's constant rate factor (lower = better quality, larger files; 23 is x264's default)."""

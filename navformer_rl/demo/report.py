@@ -16,10 +16,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from navformer_rl.durable import atomic_write_text
+from navformer_rl.utils.durable import atomic_write_text
 
 if TYPE_CHECKING:
-    from navformer_rl.demo import DemoConfig
+    from navformer_rl.demo.config import DemoConfig
 
 
 def _dataset_section(data: dict[str, Path], report_dir: Path) -> list[str]:
@@ -252,9 +252,9 @@ def write_demo_report(
     """Write ``<out>/report.md`` (and ``figures/``) and return its path.
 
     ``timings`` maps a stage to ``(seconds that computed its result, None when unknown; seconds it took in
-    this invocation)`` (see :mod:`navformer_rl.demo`).
+    this invocation)`` (see :mod:`navformer_rl.demo.pipeline`).
     """
-    from navformer_rl.demo import environment_summary, write_json
+    from navformer_rl.demo.config import environment_summary, write_json
     from navformer_rl.evaluation.report import write_report
 
     report_dir = cfg.out_dir

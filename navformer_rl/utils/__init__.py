@@ -1,0 +1,2 @@
+"""Small utilities with no paper meaning: argument checks (``checks``), devices, atomic files and folder locks
+(``durable``), the allocator setting, mp4 writing, Ctrl-C handling of process pools (``interrupts``)."""
