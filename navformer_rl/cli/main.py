@@ -94,4 +94,3 @@ def _interrupted(error: BaseException) -> bool:
 def _report_interrupt(command: str) -> int:
     print(f"navformer {command}: interrupted (finished work is kept; rerun to resume)", file=sys.stderr)
     return 130
-

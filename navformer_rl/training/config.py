@@ -34,7 +34,7 @@ class DataConfig:
 
     Attributes:
         exploration_path / collision_path / ssl_path: dataset folders of D_e, D_ca, D_ssl (absolute paths
-            recommended; the hydra recipe changes directory). A path may be None only when the ablation does
+            recommended: the hydra recipe and ``navformer train`` read relative paths from where they start). A path may be None only when the ablation does
             not use that dataset.
         exploration_batch_trajs / collision_batch_trajs: trajectories per batch (25 / 150).
         ssl_batch_pairs: D_ssl image pairs per batch (512).
