@@ -39,11 +39,13 @@ def test_run_sh_without_arguments_prints_its_usage():
 
 
 def test_help_and_argument_errors_do_not_import_torch():
-    """``navformer --help``, ``navformer train --help`` and argument errors answer before torch loads."""
+    """``navformer --help``, ``navformer train --help``, argument errors and bad training settings answer before
+    torch loads."""
     script = (
         "import contextlib, io, sys\n"
         "import navformer_rl.cli as cli\n"
-        "for argv in (['--help'], ['train', '--help'], ['evaluate', '--help'], ['collect', 'e', '--n', '0']):\n"
+        "for argv in (['--help'], ['train', '--help'], ['evaluate', '--help'], ['collect', 'e', '--n', '0'],\n"
+        "             ['train', 'ablation=bogus'], ['train', 'model.d_embed=x'], ['train', '--print-config']):\n"
         "    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
         "        try:\n"
         "            cli.main(argv)\n"

@@ -1,46 +1,39 @@
 """NavFormer as TensorDict modules: the paper's parts on tensors (``models``), their TensorDict modules and
 composition (``actors``), KV-cached decoding (``decoding``) and the closed-loop policy (``inference``)."""
 
-from navformer_rl.modules.actors import (
-    NAVFORMER_IN_KEYS,
-    NAVFORMER_OUT_KEYS,
-    dve_module,
-    head_module,
-    make_navformer_actor,
-    transformer_module,
-)
-from navformer_rl.modules.decoding import IncrementalNavFormer
-from navformer_rl.modules.inference import NavFormerPolicy
-from navformer_rl.modules.models import (
-    MODEL_ABLATIONS,
-    ActionHead,
-    CausalTransformer,
-    ConvEncoder,
-    DualVisualEncoder,
-    NavFormerConfig,
-    NavFormerModel,
-    ObservationHead,
-    ResNet18Encoder,
-    THSCHead,
-)
+from __future__ import annotations
 
-__all__ = [
-    "MODEL_ABLATIONS",
-    "NAVFORMER_IN_KEYS",
-    "NAVFORMER_OUT_KEYS",
-    "ActionHead",
-    "CausalTransformer",
-    "ConvEncoder",
-    "DualVisualEncoder",
-    "IncrementalNavFormer",
-    "NavFormerConfig",
-    "NavFormerModel",
-    "NavFormerPolicy",
-    "ObservationHead",
-    "ResNet18Encoder",
-    "THSCHead",
-    "dve_module",
-    "head_module",
-    "make_navformer_actor",
-    "transformer_module",
-]
+import importlib
+
+_EXPORTS = {
+    "ActionHead": "navformer_rl.modules.models",
+    "CausalTransformer": "navformer_rl.modules.models",
+    "ConvEncoder": "navformer_rl.modules.models",
+    "DualVisualEncoder": "navformer_rl.modules.models",
+    "IncrementalNavFormer": "navformer_rl.modules.decoding",
+    "MODEL_ABLATIONS": "navformer_rl.modules.models",
+    "NAVFORMER_IN_KEYS": "navformer_rl.modules.actors",
+    "NAVFORMER_OUT_KEYS": "navformer_rl.modules.actors",
+    "NavFormerConfig": "navformer_rl.modules.models",
+    "NavFormerModel": "navformer_rl.modules.models",
+    "NavFormerPolicy": "navformer_rl.modules.inference",
+    "ObservationHead": "navformer_rl.modules.models",
+    "ResNet18Encoder": "navformer_rl.modules.models",
+    "THSCHead": "navformer_rl.modules.models",
+    "dve_module": "navformer_rl.modules.actors",
+    "head_module": "navformer_rl.modules.actors",
+    "make_navformer_actor": "navformer_rl.modules.actors",
+    "transformer_module": "navformer_rl.modules.actors",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'navformer_rl.modules' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return __all__

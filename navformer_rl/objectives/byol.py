@@ -243,7 +243,7 @@ class BYOLLoss(LossModule):
 
     def _augment(self, pixels: Tensor) -> Tensor:
         """Augmented views written in the encoders' compute dtype (the autocast dtype) and memory layout."""
-        dtype = AUTOCAST_DTYPES[self.autocast_dtype] if self.autocast_dtype is not None else torch.float32
+        dtype = getattr(torch, self.autocast_dtype) if self.autocast_dtype is not None else torch.float32
         channels_last = all(
             getattr(self.online_network[name].encoder, "channels_last", False) for name in self.encoder_names
         )

@@ -60,7 +60,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Resolve the configuration, train, print where the results are."""
-    from navformer_rl.training import load_train_config, printable_config, train, validate_config
+    from navformer_rl.training.config import validate_config
+    from navformer_rl.training.config_io import load_train_config, printable_config
 
     cfg = load_train_config(args.overrides, args.config)
     if args.print_config:
@@ -69,11 +70,8 @@ def run(args: argparse.Namespace) -> int:
         validate_config(cfg, require_data=False)  # the datasets may not exist yet
         print(OmegaConf.to_yaml(printable_config(cfg)), end="")
         return 0
-    result = train(cfg)
-    summary = ", ".join(
-        f"{k}={result.metrics[k]:.4g}" for k in ("loss", "loss_dt", "loss_byol") if k in result.metrics
-    )
-    print(f"trained {result.iterations} iterations; {summary}")
-    print(f"run directory: {result.run_dir}")
-    print(f"checkpoint:    {result.checkpoint}")
+    validate_config(cfg)  # a bad setting is answered before torch is imported
+    from navformer_rl.training.run import train
+
+    print(train(cfg).summary())
     return 0

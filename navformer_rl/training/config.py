@@ -14,9 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from navformer_rl.tasks import ABLATIONS
-from navformer_rl.training.validation import ValidationConfig, validate_validation_config
-from navformer_rl.utils.checks import check_int, check_number
+from navformer_rl.tasks import ABLATIONS, DATASETS, TRAJECTORY_KINDS
+from navformer_rl.utils.checks import check_int, check_number, check_seed
 from navformer_rl.utils.devices import check_device
 
 if TYPE_CHECKING:
@@ -26,6 +25,61 @@ if TYPE_CHECKING:
 ENCODER_TRAINING = ("joint", "frozen")
 LOGGER_BACKENDS = ("csv", "tensorboard", "none")
 MODEL_KEYS_SET_ELSEWHERE = {"detach_encoders": "encoder_training=frozen"}
+
+
+TASK_OF_KIND = {kind: DATASETS[kind].task for kind in TRAJECTORY_KINDS}
+"""The training task (metric suffix) of each trajectory dataset kind."""
+PATH_KEYS = {kind: DATASETS[kind].path_key for kind in TRAJECTORY_KINDS}
+"""The ``validation.`` key of each held-out dataset kind."""
+
+
+@dataclass
+class ValidationConfig:
+    """Held-out teacher-forced validation (scored by :mod:`navformer_rl.training.validation`).
+
+    Attributes:
+        exploration_path / collision_path: held-out D_e / D_ca dataset folders (collected with a seed other
+            than the training data's). Validation runs when at least one is set.
+        interval: iterations between validations (the last iteration is always validated); 0 = never.
+        batch_trajs: trajectories per forward pass (a memory setting: the result is the mean over all
+            valid steps of all windows whatever the batch, up to float summation order).
+        max_trajectories: validate on a seeded subset of at most this many trajectories per dataset;
+            None = every trajectory.
+        compare_training: also score windows of the training dataset of the same task
+            (``validation/train_loss_dt_<task>``); skipped for a task the ablation does not train on.
+        training_trajectories: how many training trajectories (a seeded subset) ``compare_training``
+            scores. Per-trajectory losses vary widely, so a small subset's mean sits off the whole
+            dataset's by a fixed amount; 256 keeps that within ~10 % at the medium scale of docs/results.md.
+        seed: the subsets and window offsets (independent of the run's ``seed``, so runs compare on the
+            same windows).
+    """
+
+    exploration_path: str | None = None
+    collision_path: str | None = None
+    interval: int = 500
+    batch_trajs: int = 16
+    max_trajectories: int | None = None
+    compare_training: bool = True
+    training_trajectories: int = 256
+    seed: int = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.interval > 0 and any(getattr(self, key) for key in PATH_KEYS.values())
+
+    def held_out_paths(self) -> dict[str, str]:
+        """``{kind: path}`` of the held-out datasets set (kinds ``e`` / ``ca``)."""
+        return {kind: getattr(self, key) for kind, key in PATH_KEYS.items() if getattr(self, key)}
+
+
+def validate_validation_config(cfg: ValidationConfig) -> None:
+    """ValueError naming the key when a setting of ``cfg`` is out of range (no file is opened)."""
+    check_int(cfg.interval, "validation.interval", minimum=0)
+    check_int(cfg.batch_trajs, "validation.batch_trajs")
+    if cfg.max_trajectories is not None:
+        check_int(cfg.max_trajectories, "validation.max_trajectories")
+    check_int(cfg.training_trajectories, "validation.training_trajectories")
+    check_seed(cfg.seed, "validation.seed")
 
 
 @dataclass
@@ -128,7 +182,7 @@ class TrainConfig:
 
     Attributes:
         data / ssl / optim / logger / checkpoint / validation: see the section classes
-            (:class:`~navformer_rl.training.validation.ValidationConfig` for the last).
+            (:class:`ValidationConfig` for the last).
         model: overrides of ``NavFormerConfig`` fields (architecture and perf levers: ``autocast_dtype``,
             ``channels_last``, ``encoder_micro_batch``), applied on top of the ablation's model.
         ablation: one of :data:`ABLATIONS`.

@@ -20,9 +20,9 @@ from navformer_rl.training.config import (
     OptimConfig,
     SSLConfig,
     TrainConfig,
+    ValidationConfig,
     model_config,
 )
-from navformer_rl.training.validation import ValidationConfig
 
 _SECTIONS = {
     "data": DataConfig,

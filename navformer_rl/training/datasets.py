@@ -10,8 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from navformer_rl.tasks import DATASETS
-from navformer_rl.training.config import TrainConfig, model_config
-from navformer_rl.training.validation import PATH_KEYS
+from navformer_rl.training.config import PATH_KEYS, TrainConfig, model_config
 
 DATASET_KEYS = {kind: d.path_key for kind, d in DATASETS.items()}
 """The config key (under ``data.``) of each dataset kind."""

@@ -4,42 +4,43 @@ Training kernels (CPU attention with dropout, dropout, the conv weight gradient)
 inference-only decoding code in ``navformer_rl.modules.decoding``.
 """
 
-from navformer_rl.modules.models.cnn import ConvEncoder, ImageEncoder, images_to_float
-from navformer_rl.modules.models.config import MODEL_ABLATIONS, NavFormerConfig
-from navformer_rl.modules.models.dve import ENCODER_NAMES, DualVisualEncoder, make_encoder
-from navformer_rl.modules.models.gpt import GPT2Blocks, KVCache
-from navformer_rl.modules.models.navformer import NavFormerModel, upgrade_state_dict
-from navformer_rl.modules.models.resnet import ResNet18Encoder
-from navformer_rl.modules.models.thsc import ActionHead, ObservationHead, THSCHead, make_head
-from navformer_rl.modules.models.transformer import (
-    HIDDEN_NAMES,
-    MODALITIES,
-    CausalTransformer,
-    TokenEmbedding,
-    sliding_window_mask,
-)
+from __future__ import annotations
 
-__all__ = [
-    "ENCODER_NAMES",
-    "HIDDEN_NAMES",
-    "MODALITIES",
-    "MODEL_ABLATIONS",
-    "ActionHead",
-    "CausalTransformer",
-    "ConvEncoder",
-    "DualVisualEncoder",
-    "GPT2Blocks",
-    "ImageEncoder",
-    "KVCache",
-    "NavFormerConfig",
-    "NavFormerModel",
-    "ObservationHead",
-    "ResNet18Encoder",
-    "THSCHead",
-    "TokenEmbedding",
-    "images_to_float",
-    "make_encoder",
-    "make_head",
-    "sliding_window_mask",
-    "upgrade_state_dict",
-]
+import importlib
+
+_EXPORTS = {
+    "ActionHead": "navformer_rl.modules.models.thsc",
+    "CausalTransformer": "navformer_rl.modules.models.transformer",
+    "ConvEncoder": "navformer_rl.modules.models.cnn",
+    "DualVisualEncoder": "navformer_rl.modules.models.dve",
+    "ENCODER_NAMES": "navformer_rl.modules.models.dve",
+    "GPT2Blocks": "navformer_rl.modules.models.gpt",
+    "HIDDEN_NAMES": "navformer_rl.modules.models.transformer",
+    "ImageEncoder": "navformer_rl.modules.models.cnn",
+    "KVCache": "navformer_rl.modules.models.gpt",
+    "MODALITIES": "navformer_rl.modules.models.transformer",
+    "MODEL_ABLATIONS": "navformer_rl.modules.models.config",
+    "NavFormerConfig": "navformer_rl.modules.models.config",
+    "NavFormerModel": "navformer_rl.modules.models.navformer",
+    "ObservationHead": "navformer_rl.modules.models.thsc",
+    "ResNet18Encoder": "navformer_rl.modules.models.resnet",
+    "THSCHead": "navformer_rl.modules.models.thsc",
+    "TokenEmbedding": "navformer_rl.modules.models.transformer",
+    "images_to_float": "navformer_rl.modules.models.cnn",
+    "make_encoder": "navformer_rl.modules.models.dve",
+    "make_head": "navformer_rl.modules.models.thsc",
+    "sliding_window_mask": "navformer_rl.modules.models.transformer",
+    "upgrade_state_dict": "navformer_rl.modules.models.navformer",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'navformer_rl.modules.models' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return __all__

@@ -5,13 +5,16 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from dataclasses import dataclass
-
-import torch
+from typing import TYPE_CHECKING
 
 from navformer_rl.tasks import ABLATIONS
 
+if TYPE_CHECKING:
+    import torch
+
 ENCODER_KINDS = ("cnn", "resnet18")
-AUTOCAST_DTYPES = {"bfloat16": torch.bfloat16, "float16": torch.float16}
+AUTOCAST_DTYPES = ("bfloat16", "float16")
+"""The ``autocast_dtype`` values (names of torch dtypes)."""
 MODEL_ABLATIONS = tuple(ABLATIONS)
 """Every ``ablation=`` name (:data:`navformer_rl.tasks.ABLATIONS`); the data / SSL ablations build the paper's
 model."""
@@ -124,7 +127,9 @@ class NavFormerConfig:
 
     @property
     def torch_autocast_dtype(self) -> torch.dtype | None:
-        return None if self.autocast_dtype is None else AUTOCAST_DTYPES[self.autocast_dtype]
+        import torch
+
+        return None if self.autocast_dtype is None else getattr(torch, self.autocast_dtype)
 
     def replace(self, **changes) -> NavFormerConfig:
         """A copy with ``changes`` applied (validated again)."""
@@ -147,4 +152,6 @@ class NavFormerConfig:
 
 def autocast(device: torch.device, dtype: torch.dtype | None) -> contextlib.AbstractContextManager:
     """``torch.autocast`` on ``device``'s type in ``dtype``, or a no-op context when ``dtype`` is None."""
+    import torch
+
     return torch.autocast(device.type, dtype=dtype) if dtype is not None else contextlib.nullcontext()
