@@ -194,7 +194,7 @@ def test_another_methods_results_are_not_overwritten(tmp_path, tiny_episodes):
 
 def test_an_error_raised_while_handling_ctrl_c_still_reports_an_interrupt():
     # tensordict's to_module exit turns a KeyboardInterrupt into a RuntimeError; the CLI must see through it
-    from navformer_rl.cli import _interrupted
+    from navformer_rl.cli.main import _interrupted
 
     try:
         try:
