@@ -255,7 +255,7 @@ class BYOLLoss(LossModule):
         views = self.make_views(tensordict)
         device_type = next(iter(views.values()))[0].device.type
         autocast = (
-            torch.autocast(device_type, dtype=AUTOCAST_DTYPES[self.autocast_dtype])
+            torch.autocast(device_type, dtype=getattr(torch, self.autocast_dtype))
             if self.autocast_dtype is not None
             else contextlib.nullcontext()
         )

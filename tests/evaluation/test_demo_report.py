@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from navformer_rl.demo import pipeline as demo
 from navformer_rl.demo import DemoConfig, StageTimes
+from navformer_rl.demo import pipeline as demo
 from navformer_rl.demo.report import timings_markdown
 
 
