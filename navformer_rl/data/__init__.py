@@ -8,7 +8,7 @@ experts) lives apart from these names: ``collect`` (the process pool, resume, pr
 
 from __future__ import annotations
 
-import importlib
+from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "CrossTaskSampler": "navformer_rl.data.cross_task",
@@ -27,12 +27,4 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'navformer_rl.data' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -7,7 +7,7 @@ Names are imported lazily, so the command line answers ``--help`` without import
 
 from __future__ import annotations
 
-import importlib
+from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "DemoConfig": "navformer_rl.demo.config",
@@ -24,12 +24,4 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'navformer_rl.demo' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -3,7 +3,7 @@ composition (``actors``), KV-cached decoding (``decoding``) and the closed-loop 
 
 from __future__ import annotations
 
-import importlib
+from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "ActionHead": "navformer_rl.modules.models",
@@ -28,12 +28,4 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'navformer_rl.modules' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -40,7 +40,7 @@ Names are imported lazily, so the commands answer ``--help`` and argument errors
 
 from __future__ import annotations
 
-import importlib
+from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "ABLATIONS": "navformer_rl.training.config",
@@ -76,12 +76,4 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'navformer_rl.training' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -6,7 +6,7 @@ inference-only decoding code in ``navformer_rl.modules.decoding``.
 
 from __future__ import annotations
 
-import importlib
+from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "ActionHead": "navformer_rl.modules.models.thsc",
@@ -35,12 +35,4 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'navformer_rl.modules.models' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
