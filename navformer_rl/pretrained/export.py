@@ -20,7 +20,7 @@ from navformer_rl.training.pretrained_registry import (
     read_registry,
     write_registry_entry,
 )
-from navformer_rl.utils.durable import dir_mode, file_mode, fsync_dir, fsync_file
+from navformer_rl.utils.durable import publish_folder
 
 
 def write_pretrained(
@@ -99,18 +99,7 @@ def write_pretrained(
             prose=prose,
         )
         (tmp / CARD_FILENAME).write_text(text, encoding="utf-8")
-        for child in tmp.iterdir():
-            os.chmod(child, file_mode())
-            fsync_file(child)
-        os.chmod(tmp, dir_mode())
-        if final.exists():
-            stale = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".old", dir=root))
-            os.replace(final, stale / name)
-            os.replace(tmp, final)
-            shutil.rmtree(stale, ignore_errors=True)
-        else:
-            os.replace(tmp, final)
-        fsync_dir(root)
+        publish_folder(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

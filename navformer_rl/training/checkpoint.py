@@ -40,7 +40,10 @@ import numpy as np
 import torch
 
 from navformer_rl.training.pretrained_registry import PRETRAINED_PREFIX, is_pretrained, resolve_pretrained
-from navformer_rl.utils.durable import atomic_write_text, dir_mode, file_mode, fsync_dir, fsync_file
+from navformer_rl.utils.durable import (
+    atomic_write_text,
+    publish_folder,
+)
 
 RUN_FORMAT = "navformer_rl.run/1"
 """Format tag written into every run part; a file without it is refused."""
@@ -101,20 +104,7 @@ def save_checkpoint(
         save_file(tensors, str(tmp / WEIGHTS_FILENAME), metadata=metadata)
         if resume_state is not None:
             torch.save(dict(resume_state), tmp / RESUME_FILENAME)
-        for child in tmp.iterdir():
-            os.chmod(child, file_mode())  # safetensors creates its file owner-only (0600)
-            fsync_file(child)
-        os.chmod(tmp, dir_mode())  # mkdtemp creates 0700
-        if final.exists():
-            # Same iteration saved twice (e.g. the final save after a periodic one): move the old
-            # folder aside first so that the rename below cannot fail on a non-empty target.
-            stale = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".old", dir=root))
-            os.replace(final, stale / final.name)
-            os.replace(tmp, final)
-            shutil.rmtree(stale, ignore_errors=True)
-        else:
-            os.replace(tmp, final)
-        fsync_dir(root)
+        publish_folder(tmp, final)  # the same iteration saved twice replaces the older folder
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -8,6 +8,7 @@ import fcntl
 import glob
 import json
 import os
+import shutil
 import tempfile
 import warnings
 from collections.abc import Iterator
@@ -124,6 +125,29 @@ def fsync_tree(root: str | os.PathLike) -> None:
 
 class FolderLockedError(RuntimeError):
     """Another live process is writing into the same folder (a collection, an evaluation)."""
+
+
+def publish_folder(tmp: str | os.PathLike, final: str | os.PathLike) -> Path:
+    """Make the finished temporary folder ``tmp`` (a sibling of ``final``) appear as ``final`` in one rename.
+
+    Its files get :func:`file_mode` (``mkstemp`` / safetensors create them owner-only) and are flushed, the
+    folder gets :func:`dir_mode` (``mkdtemp`` creates 0700); an existing ``final`` is moved aside first, so the
+    rename cannot fail on a non-empty target, and removed after. A crash leaves ``final`` old or new, never half
+    written. Returns ``final``."""
+    tmp, final = Path(tmp), Path(final)
+    for child in tmp.iterdir():
+        os.chmod(child, file_mode())
+        fsync_file(child)
+    os.chmod(tmp, dir_mode())
+    if final.exists():
+        stale = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".old", dir=final.parent))
+        os.replace(final, stale / final.name)
+        os.replace(tmp, final)
+        shutil.rmtree(stale, ignore_errors=True)
+    else:
+        os.replace(tmp, final)
+    fsync_dir(final.parent)
+    return final
 
 
 def _pid_alive(pid: int) -> bool:
