@@ -34,7 +34,10 @@ pip_install() {
     # pip's own warnings about this machine's unused local index folders are noise for a user
     "$VENV/bin/pip" install --quiet "$@" 2>&1 | { grep -v "is ignored: it is neither a file nor a directory" || true; }
 }
-stamp="$VENV/.navformer-installed-$(sha256sum < "$REPO/pyproject.toml" | cut -c1-16)"
+# the tests also cover the optional backends (Ray, Minari), so `test` installs their extras too
+extras="dev"
+if [ "${1:-}" = "test" ]; then extras="dev,distributed,minari"; fi
+stamp="$VENV/.navformer-installed-$(sha256sum < "$REPO/pyproject.toml" | cut -c1-16)-${extras//,/-}"
 if [ ! -f "$stamp" ]; then
     # torch first, pinned, so nothing later pulls the multi-GB CUDA build from the registry.
     # A machine with a local CPU wheel folder (/opt/wheels here) uses it; elsewhere set
@@ -45,7 +48,7 @@ if [ ! -f "$stamp" ]; then
     say "installing torch 2.13.0, CPU build (1 of 2, about a minute)"
     pip_install "${torch_args[@]}"
     say "installing navformer_rl and its dependencies: torchrl, tensordict, pybullet, ... (2 of 2, about a minute)"
-    pip_install -e "$REPO[dev]"
+    pip_install -e "$REPO[$extras]"
     touch "$stamp"
     say "installed; later runs start at once"
 fi

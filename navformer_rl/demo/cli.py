@@ -19,6 +19,8 @@ def _demo_config_from_args(args: argparse.Namespace) -> DemoConfig:
     }
     if args.methods:
         overrides["methods"] = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if args.no_shipped:
+        overrides["shipped"] = ()
     return DemoConfig.preset(args.preset, out_dir=Path(args.out), **overrides)
 
 
@@ -68,6 +70,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     demo.add_argument("--iterations", type=cli_args.int_at_least(1), help="training iterations per model")
     demo.add_argument("--methods", help=f"comma-separated subset of {','.join(TRAINED_METHODS + BASELINES)}")
+    demo.add_argument(
+        "--no-shipped",
+        action="store_true",
+        help="do not evaluate the shipped NavFormer (pretrained:navformer) beside the models trained here",
+    )
     demo.add_argument("--no-progress", action="store_true", help="no progress bars")
     demo.set_defaults(run=_run_demo_command)
 

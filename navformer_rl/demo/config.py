@@ -36,6 +36,8 @@ class DemoConfig:
         trials_per_setup, trials_per_world: evaluation trials (paper: 60 per setup, new world every 10).
         max_steps: steps per evaluation trial (paper: 500).
         videos_per_setup: episodes recorded as mp4 per setup and method.
+        shipped: shipped weights (``pretrained:NAME``) evaluated on the same episodes beside the methods
+            trained here, when this installation ships them (``navformer pretrained list``); others are skipped.
     """
 
     out_dir: Path = Path("runs/demo")
@@ -57,6 +59,7 @@ class DemoConfig:
     max_steps: int = 500
     videos_per_setup: int = 1
     methods: tuple[str, ...] = field(default=TRAINED_METHODS + BASELINES)
+    shipped: tuple[str, ...] = ("navformer",)
 
     @staticmethod
     def preset(name: str, **overrides) -> DemoConfig:
@@ -104,6 +107,10 @@ class DemoConfig:
                 f"demo methods {list(self.methods)!r}: expected a non-empty subset of "
                 f"{list(TRAINED_METHODS + BASELINES)}"
             )
+        from navformer_rl.training.pretrained_registry import check_name
+
+        for name in self.shipped:
+            check_name(name)
         if self.exploration_batch > self.exploration_trajectories:
             raise ValueError(
                 f"exploration_batch={self.exploration_batch} exceeds exploration_trajectories="

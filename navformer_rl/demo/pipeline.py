@@ -6,7 +6,8 @@
    from other mazes (``<out>/data/held_out_{e,ca}``; resumable);
 2. train NavFormer and the DT baseline on them (``<out>/train/{navformer,dt}``; checkpoints), scoring the
    action loss on the held-out trajectories as they train (``validation.*``);
-3. evaluate NavFormer, DT, VRW and FCA on the same fixed episodes (``<out>/eval/<method>``);
+3. evaluate NavFormer, DT, VRW and FCA on the same fixed episodes (``<out>/eval/<method>``), and the shipped
+   weights of ``DemoConfig.shipped`` when this installation ships them (``<out>/eval/pretrained_<name>``);
 4. write ``<out>/report.md`` with tables (the paper's numbers beside ours), plots, maps and videos.
 
 Every stage is resumable: rerunning the same command after an interruption reuses what is finished.
@@ -130,7 +131,29 @@ def evaluate_stage(cfg: DemoConfig, train_dirs: dict[str, Path], progress: bool 
             progress=progress,
         )
         folders.append(result.out_dir)
+    for name, method in shipped_weights(cfg).items():
+        result = evaluate(
+            method,
+            episodes,
+            eval_dir / f"pretrained_{name}",
+            checkpoint=f"pretrained:{name}",
+            label=f"pretrained:{name}",
+            workers=cfg.workers,
+            seed=cfg.seed,
+            videos_per_setup=cfg.videos_per_setup,
+            progress=progress,
+        )
+        folders.append(result.out_dir)
     return folders
+
+
+def shipped_weights(cfg: DemoConfig) -> dict[str, str]:
+    """``{name: method}`` of the names in ``cfg.shipped`` that this installation ships (``navformer pretrained
+    list``); the registry records each one's method (``navformer``, ``dt``)."""
+    from navformer_rl.training.pretrained_registry import read_registry
+
+    registry = read_registry()
+    return {name: registry[name]["method"] for name in cfg.shipped if name in registry}
 
 
 class StageTimes:
@@ -261,7 +284,10 @@ def run_demo(cfg: DemoConfig, progress: bool = True, log: Callable[[str], None] 
     timings = {stage: (clock.seconds(stage), seconds) for stage, seconds in clock.this_invocation.items()}
 
     started = time.perf_counter()
-    log(f"[3/4] evaluating {', '.join(cfg.methods)} on the '{cfg.setups}' episodes")
+    shipped = [f"pretrained:{name}" for name in shipped_weights(cfg)]
+    log(f"[3/4] evaluating {', '.join([*cfg.methods, *shipped])} on the '{cfg.setups}' episodes")
+    for name in sorted(set(cfg.shipped) - set(shipped_weights(cfg))):
+        log(f"      pretrained:{name} is not shipped in this installation: not evaluated")
     folders = evaluate_stage(cfg, train_dirs, progress)
     timings["evaluate"] = (_evaluation_seconds(folders), time.perf_counter() - started)
 

@@ -242,6 +242,22 @@ def nested_report(markdown: str) -> str:
     return re.sub(r"^(#+) ", r"#\1 ", body.split("\n", 1)[1], flags=re.MULTILINE)
 
 
+def _shipped_note(eval_dirs: Sequence[Path]) -> list[str]:
+    names = [
+        folder.name.removeprefix("pretrained_")
+        for folder in eval_dirs
+        if folder.name.startswith("pretrained_")
+    ]
+    if not names:
+        return []
+    shipped = ", ".join(f"`pretrained:{name}`" for name in names)
+    return [
+        f"{shipped}: the shipped weights, trained at the paper's scale (their model cards are in "
+        "`navformer_rl/pretrained/weights/`, docs/pretrained.md), evaluated on the same episodes: what a "
+        "trained policy does, beside what the demo's small training reaches.\n"
+    ]
+
+
 def write_demo_report(
     cfg: DemoConfig,
     data: dict[str, Path],
@@ -272,6 +288,7 @@ def write_demo_report(
         f"the `{cfg.setups}` protocol instead of 60 on each of Table I's 9 setups), so NavFormer's numbers "
         "show the pipeline working, not the paper's result. `docs/reproduce.md` has the paper-scale "
         "commands.\n",
+        *_shipped_note(eval_dirs),
         *timings_markdown(timings),
     ]
     lines += _dataset_section(data, report_dir)

@@ -242,3 +242,28 @@ def test_the_evaluation_recipe_takes_a_pretrained_name(shipped, monkeypatch):
     utils.check_policy(cfg)  # loads and checks the shipped weights
     with pytest.raises(ValueError, match="'pretrained:dt' is not shipped .*the shipped names are navformer"):
         utils.check_policy(unknown)
+
+
+def test_the_demo_evaluates_the_shipped_navformer_beside_its_own_models(shipped, tmp_path, monkeypatch):
+    """Stage 3 of the demo adds ``pretrained:navformer`` on the same episodes; a name not shipped is skipped."""
+    from navformer_rl.demo import pipeline
+    from navformer_rl.demo.config import DemoConfig
+
+    monkeypatch.setenv(PRETRAINED_DIR_ENV, str(shipped))
+    cfg = DemoConfig.preset(
+        "quick", out_dir=tmp_path, methods=("vrw",), shipped=("navformer", "dt"), trials_per_setup=1,
+        trials_per_world=1, max_steps=6, videos_per_setup=0, workers=1,
+    )  # fmt: skip
+    assert pipeline.shipped_weights(cfg) == {"navformer": "navformer"}
+    folders = pipeline.evaluate_stage(cfg, {}, progress=False)
+    assert [folder.name for folder in folders] == ["vrw", "pretrained_navformer"]
+    run = json.loads((folders[1] / "run.json").read_text())
+    assert run["label"] == "pretrained:navformer"
+    assert run["checkpoint"] == str(shipped / "navformer")
+    same_episodes = [
+        sorted(json.loads(line)["episode_id"] for line in (folder / "episodes.jsonl").read_text().splitlines())
+        for folder in folders
+    ]
+    assert same_episodes[0] == same_episodes[1]
+    with pytest.raises(ValueError, match="pretrained name 'Bad Name'"):
+        DemoConfig(shipped=("Bad Name",)).validate()
