@@ -97,6 +97,11 @@ def test_pretrained_names_resolve_to_the_exact_weights(shipped, trained_run, mon
     policy = load_pretrained_policy("pretrained:navformer", native=False)
     assert policy.native is False
     assert all(torch.equal(policy.model.state_dict()[key], saved[key]) for key in saved)
+    from navformer_rl.modules import NavFormerPolicy
+
+    by_name = NavFormerPolicy.from_pretrained("navformer", native=False)
+    assert isinstance(by_name, NavFormerPolicy) and by_name.native is False
+    assert all(torch.equal(by_name.model.state_dict()[key], saved[key]) for key in saved)
 
 
 def test_a_corrupt_shipped_file_is_refused_naming_it(shipped, datasets, tmp_path, monkeypatch, capsys):
