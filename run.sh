@@ -10,11 +10,12 @@
 #   validate     teacher-forced action loss of checkpoints on held-out D_e / D_ca
 #   evaluate     measure SR / SPL / CR of a method on fixed episodes (and make-episodes / report / seeds)
 #   pretrained   list the shipped weights (pretrained:NAME), or ship a trained run
+#   export       write a dataset in another tool's format (minari)
 # `./run.sh COMMAND --help` shows a command's options. Relative paths in the arguments (--out,
 # --checkpoint, data.*_path=, output_dir=) are read from the directory you are in.
 set -euo pipefail
 usage() {
-    sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,15p' "$0" | sed 's/^# \{0,1\}//'
 }
 say() {
     echo "run.sh: $*" >&2

@@ -1,10 +1,10 @@
 """The ``navformer`` command: ``demo``, ``world-demo``, ``collect``, ``train``, ``validate``, ``evaluate``,
-``pretrained``.
+``pretrained``, ``export``.
 
 Each subcommand is a thin layer over a library function; its parser lives next to that function
 (``register(subparsers)`` in ``navformer_rl.data.cli``, ``navformer_rl.training.cli``,
 ``navformer_rl.training.validate_cli``, ``navformer_rl.evaluation.cli``, ``navformer_rl.demo.cli``,
-``navformer_rl.pretrained.cli``). Heavy imports
+``navformer_rl.pretrained.cli``, ``navformer_rl.export.cli``). Heavy imports
 happen only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
@@ -29,6 +29,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.training.validate_cli",
     "navformer_rl.evaluation.cli",
     "navformer_rl.pretrained.cli",
+    "navformer_rl.export.cli",
 )
 
 USER_ERRORS = (
