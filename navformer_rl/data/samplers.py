@@ -426,10 +426,23 @@ class PairBatcher:
         return self.ids.epoch
 
     def sample(self) -> TensorDict:
-        index = self.ids.draw(self.batch_size)
+        """The next batch of ``batch_size`` pairs (see the class docstring for keys and shapes)."""
+        return self.gather(self.draw())
+
+    def draw(self) -> torch.Tensor:
+        """The next batch's pair ids, int64 ``[batch_size]`` (advances the sampler; gathers nothing)."""
+        return self.ids.draw(self.batch_size)
+
+    def gather(self, index: torch.Tensor) -> TensorDict:
+        """The pairs ``index`` (int64 ``[n]``, ``n <= batch_size``, e.g. one process's share of a drawn batch)
+        as :meth:`sample` returns them, with the same buffer reuse."""
+        if index.numel() > self.batch_size:
+            raise ValueError(
+                f"{index.numel()} pairs requested from a batcher of batch_size={self.batch_size}"
+            )
         buffers = self._buffer_sets[self._turn]
         self._turn = (self._turn + 1) % len(self._buffer_sets)
-        out = TensorDict(batch_size=[self.batch_size])
+        out = TensorDict(batch_size=[index.numel()])
         for key in self.fields:
             out.set(key, _gather_into(self._sources[key], index, buffers[key], self.pin_memory))
         out.set("index", index)

@@ -30,6 +30,9 @@ Modules (one job each):
   resume).
 - :mod:`~navformer_rl.training.run`: :func:`build_trainer` and :func:`train` (the loop), :class:`TrainResult`.
 - :mod:`~navformer_rl.training.checkpoint`: atomic checkpoint folders (run part + resume part), loading.
+- :mod:`~navformer_rl.training.distributed`: data-parallel training under ``torchrun`` (process group, the
+  global batch's split, gradient all-reduce, global BatchNorm for BYOL).
+- :mod:`~navformer_rl.training.init_from`: fine-tuning from a checkpoint's weights (``init_from=``).
 - :mod:`~navformer_rl.training.validation`: teacher-forced L_DT on held-out trajectories (``validation.*``,
   ``navformer validate``).
 - :mod:`~navformer_rl.training.cli`, :mod:`~navformer_rl.training.validate_cli`: ``navformer train`` and

@@ -5,14 +5,18 @@ Layout of a run directory::
     <run_dir>/checkpoints/
         latest                      text file: the name of the newest complete checkpoint folder
         iter_000500/
-            config.json             {"format", "iteration", "model_config", "train_config"}
+            config.json             {"format", "iteration", "model_config", "train_config", "run"}
             model.safetensors       NavFormerModel weights; metadata repeats format + model config
             resume.pt               torch.save of plain containers (optimiser, RNG, sampler, ...)
 
 * The **run part** (``config.json`` + ``model.safetensors``) is all an evaluator needs:
   :func:`load_policy_model` rebuilds the ``NavFormerModel`` from it and never opens ``resume.pt``.
-* The **resume part** (``resume.pt``) holds optimiser states, BYOL target parameters, RNG states, the
-  iteration and the samplers' states. It only contains tensors and plain Python containers, so it loads
+* ``run`` (absent from checkpoints of earlier versions) records how the run was made: ``world_size`` (the
+  number of data-parallel processes, :func:`recorded_world_size`), ``backend`` and ``init_from`` (the
+  checkpoint whose weights it started from: ``{"checkpoint", "folder", "iteration", "weights_sha256"}``,
+  or None).
+* The **resume part** (``resume.pt``) holds optimiser states, BYOL target parameters, RNG states (one per
+  process under ``rng_ranks`` in a data-parallel run), the iteration and the samplers' states. It only contains tensors and plain Python containers, so it loads
   with ``torch.load(..., weights_only=True)``.
 
 Atomicity: a checkpoint is written completely into a private temporary folder, flushed to disk, then
@@ -69,6 +73,7 @@ def save_checkpoint(
     train_config: Mapping[str, Any],
     resume_state: Mapping[str, Any] | None,
     keep_last: int = 0,
+    run_info: Mapping[str, Any] | None = None,
 ) -> Path:
     """Write one checkpoint folder atomically and point ``latest`` at it.
 
@@ -81,6 +86,8 @@ def save_checkpoint(
         resume_state: plain containers of tensors/numbers for :func:`load_resume_state`, or ``None``
             to write a run part only.
         keep_last: keep only the newest ``keep_last`` checkpoints (0 keeps all).
+        run_info: JSON-serialisable record of how the run was made (``world_size``, ``backend``,
+            ``init_from``), written as the header's ``run``; None writes none.
 
     Returns:
         The path of the checkpoint folder.
@@ -98,6 +105,8 @@ def save_checkpoint(
             "model_config": dict(model_config),
             "train_config": dict(train_config),
         }
+        if run_info is not None:
+            header["run"] = dict(run_info)
         (tmp / CONFIG_FILENAME).write_text(json.dumps(header, indent=2, sort_keys=True))
         tensors = {k: v.detach().to("cpu").contiguous() for k, v in model_state.items()}
         metadata = {"format": RUN_FORMAT, "model_config": json.dumps(dict(model_config), sort_keys=True)}
@@ -214,6 +223,12 @@ def read_checkpoint_config(path: str | os.PathLike) -> dict[str, Any]:
     return header
 
 
+def recorded_world_size(header: Mapping[str, Any]) -> int:
+    """The number of data-parallel processes that wrote a checkpoint (its header's ``run.world_size``; 1 for a
+    checkpoint that records none)."""
+    return int((header.get("run") or {}).get("world_size", 1))
+
+
 def load_model_state(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
     """Read the run part: ``(model_config fields, state_dict)``, via safetensors (no pickle)."""
     from safetensors import SafetensorError, safe_open
@@ -249,6 +264,18 @@ def _config_from_dict(config_cls: type, values: Mapping[str, Any]) -> Any:
         )
     kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
     return config_cls(**kwargs)
+
+
+def read_model_config(path: str | os.PathLike) -> Any:
+    """The ``NavFormerConfig`` a checkpoint's run part describes (from ``config.json``; weights not read).
+
+    Raises:
+        FileNotFoundError / ValueError: as :func:`read_checkpoint_config`, or fields ``NavFormerConfig`` does not
+            know (written by another model version) or values it refuses.
+    """
+    from navformer_rl.modules import NavFormerConfig
+
+    return _config_from_dict(NavFormerConfig, read_checkpoint_config(path)["model_config"])
 
 
 def load_policy_model(path: str | os.PathLike, expected_config: Any | None = None) -> tuple[Any, Any]:

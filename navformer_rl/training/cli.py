@@ -6,6 +6,8 @@ Configuration = the packaged ``navformer_rl/config/train.yaml`` (or ``--config F
     navformer train data.exploration_path=/data/e data.collision_path=/data/ca data.ssl_path=/data/ssl
     navformer train ... ablation=no_ssl optim.iterations=2000 output_dir=runs/no_ssl
     navformer train ... output_dir=runs/navformer resume=true      # continue from the latest checkpoint
+    navformer train ... init_from=pretrained:navformer output_dir=runs/ft   # fine-tune trained weights
+    torchrun --nproc-per-node 2 -m navformer_rl train ...          # data-parallel (global batch sizes)
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ examples:
   navformer train ... ablation=no_thsc output_dir=runs/no_thsc
   navformer train ... model.autocast_dtype=bfloat16 model.encoder_micro_batch=512   # CPU levers
   navformer train ... output_dir=runs/navformer resume=true
+  navformer train ... init_from=runs/navformer output_dir=runs/finetuned    # fine-tune: fresh optimisers
+  torchrun --nproc-per-node 2 -m navformer_rl train ...   # data-parallel; the batch sizes are global
   navformer train --print-config ablation=dt        # resolved_model: the model the run builds
 
 ablations (paper Table IV + DT baseline): {ablations}
@@ -71,7 +75,10 @@ def run(args: argparse.Namespace) -> int:
         print(OmegaConf.to_yaml(printable_config(cfg)), end="")
         return 0
     validate_config(cfg)  # a bad setting is answered before torch is imported
+    from navformer_rl.training.distributed import is_main_process
     from navformer_rl.training.run import train
 
-    print(train(cfg).summary())
+    result = train(cfg)
+    if is_main_process():  # under torchrun every process trains; rank 0 reports
+        print(result.summary())
     return 0

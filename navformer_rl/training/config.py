@@ -192,6 +192,10 @@ class TrainConfig:
         device: ``auto`` (CUDA when available), ``cpu``, ``cuda`` or ``cuda:N``.
         output_dir: the run directory (checkpoints, logs, config).
         resume: continue from the run directory's latest checkpoint (start fresh when it has none).
+        init_from: start from trained weights (fine-tuning) with fresh optimisers and schedules: a run
+            directory, a checkpoint folder or file, or ``pretrained:NAME``; its model must be the configured
+            one (:mod:`navformer_rl.training.init_from`). None: random initialisation. A resumed run continues
+            from its own checkpoint and keeps the source it recorded.
         keep_freed_memory: glibc's ``malloc`` serves big tensors from the heap and keeps freed memory
             (:func:`navformer_rl.utils.allocator.keep_freed_memory`): the same values, 0.8-0.95x the time of a CPU
             iteration, the process's memory stays at its peak between checkpoints (after each one
@@ -211,6 +215,7 @@ class TrainConfig:
     device: str = "auto"
     output_dir: str = "runs/navformer"
     resume: bool = False
+    init_from: str | None = None
     keep_freed_memory: bool = True
 
     @property
@@ -270,6 +275,10 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
     if cfg.logger.backend not in LOGGER_BACKENDS:
         raise ValueError(f"logger.backend={cfg.logger.backend!r}: expected one of {list(LOGGER_BACKENDS)}")
     check_device(cfg.device)
+    if cfg.init_from is not None and (not isinstance(cfg.init_from, str) or not cfg.init_from.strip()):
+        raise ValueError(
+            f"init_from={cfg.init_from!r}: expected null, a run directory, a checkpoint or pretrained:NAME"
+        )
     for name in ("exploration_batch_trajs", "collision_batch_trajs", "ssl_batch_pairs"):
         check_int(getattr(cfg.data, name), f"data.{name}")
     if cfg.data.ssl_batch_pairs < 2 and cfg.uses_ssl:

@@ -46,6 +46,12 @@ It is output only: :func:`config_from_dict` accepts a configuration that has it 
 back with ``--config``) but ignores it, warning when it differs from the model the configuration builds."""
 
 
+RUN_INFO_KEY = "run"
+"""Key under which a run's ``train_config.json`` records how the run was made (``world_size``, ``backend``,
+``init_from``'s source; :attr:`~navformer_rl.training.trainer.Trainer.run_info`). Output only, like
+:data:`RESOLVED_MODEL_KEY`: :func:`config_from_dict` ignores it, so the file reads back as a configuration."""
+
+
 def printable_config(cfg: TrainConfig) -> dict[str, Any]:
     """``cfg.to_dict()`` plus, right after ``model``, :data:`RESOLVED_MODEL_KEY`: every field of the
     ``NavFormerConfig`` the run builds (:func:`model_config`: the ablation's model, the ``model.*``
@@ -87,10 +93,12 @@ def config_from_dict(values: Mapping[str, Any]) -> TrainConfig:
 
     Unknown keys raise ``ValueError`` naming them and the accepted ones; missing keys keep their defaults.
     A :data:`RESOLVED_MODEL_KEY` section (printed by ``--print-config``) is ignored, with a warning when it
-    does not describe the model the configuration builds.
+    does not describe the model the configuration builds; so is a :data:`RUN_INFO_KEY` section (a run's
+    ``train_config.json`` reads back as its configuration).
     """
     values = dict(values)
     printed_model = values.pop(RESOLVED_MODEL_KEY, None)
+    values.pop(RUN_INFO_KEY, None)
     cfg = _config_from_values(values)
     if printed_model is not None:
         _warn_if_resolved_model_differs(cfg, printed_model)

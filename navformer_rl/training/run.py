@@ -1,18 +1,25 @@
 """Running a training: :func:`build_trainer` (every check, then a ready
-:class:`~navformer_rl.training.trainer.Trainer`, restored when resuming) and :func:`train` (the loop with tqdm
-progress, checkpoints and validation) returning a :class:`TrainResult`.
+:class:`~navformer_rl.training.trainer.Trainer`, restored when resuming, started from ``init_from``'s weights
+when fine-tuning) and :func:`train` (the loop with tqdm progress, checkpoints and validation; every process of
+a ``torchrun`` launch runs it) returning a :class:`TrainResult`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from navformer_rl.training import checkpoint as ckpt
+from navformer_rl.training import distributed as dist
 from navformer_rl.training.config import TrainConfig, named_run, validate_config
+from navformer_rl.training.config_io import RUN_INFO_KEY
 from navformer_rl.training.datasets import check_datasets_fit_model, open_datasets, open_validation_datasets
+from navformer_rl.training.init_from import load_initial_weights, resolve_init_source
 from navformer_rl.training.trainer import Trainer
 from navformer_rl.utils.allocator import keep_freed_memory, release_free_memory
 from navformer_rl.utils.durable import atomic_write_text
@@ -40,13 +47,23 @@ class TrainResult:
         )
 
 
-def build_trainer(cfg: TrainConfig) -> Trainer:
-    """Validate ``cfg``, open the datasets, build everything and (when resuming) restore the latest checkpoint.
+def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None) -> Trainer:
+    """Validate ``cfg``, open the datasets, build everything and (when resuming) restore the latest checkpoint,
+    or (a new run with ``init_from``) load the source's weights.
 
     Every configuration error is raised here, before the first iteration. A fresh run refuses an
-    output directory that already holds checkpoints (pass ``resume=True`` to continue it).
+    output directory that already holds checkpoints (pass ``resume=True`` to continue it). Resuming wins over
+    ``init_from``: the run continues from its own checkpoint and keeps the source it recorded (a warning
+    says so when ``init_from`` names another one).
+
+    ``distributed``: this process's place in a data-parallel run (default: the process group already
+    started, else one process, :func:`~navformer_rl.training.distributed.current`). Only rank 0 writes
+    ``train_config.json`` and the logs.
     """
     validate_config(cfg)
+    if distributed is None:
+        distributed = dist.current(cfg.device)
+    _check_batches_split(cfg, distributed.world_size)
     if cfg.keep_freed_memory:
         keep_freed_memory()
     run_dir = Path(cfg.output_dir)
@@ -58,6 +75,9 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
             f"output_dir={str(run_dir)!r} already holds checkpoints (latest {latest.name}); "
             "set resume=true to continue that run or choose another output_dir"
         )
+    if latest is not None:
+        cfg = _recorded_init_from(cfg, latest)
+    source = resolve_init_source(cfg) if cfg.init_from is not None and latest is None else None
     if cfg.logger.backend == "tensorboard":
         try:
             import tensorboard  # noqa: F401
@@ -70,19 +90,54 @@ def build_trainer(cfg: TrainConfig) -> Trainer:
     validation_datasets = open_validation_datasets(cfg)
     check_datasets_fit_model(cfg, validation_datasets, section="validation")
     cfg = named_run(cfg, resuming=latest is not None)
-    trainer = Trainer(cfg, datasets=datasets, validation_datasets=validation_datasets)
+    trainer = Trainer(
+        cfg, datasets=datasets, validation_datasets=validation_datasets, distributed=distributed
+    )
     if latest is not None:
         trainer.restore(latest)
+    elif source is not None:
+        load_initial_weights(trainer, source)
     if trainer.iteration > cfg.optim.iterations:
         raise ValueError(
             f"{latest} is at iteration {trainer.iteration}, beyond optim.iterations={cfg.optim.iterations}"
         )
-    run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(run_dir / "train_config.json", json.dumps(cfg.to_dict(), indent=2, sort_keys=True))
-    # rows a crashed run logged after its last checkpoint (all of them when it crashed before the first)
-    _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
-    trainer.logger = trainer.make_logger()
+    if distributed.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        record = {**cfg.to_dict(), RUN_INFO_KEY: trainer.run_info}
+        atomic_write_text(run_dir / "train_config.json", json.dumps(record, indent=2, sort_keys=True))
+        # rows a crashed run logged after its last checkpoint (all of them when it crashed before the first)
+        _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
+        trainer.logger = trainer.make_logger()
     return trainer
+
+
+def _check_batches_split(cfg: TrainConfig, world_size: int) -> None:
+    """ValueError when a global batch the run draws has fewer rows than there are processes."""
+    if world_size == 1:
+        return
+    sizes = {"data.ssl_batch_pairs": (cfg.uses_ssl, cfg.data.ssl_batch_pairs)}
+    sizes["data.exploration_batch_trajs"] = (cfg.uses_exploration, cfg.data.exploration_batch_trajs)
+    sizes["data.collision_batch_trajs"] = (cfg.uses_collision, cfg.data.collision_batch_trajs)
+    for key, (used, size) in sizes.items():
+        if used and size < world_size:
+            raise ValueError(
+                f"{key}={size} is smaller than the {world_size} processes: the batch sizes are global and "
+                f"every process needs at least one row; use {key}>={world_size} or fewer processes"
+            )
+
+
+def _recorded_init_from(cfg: TrainConfig, latest: Path) -> TrainConfig:
+    """``cfg`` with the ``init_from`` the resumed run recorded (a resume continues from its own checkpoint;
+    a warning when ``cfg`` names another source)."""
+    recorded: Any = ckpt.read_checkpoint_config(latest)["train_config"].get("init_from")
+    if cfg.init_from is not None and cfg.init_from != recorded:
+        warnings.warn(
+            f"init_from={cfg.init_from} is ignored: resuming {latest} (the run started from "
+            f"{recorded or 'random weights'})",
+            UserWarning,
+            stacklevel=3,
+        )
+    return dataclasses.replace(cfg, init_from=recorded)
 
 
 def _truncate_csv_scalars(folder: Path, last_step: int) -> None:
@@ -107,11 +162,21 @@ def train(cfg: TrainConfig) -> TrainResult:
 
     Returns a :class:`TrainResult`. With ``resume=True`` the run continues from the latest checkpoint and
     produces the same subsequent losses and weights as an uninterrupted run.
+
+    Under ``torchrun`` every process calls it: :func:`~navformer_rl.training.distributed.session` starts the
+    process group (and destroys it at the end, also on an error); rank 0 alone writes checkpoints, logs,
+    run files and the progress bar; every process returns the same :class:`TrainResult`.
     """
+    with dist.session(cfg.device):
+        return _train(cfg)
+
+
+def _train(cfg: TrainConfig) -> TrainResult:
     from torchrl._utils import timeit
     from tqdm import tqdm
 
-    trainer = build_trainer(cfg)
+    trainer = build_trainer(cfg)  # in the process group the session started
+    distributed = trainer.distributed
     timeit.erase()
     metrics: dict[str, float] = {}
     last_checkpoint = None
@@ -119,7 +184,7 @@ def train(cfg: TrainConfig) -> TrainResult:
     bar = tqdm(
         total=total,
         initial=trainer.iteration,
-        disable=not cfg.logger.progress,
+        disable=not (cfg.logger.progress and distributed.is_main),
         desc=f"train {trainer.cfg.logger.exp_name}",
     )
     with contextlib.closing(bar), contextlib.closing(trainer):
@@ -136,6 +201,7 @@ def train(cfg: TrainConfig) -> TrainResult:
                         release_free_memory()
             bar.update(1)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}", fps=f"{metrics['frames_per_s']:.0f}")
+    distributed.barrier()  # rank 0 has written everything
     if last_checkpoint is None:
         last_checkpoint = ckpt.latest_checkpoint(trainer.run_dir)
     return TrainResult(trainer.run_dir, trainer.iteration, metrics, last_checkpoint)

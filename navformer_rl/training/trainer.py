@@ -1,6 +1,7 @@
 """One built training run, :class:`Trainer`: samplers, model, losses, optimisers, logger and validator;
 one iteration (``step``), logging, and checkpoints that resume bit-identically (``save_checkpoint``,
-``restore``). Built by :func:`navformer_rl.training.build_trainer`.
+``restore``). Built by :func:`navformer_rl.training.build_trainer`; one process of a data-parallel run
+(:mod:`navformer_rl.training.distributed`) when given a :class:`~navformer_rl.training.distributed.Distributed`.
 """
 
 from __future__ import annotations
@@ -21,6 +22,15 @@ from navformer_rl.data.prefetch import Prefetcher
 from navformer_rl.tasks import DATASETS, TRAJECTORY_KINDS
 from navformer_rl.training import checkpoint as ckpt
 from navformer_rl.training.config import TrainConfig, model_config
+from navformer_rl.training.distributed import (
+    Distributed,
+    ShardedAugmentation,
+    ShardedPairBatcher,
+    ShardedTrajectoryBatcher,
+    rank_seed,
+    shard_rows,
+    use_global_batch_norm,
+)
 from navformer_rl.training.log_window import LogWindow
 from navformer_rl.training.validation import make_validator
 from navformer_rl.utils.devices import resolve_device
@@ -42,9 +52,11 @@ RESUME_MAY_CHANGE = frozenset(
         "data.ssl_path",
         "data.prefetch",
         "validation",
+        "init_from",
     }
 )
-"""Settings a resumed run may change; any other difference from the checkpoint's config is refused."""
+"""Settings a resumed run may change; any other difference from the checkpoint's config is refused
+(``init_from`` only applies to a run's start: a resumed run continues from its own checkpoint)."""
 TRAJECTORY_KEYS = [("pixels",), ("action",), ("return_to_go",), ("step",)]
 """Keys gathered from D_e / D_ca per step (plus ``mask`` and ``target_pixels`` added by the batcher)."""
 BATCH_KEYS = ["pixels", "action", "return_to_go", "step", "mask", "target_pixels"]
@@ -102,10 +114,21 @@ class Trainer:
         log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
         validator: :class:`~navformer_rl.training.validation.Validator` of the held-out sets, or None
             (:meth:`validation_due`, :meth:`validate`).
+        distributed: this process's place in a data-parallel run (one process by default). With several,
+            the batchers draw the global batch and gather this process's rows, BYOL's augmentation keeps
+            its rows of the global draw, its BatchNorm normalises over the global batch, the gradients are
+            summed over the processes before the optimisers step, and only rank 0 writes.
+        run_info: recorded in the run files: ``world_size``, ``backend`` and ``init_from`` (the source
+            checkpoint's identity, or None).
     """
 
     def __init__(
-        self, cfg: TrainConfig, *, datasets: dict[str, Any], validation_datasets: dict[str, Any] | None = None
+        self,
+        cfg: TrainConfig,
+        *,
+        datasets: dict[str, Any],
+        validation_datasets: dict[str, Any] | None = None,
+        distributed: Distributed | None = None,
     ) -> None:
         from torchrl.objectives import SoftUpdate
 
@@ -114,8 +137,10 @@ class Trainer:
         from navformer_rl.objectives import ActionMSELoss, BYOLLoss, BYOLTauSchedule
 
         self.cfg = cfg
+        self.distributed = distributed if distributed is not None else Distributed()
+        self.run_info: dict[str, Any] = {**self.distributed.run_info(), "init_from": None}
         self.run_dir = Path(cfg.output_dir)
-        self.device = resolve_device(cfg.device)
+        self.device = self.distributed.device or resolve_device(cfg.device)
         self.model_config = model_config(cfg)
         self.iteration = 0
         _seed_everything(cfg.seed)
@@ -134,12 +159,19 @@ class Trainer:
                     size, context, seed=cfg.seed + seed_offset, keys=TRAJECTORY_KEYS, **buffers
                 )
             )
-        self.cross_task = CrossTaskSampler(batchers["e"], batchers["ca"])
         self.pairs = (
             datasets["ssl"].pair_batcher(cfg.data.ssl_batch_pairs, seed=cfg.seed + 3, **buffers)
             if cfg.uses_ssl
             else None
         )
+        if self.distributed.enabled:  # every process draws the global batch and gathers its rows of it
+            for kind, batcher in batchers.items():
+                batchers[kind] = (
+                    None if batcher is None else ShardedTrajectoryBatcher(batcher, self.distributed)
+                )
+            if self.pairs is not None:
+                self.pairs = ShardedPairBatcher(self.pairs, self.distributed)
+        self.cross_task = CrossTaskSampler(batchers["e"], batchers["ca"])
         self.batches = Prefetcher(
             self._draw_batches, self._sampler_state, self._load_sampler_state, enabled=cfg.data.prefetch
         )
@@ -157,8 +189,12 @@ class Trainer:
                 projection_dim=cfg.ssl.projection_dim,
                 hidden_dim=cfg.ssl.hidden_dim,
                 seed=cfg.seed + 4,
+                augmentation=self._sharded_augmentation(),
                 autocast_dtype=self.model_config.autocast_dtype,
             ).to(self.device)
+            if self.distributed.enabled:  # the projector / predictor BatchNorm over the global batch
+                use_global_batch_norm(self.byol_loss.online_network)
+                use_global_batch_norm(self.byol_loss.predictor)
             self.updater = SoftUpdate(self.byol_loss, eps=cfg.ssl.tau_base)
             self.tau_schedule = BYOLTauSchedule(self.updater, cfg.optim.iterations, cfg.ssl.tau_base)
         self.optimizers = self._make_optimizers()
@@ -171,8 +207,25 @@ class Trainer:
         self.validator = make_validator(
             cfg.validation, validation_datasets or {}, datasets, context, keys=TRAJECTORY_KEYS
         )
+        if self.distributed.enabled:
+            # the same start on every process (as DistributedDataParallel does), then per-process dropout
+            self.distributed.broadcast_tensors(self._state_tensors())
+            if not self.distributed.is_main:
+                _seed_everything(rank_seed(cfg.seed, self.distributed.rank))
 
     # -- construction helpers -------------------------------------------------------------------------
+    def _sharded_augmentation(self) -> ShardedAugmentation | None:
+        """BYOL's augmentation of this process's pairs of the global batch (None for one process: BYOL's own)."""
+        if not self.distributed.enabled:
+            return None
+        total = self.cfg.data.ssl_batch_pairs
+        return ShardedAugmentation(rows=self.distributed.rows(total), total=total, seed=self.cfg.seed + 4)
+
+    def _state_tensors(self) -> list[torch.Tensor]:
+        """Every parameter and buffer of the model and the BYOL loss (online, EMA target, BatchNorm statistics)."""
+        modules = [self.model] if self.byol_loss is None else [self.model, self.byol_loss]
+        return [t for module in modules for t in (*module.parameters(), *module.buffers())]
+
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
         """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint)."""
         encoder_ids = {id(p) for p in self.model.dve.parameters()}
@@ -243,6 +296,10 @@ class Trainer:
             optimizer.zero_grad(set_to_none=True)
         with timeit("forward_backward", sync=sync):
             loss_dt, loss_byol, byol_out = self._forward_backward(batch, pairs)
+        if self.distributed.enabled:
+            with timeit("all_reduce", sync=sync):
+                groups = self.parameter_groups().values()
+                self.distributed.all_reduce_gradients(p for group in groups for p in group)
         with timeit("optimizer", sync=sync):
             if self.cfg.optim.clip_grad_norm is not None:
                 for optimizer in self.optimizers.values():
@@ -261,19 +318,28 @@ class Trainer:
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)  # the timing covers the queued GPU work
         elapsed = time.perf_counter() - start
-        frames = int(batch["mask"].sum()) + (2 * pairs.shape[0] if pairs is not None else 0)
+        losses = {
+            "loss_dt": loss_dt,
+            "frames": batch["mask"].sum() + (2 * pairs.shape[0] if pairs is not None else 0),
+        }
+        if byol_out is not None:
+            losses["weighted_loss_byol"] = loss_byol.detach()  # loss = L_DT + w L_BYOL
+            losses.update({k: v.detach() for k, v in byol_out.items()})
+        if self.distributed.enabled:
+            losses = self._global_values(losses, pairs)
+        frames = float(losses["frames"])
         metrics = {
-            "loss_dt": float(loss_dt),
-            f"loss_dt_{task}": float(loss_dt),
+            "loss_dt": float(losses["loss_dt"]),
+            f"loss_dt_{task}": float(losses["loss_dt"]),
             "lr": self.optimizers["navformer"].param_groups[0]["lr"],
-            "frames": float(frames),
+            "frames": frames,
             "frames_per_s": frames / elapsed,
             "iteration_s": elapsed,
         }
-        total = float(loss_dt)
+        total = metrics["loss_dt"]
         if byol_out is not None:
-            total += float(loss_byol.detach())  # weighted: loss = L_DT + w L_BYOL
-            metrics.update({k: float(v.detach()) for k, v in byol_out.items()})
+            total += float(losses["weighted_loss_byol"])
+            metrics.update({k: float(losses[k]) for k in byol_out.keys()})
             metrics["tau"] = float(tau)
             metrics["lr_dve"] = self.optimizers["dve"].param_groups[0]["lr"]
         metrics["loss"] = total
@@ -281,32 +347,59 @@ class Trainer:
             raise FloatingPointError(f"iteration {self.iteration}: the loss is {total} (metrics {metrics})")
         return metrics
 
+    def _pair_share(self, pairs: TensorDict) -> float:
+        """This process's share of the global D_ssl batch (1 for one process)."""
+        return pairs.shape[0] / self.cfg.data.ssl_batch_pairs if self.distributed.enabled else 1.0
+
+    def _global_values(
+        self, local: dict[str, torch.Tensor], pairs: TensorDict | None
+    ) -> dict[str, torch.Tensor]:
+        """The global batch's metrics from every process's ``local`` ones, in one all-reduce: ``loss_dt``,
+        ``weighted_loss_byol`` and ``frames`` are already this process's part of the global value (summed);
+        BYOL's per-encoder outputs are means over this process's pairs (weighted by its share, then summed:
+        exact for the losses, a weighted mean of per-process values for ``projection_std_<encoder>``)."""
+        share = self._pair_share(pairs) if pairs is not None else 1.0
+        parts = {"loss_dt", "weighted_loss_byol", "frames"}
+        values = torch.stack([v.float() if k in parts else v.float() * share for k, v in local.items()])
+        return dict(zip(local, self.distributed.all_reduce_sum(values).unbind(0), strict=True))
+
     def _forward_backward(
         self, batch: TensorDict, pairs: TensorDict | None
     ) -> tuple[torch.Tensor, torch.Tensor | None, TensorDict | None]:
         """L = L_DT + L_BYOL, one backward (or one per trajectory chunk, weighted to the same gradient).
 
         Every backward goes through ``self.scaler`` (loss scaling under float16 autocast, else unchanged).
+        With several processes each one back-propagates its part of the global loss: L_DT's masked mean
+        weighted by its valid steps over the global batch's (all-reduced), L_BYOL by its share of the pairs;
+        summed over the processes (the gradients' all-reduce) that is the global batch's L.
         Returns ``(loss_dt, loss_byol, byol_out)``: the detached DT loss, BYOL's weighted loss (None without
-        SSL) and the BYOL loss module's output TensorDict (None without SSL).
+        SSL) and the BYOL loss module's output TensorDict (None without SSL; this process's pairs).
         """
         chunks = self.cfg.optim.trajectory_chunks
         byol_out = self.byol_loss(pairs) if pairs is not None else None
         loss_byol = byol_out["loss_byol"] if byol_out is not None else None
         if loss_byol is not None and self.cfg.ssl.loss_weight != 1.0:
             loss_byol = loss_byol * self.cfg.ssl.loss_weight  # logged unweighted (byol_out)
-        if chunks == 1:
+        if chunks == 1 and not self.distributed.enabled:
             loss_dt = self.dt_loss(batch)["loss_dt"]
             self.scaler.scale(loss_dt if loss_byol is None else loss_dt + loss_byol).backward()
             return loss_dt.detach(), loss_byol, byol_out
-        if loss_byol is not None:
+        valid_total = batch["mask"].sum()
+        if self.distributed.enabled:
+            valid_total = self.distributed.all_reduce_sum(valid_total)
+            if loss_byol is not None:
+                loss_byol = loss_byol * self._pair_share(pairs)
+        valid_total = valid_total.clamp_min(1)
+        n = batch.shape[0]
+        parts = [batch[shard_rows(n, i, min(chunks, n))] for i in range(min(chunks, n))]
+        if loss_byol is not None and len(parts) > 1:
             self.scaler.scale(loss_byol).backward()
-        valid_total = batch["mask"].sum().clamp_min(1)
         loss_dt = torch.zeros((), device=self.device)
-        for part in batch.split(batch.shape[0] // chunks):
+        for part in parts:
             # masked mean of the chunk x its share of the valid steps = its part of the batch's masked mean
             weighted = self.dt_loss(part)["loss_dt"] * (part["mask"].sum() / valid_total)
-            self.scaler.scale(weighted).backward()
+            together = loss_byol is not None and len(parts) == 1  # one backward, as one process does
+            self.scaler.scale(weighted + loss_byol if together else weighted).backward()
             loss_dt += weighted.detach()
         return loss_dt, loss_byol, byol_out
 
@@ -318,10 +411,11 @@ class Trainer:
     def validate(self) -> dict[str, float]:
         """The teacher-forced action loss on every validation set: ``{"validation/loss_dt_<task>": float,
         "validation/train_loss_dt_<task>": float}`` (eval mode; the training's RNG states are left as they
-        were). Empty without validation sets."""
+        were). Empty without validation sets. With several processes each scores its share of the batches
+        and every process gets the totals."""
         if self.validator is None:
             return {}
-        return self.validator(self.dt_loss, self.model, self.device)
+        return self.validator(self.dt_loss, self.model, self.device, distributed=self.distributed)
 
     # -- logging --------------------------------------------------------------------------------------
     def make_logger(self) -> Logger | None:
@@ -381,20 +475,45 @@ class Trainer:
         return state
 
     def save_checkpoint(self) -> Path:
-        """Write the run part and the resume part at the current iteration (atomic)."""
-        return ckpt.save_checkpoint(
-            self.run_dir,
-            self.iteration,
-            model_state=self.model.state_dict(),
-            model_config=dataclasses.asdict(self.model_config),
-            train_config=self.cfg.to_dict(),
-            resume_state=self.resume_state(),
-            keep_last=self.cfg.checkpoint.keep_last,
-        )
+        """Write the run part and the resume part at the current iteration (atomic); returns its folder.
+
+        With several processes every one calls it: rank 0 gathers their RNG states (``rng_ranks`` in the
+        resume part; the rest of the state is the same on every process) and writes; the others wait until
+        the checkpoint is complete."""
+        rng_ranks = self.distributed.gather_object(ckpt.capture_rng_state())
+        folder = self.run_dir / ckpt.CHECKPOINTS_DIRNAME / ckpt.checkpoint_name(self.iteration)
+        if self.distributed.is_main:
+            state = self.resume_state()
+            if self.distributed.enabled:
+                state["rng_ranks"] = rng_ranks
+            folder = ckpt.save_checkpoint(
+                self.run_dir,
+                self.iteration,
+                model_state=self.model.state_dict(),
+                model_config=dataclasses.asdict(self.model_config),
+                train_config=self.cfg.to_dict(),
+                resume_state=state,
+                keep_last=self.cfg.checkpoint.keep_last,
+                run_info=self.run_info,
+            )
+        self.distributed.barrier()
+        return folder
 
     def restore(self, folder: Path) -> None:
-        """Load a checkpoint written by :meth:`save_checkpoint` into this (freshly built) trainer."""
+        """Load a checkpoint written by :meth:`save_checkpoint` into this (freshly built) trainer.
+
+        Raises:
+            ValueError: the configuration differs from the checkpoint's in a setting a resume may not change
+                (:data:`RESUME_MAY_CHANGE`), or the checkpoint was written by another number of processes.
+        """
         header = ckpt.read_checkpoint_config(folder)
+        recorded = ckpt.recorded_world_size(header)
+        if recorded != self.distributed.world_size:
+            raise ValueError(
+                f"cannot resume {folder} with {self.distributed.world_size} process(es): it was written by "
+                f"{recorded} (each process's random streams are part of the checkpoint); resume with "
+                f"torchrun --nproc-per-node {recorded}" + (" or without torchrun" if recorded == 1 else "")
+            )
         # a key the checkpoint lacks came after it was written; the run had that key's default
         saved = _with_defaults(TrainConfig().to_dict(), header["train_config"])
         before, now = _comparable(saved), _comparable(self.cfg.to_dict())
@@ -416,7 +535,10 @@ class Trainer:
             self.byol_loss.load_state_dict(state["byol"])
             self.byol_loss.augmentation.set_rng_state(state["byol_augmentation"])
             self.tau_schedule.load_state_dict(state["tau_schedule"])
-        ckpt.restore_rng_state(state["rng"])
+        ckpt.restore_rng_state(
+            state["rng_ranks"][self.distributed.rank] if self.distributed.enabled else state["rng"]
+        )
         if "log_window" in state:  # absent from checkpoints of earlier versions: their window starts empty
             self.log_window.load_state_dict(state["log_window"])
         self.iteration = int(state["iteration"])
+        self.run_info["init_from"] = (header.get("run") or {}).get("init_from")

@@ -82,9 +82,15 @@ class FixedTrajectoryBatches:
         return int(self.mask.sum())
 
     def __iter__(self) -> Iterator[TensorDict]:
+        return self.batches()
+
+    def batches(self, rank: int = 0, world_size: int = 1) -> Iterator[TensorDict]:
+        """The batches in order; with ``world_size`` > 1 only every ``world_size``-th one from number ``rank``
+        (one process's share of a data-parallel validation)."""
         from navformer_rl.data.samplers import TrajectoryDraw
 
-        for start in range(0, len(self), self.batch_trajs):
+        step = self.batch_trajs * world_size
+        for start in range(rank * self.batch_trajs, len(self), step):
             rows = slice(start, start + self.batch_trajs)
             steps = int(self.mask[rows].sum(1).max())
             yield self._batcher.gather(
@@ -118,11 +124,23 @@ def teacher_forced_loss(loss_module: Any, batches: FixedTrajectoryBatches, devic
     ``loss_module``: a :class:`~navformer_rl.objectives.ActionMSELoss` (reads the batch keys, writes
     ``loss_dt``). Call it inside :func:`evaluation_mode`.
     """
+    return teacher_forced_sum(loss_module, batches, device) / max(batches.valid_steps, 1)
+
+
+def teacher_forced_sum(
+    loss_module: Any,
+    batches: FixedTrajectoryBatches,
+    device: torch.device,
+    rank: int = 0,
+    world_size: int = 1,
+) -> float:
+    """The squared action errors summed over the valid steps of the batches ``batches.batches(rank,
+    world_size)`` (:func:`teacher_forced_loss` times the valid steps, for one process's share)."""
     total = 0.0
-    for batch in batches:
+    for batch in batches.batches(rank, world_size):
         batch = batch.to(device)
         total += float(loss_module(batch)["loss_dt"]) * int(batch["mask"].sum())
-    return total / max(batches.valid_steps, 1)
+    return total
 
 
 class Validator:
@@ -142,13 +160,30 @@ class Validator:
         """Whether completed ``iteration`` (of ``iterations``) is validated."""
         return iteration % self.cfg.interval == 0 or iteration == iterations
 
-    def __call__(self, loss_module: Any, model: torch.nn.Module, device: torch.device) -> dict[str, float]:
-        """``{"validation/<metric>": float}`` for every set, ``model`` in eval mode (see :func:`evaluation_mode`)."""
+    def __call__(
+        self, loss_module: Any, model: torch.nn.Module, device: torch.device, distributed: Any = None
+    ) -> dict[str, float]:
+        """``{"validation/<metric>": float}`` for every set, ``model`` in eval mode (see :func:`evaluation_mode`).
+
+        ``distributed``: a :class:`~navformer_rl.training.distributed.Distributed` of several processes
+        shares the batches out (each scores every N-th one; the sums are all-reduced, every process gets
+        the totals); None or one process scores every batch.
+        """
+        rank, world_size = (distributed.rank, distributed.world_size) if distributed is not None else (0, 1)
         with evaluation_mode(model):
-            return {
-                f"{PREFIX}/{name}": teacher_forced_loss(loss_module, batches, device)
+            sums = {
+                name: teacher_forced_sum(loss_module, batches, device, rank, world_size)
                 for name, batches in self.sets.items()
             }
+        if world_size > 1:
+            totals = distributed.all_reduce_sum(
+                torch.tensor(list(sums.values()), dtype=torch.float64, device=device)
+            )
+            sums = dict(zip(sums, totals.tolist(), strict=True))
+        return {
+            f"{PREFIX}/{name}": sums[name] / max(batches.valid_steps, 1)
+            for name, batches in self.sets.items()
+        }
 
 
 def make_validator(

@@ -7,6 +7,7 @@ overrides go on the command line (hydra), e.g.::
 
     python recipes/navformer/navformer.py data.exploration_path=/data/e data.collision_path=/data/ca \\
         data.ssl_path=/data/ssl ablation=no_thsc model.autocast_dtype=bfloat16
+    torchrun --nproc-per-node 2 recipes/navformer/navformer.py ... output_dir=/abs/runs/nf hydra.run.dir=/abs/runs/nf
 
 A mistake the user can fix is printed as one line, ``navformer.py: error: <message>``, with exit status 2, like
 ``navformer train`` (``NAVFORMER_DEBUG=1`` shows the traceback); a refused run leaves no hydra folder behind.
@@ -26,6 +27,7 @@ from recipe_errors import user_errors  # noqa: E402
 from utils import make_train_config  # noqa: E402
 
 from navformer_rl.training import train  # noqa: E402
+from navformer_rl.training.distributed import is_main_process  # noqa: E402
 
 
 @hydra.main(config_path="", config_name="config", version_base="1.3")
@@ -39,7 +41,8 @@ def main(cfg: DictConfig) -> None:
         # latest checkpoint when resume=true) sample (D_e | D_ca) + D_ssl -> L_DT + L_BYOL -> backward ->
         # AdamW / Adam -> EMA, with log rows, validation and checkpoints
         result = train(train_cfg)
-    print(result.summary())
+    if is_main_process():  # under torchrun every process trains; rank 0 reports
+        print(result.summary())
 
 
 if __name__ == "__main__":
