@@ -225,14 +225,7 @@ def _write_unit(root: str, kind: str, unit: int, items: int, min_len: int, max_l
 
     torch.set_num_threads(1)
     kind_ = DatasetKind.parse(kind)
-    rng = synthetic._unit_rng(seed, unit)
-    if kind_.is_trajectory:
-        rows, targets = synthetic._trajectory_unit(kind_, rng, items, min_len, max_len)
-    else:
-        rows, targets = synthetic._ssl_unit(rng, unit, items), None
-    write_shard(
-        root, kind_, unit, rows, targets, {"attempted": items}, {"attempted": list(range(1, items + 1))}
-    )
+    write_shard(root, kind_, unit, *synthetic.synthetic_unit(kind_, unit, items, min_len, max_len, seed))
     return items
 
 

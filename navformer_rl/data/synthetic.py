@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tensordict import TensorDict
 
 from navformer_rl.data.schema import IMAGE_SHAPE, TASK_ID, DatasetKind, ssl_rows, trajectory_rows
 from navformer_rl.data.writer import DatasetWriter
@@ -125,12 +126,23 @@ def make_synthetic_dataset(
     unit = 0
     while writer.needs_more():
         if not writer.has_shard(unit):
-            rng = _unit_rng(seed, unit)
-            if kind.is_trajectory:
-                rows, targets = _trajectory_unit(kind, rng, items_per_shard, min_len, max_len)
-            else:
-                rows, targets = _ssl_unit(rng, unit, items_per_shard), None
-            attempted = list(range(1, items_per_shard + 1))  # every synthetic item succeeds
-            writer.write_shard(unit, rows, targets, {"attempted": items_per_shard}, {"attempted": attempted})
+            writer.write_shard(unit, *synthetic_unit(kind, unit, items_per_shard, min_len, max_len, seed))
         unit += 1
     return writer.finalize(extra_metadata={"seeds": {"base": seed}})
+
+
+def synthetic_unit(
+    kind: DatasetKind | str, unit: int, items_per_shard: int, min_len: int, max_len: int, seed: int
+) -> tuple[TensorDict, torch.Tensor | None, dict[str, int], dict[str, list[int]]]:
+    """Shard ``unit`` of :func:`make_synthetic_dataset` with the same arguments, as the arguments of
+    ``DatasetWriter.write_shard`` after the unit: ``(rows, targets, counts, per-item counts)``. Shards depend
+    on ``(seed, unit)`` only, so processes can write them in parallel (``writer.write_shard(root, kind, unit,
+    ...)``) before one :func:`make_synthetic_dataset` call consolidates them."""
+    kind = DatasetKind.parse(kind)
+    rng = _unit_rng(seed, unit)
+    if kind.is_trajectory:
+        rows, targets = _trajectory_unit(kind, rng, items_per_shard, min_len, max_len)
+    else:
+        rows, targets = _ssl_unit(rng, unit, items_per_shard), None
+    attempted = list(range(1, items_per_shard + 1))  # every synthetic item succeeds
+    return rows, targets, {"attempted": items_per_shard}, {"attempted": attempted}
