@@ -19,3 +19,13 @@ MAX_WORLD_SIZE = 17.5
 
 TARGET_SHAPES = ("sphere", "box")
 TARGET_COLORS = ("green", "red", "white", "yellow", "blue")
+
+FURNISHED_FOOTPRINTS: dict[str, tuple[float, float]] = {
+    "bookstore": (14.3, 15.6),
+    "cafe": (9.3, 23.1),
+    "house": (19.0, 11.0),
+}
+"""Table II's out-of-distribution worlds (paper §VII.B): kind -> footprint ``(x, y)`` in metres."""
+TABLE2_ROBOTS = 3
+TABLE2_TRIALS_PER_KIND = 30
+"""Table II: three Jackal robots, 30 trials in each world kind (paper §VII.B)."""

@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from navformer_rl.cli import args as cli_args
+from navformer_rl.utils.backends import add_backend_options, backend_problem, session
 
 KINDS = ("e", "ca", "ssl", "all")
 
@@ -21,6 +22,8 @@ kinds:
   all  the three, under OUT/e, OUT/ca, OUT/ssl
 
 Interrupted? Run the same command again: finished work units are kept and the result is identical.
+--backend ray runs each work unit as a Ray task (pip install "navformer_rl[distributed]"): a local Ray
+instance with --workers CPUs, or the cluster of --ray-address / $RAY_ADDRESS (docs/datasets.md, "Ray").
 """
 
 
@@ -45,7 +48,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--workers",
         type=cli_args.int_at_least(1),
         default=None,
-        help="worker processes (default: every core this process may use)",
+        help="worker processes, or Ray tasks at once with --backend ray (default: every core this process "
+        "may use)",
     )
     parser.add_argument(
         "--n",
@@ -60,6 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="e / ca: std of Gaussian noise on the executed normalised actions, labels stay the expert's "
         "(DART; not in the paper; default 0)",
     )
+    add_backend_options(parser, "work units")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run_collect)
     return parser
@@ -71,6 +76,9 @@ def run_collect(args: argparse.Namespace) -> int:
         return _error("--n applies to one dataset kind, not to 'all'")
     if args.kind == "ssl" and args.action_noise is not None:
         return _error("--action-noise applies to e and ca (D_ssl has no actions)")
+    problem = backend_problem(args)
+    if problem is not None:
+        return _error(problem)
 
     from navformer_rl.data.collect import collect, default_workers, settings_for
     from navformer_rl.data.schema import DatasetKind
@@ -87,10 +95,19 @@ def run_collect(args: argparse.Namespace) -> int:
         field = "n_worlds" if kind is DatasetKind.SSL else "n_trajectories"
         jobs = [(kind, args.out, {**noise, **({} if args.n is None else {field: args.n})})]
     try:
-        for kind, out, overrides in jobs:
-            settings = settings_for(kind, args.scale, args.seed, **overrides)
-            path = collect(kind, out, settings, workers=workers, progress=not args.no_progress)
-            print(f"{kind.value}: {path}")
+        with session(args.backend, workers, args.ray_address):  # one Ray session for every kind of 'all'
+            for kind, out, overrides in jobs:
+                settings = settings_for(kind, args.scale, args.seed, **overrides)
+                path = collect(
+                    kind,
+                    out,
+                    settings,
+                    workers=workers,
+                    progress=not args.no_progress,
+                    backend=args.backend,
+                    ray_address=args.ray_address,
+                )
+                print(f"{kind.value}: {path}")
     except (ValueError, FileNotFoundError, RuntimeError) as err:
         return _error(str(err))
     return 0

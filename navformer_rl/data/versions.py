@@ -42,8 +42,8 @@ _EPISODES = (
 DATA_VERSIONS: dict[str, DataVersion] = {
     "world": DataVersion(
         1,
-        "mazes and arenas, start poses, targets (positions, shapes, colours) from a seed",
-        ("envs/world.py", "envs/occupancy.py", "utils/checks.py"),
+        "mazes, arenas and furnished worlds, start poses, targets (positions, shapes, colours) from a seed",
+        ("envs/world.py", "envs/furnished.py", "envs/occupancy.py", "utils/checks.py"),
     ),
     "simulator": DataVersion(
         1,

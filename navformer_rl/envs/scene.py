@@ -33,15 +33,16 @@ _VERTEX_JITTER = 0.01234
 _TILE_LIGHT, _TILE_DARK, _SEAM = (150, 142, 128), (120, 114, 106), (92, 88, 82)
 
 
-def _floor_texture(p, c) -> int:
-    """A repeating 2 x 2 pattern of one-metre two-tone tiles with thin seams, loaded as a pybullet texture
-    (written to a temporary PNG, which is removed right after loading)."""
-    px = 32
-    tile = np.arange(2 * px) // px
-    checker = (tile[:, None] + tile[None, :]) % 2 == 0
-    img = np.where(checker[..., None], _TILE_LIGHT, _TILE_DARK).astype(np.uint8)
-    img[::px] = _SEAM
-    img[:, ::px] = _SEAM
+def _floor_texture(p, c, img: np.ndarray | None = None) -> int:
+    """``img`` (uint8 ``[H, W, 3]`` RGB; default a repeating 2 x 2 pattern of one-metre two-tone tiles with
+    thin seams) loaded as a pybullet texture (written to a temporary PNG, removed right after loading)."""
+    if img is None:
+        px = 32
+        tile = np.arange(2 * px) // px
+        checker = (tile[:, None] + tile[None, :]) % 2 == 0
+        img = np.where(checker[..., None], _TILE_LIGHT, _TILE_DARK).astype(np.uint8)
+        img[::px] = _SEAM
+        img[:, ::px] = _SEAM
     fd, path = tempfile.mkstemp(suffix=".png", prefix="navformer_floor_")
     os.close(fd)
     try:
@@ -51,9 +52,20 @@ def _floor_texture(p, c) -> int:
         os.remove(path)
 
 
-def add_floor(p, c, size: float, textured: bool = True, margin: float = 0.5) -> int:
+def add_floor(
+    p,
+    c,
+    size: float,
+    textured: bool = True,
+    margin: float = 0.5,
+    texture: np.ndarray | None = None,
+    texture_metres: float = 2.0,
+    plain_rgba=PLAIN_FLOOR_RGBA,
+) -> int:
     """A visual-only floor mesh over ``[-margin, size + margin]^2`` at z = 0, tiled in 1 m squares when
-    ``textured`` (the tiles give the cameras cues of distance and motion), else plain.
+    ``textured`` (the tiles give the cameras cues of distance and motion), else plain (``plain_rgba``).
+    ``texture`` (uint8 ``[H, W, 3]`` RGB covering ``texture_metres`` square, repeated) replaces the tiles,
+    e.g. a furnished world's floor.
 
     The mesh is split into quads of about 1 m, which keeps the tiny renderer's texture mapping tidy.
     """
@@ -70,15 +82,27 @@ def add_floor(p, c, size: float, textured: bool = True, margin: float = 0.5) -> 
         p.GEOM_MESH,
         vertices=vertices.tolist(),
         indices=quads.ravel().tolist(),
-        uvs=(vertices[:, :2] / 2.0).tolist(),  # the texture holds 2 x 2 one-metre tiles
+        uvs=(vertices[:, :2] / texture_metres).tolist(),  # the default texture: 2 x 2 one-metre tiles
         normals=[[0.0, 0.0, 1.0]] * len(vertices),
-        rgbaColor=[1, 1, 1, 1] if textured else list(PLAIN_FLOOR_RGBA),
+        rgbaColor=[1, 1, 1, 1] if textured else list(plain_rgba),
         physicsClientId=c,
     )
     floor = p.createMultiBody(0, -1, vis, [0.0, 0.0, 0.0], physicsClientId=c)
     if textured:
-        p.changeVisualShape(floor, -1, textureUniqueId=_floor_texture(p, c), physicsClientId=c)
+        p.changeVisualShape(floor, -1, textureUniqueId=_floor_texture(p, c, texture), physicsClientId=c)
     return floor
+
+
+def add_furnished_scene(p, c, size: float, walls: np.ndarray, style, textured: bool = True) -> None:
+    """A furnished world's floor and boxes: ``walls`` float ``[W, 4]`` ``(cx, cy, half_x, half_y)``, each in
+    its ``style`` (:class:`~navformer_rl.envs.furnished.SceneStyle`) colour and height; the floor in the
+    style's texture, or plain in its ``floor_rgba`` when not ``textured``."""
+    add_floor(p, c, size, textured, texture=style.floor_texture, texture_metres=style.floor_metres,
+              plain_rgba=style.floor_rgba)  # fmt: skip
+    for (cx, cy, hx, hy), rgba, height in zip(
+        np.asarray(walls, dtype=np.float64), style.box_rgba.astype(np.float64), style.box_height
+    ):
+        add_box(p, c, (cx, cy, float(height) / 2), (hx, hy, float(height) / 2), tuple(rgba))
 
 
 def add_box(p, c, centre, half_extents, rgba) -> int:

@@ -19,7 +19,14 @@ import numpy as np
 
 from navformer_rl.constants import CONTROL_DT, IMAGE_SIZE
 from navformer_rl.envs.robots import RobotSpec
-from navformer_rl.envs.scene import WALL_PALETTE, add_box, add_floor, add_robot, add_target
+from navformer_rl.envs.scene import (
+    WALL_PALETTE,
+    add_box,
+    add_floor,
+    add_furnished_scene,
+    add_robot,
+    add_target,
+)
 from navformer_rl.envs.world import WorldSpec
 from navformer_rl.utils.checks import check_int, check_number
 
@@ -222,13 +229,16 @@ class Simulator:
     # ------------------------------------------------------------------ scene
     def _build_scene(self) -> None:
         p, c = self._p, self._client
-        add_floor(p, c, self.world.size, self._textured)
-        rng = np.random.default_rng(self.world.seed)
-        height = self.world.wall_height
-        for k, (cx, cy, hx, hy) in enumerate(self.world.walls.astype(np.float64)):
-            rgb = WALL_PALETTE[rng.integers(len(WALL_PALETTE))] if self._textured else WALL_PALETTE[4]
-            shade = 1.0 if k % 2 == 0 else 0.92
-            add_box(p, c, (cx, cy, height / 2), (hx, hy, height / 2), (*(rgb * shade), 1.0))
+        if self.world.style is not None:  # a furnished world paints itself
+            add_furnished_scene(p, c, self.world.size, self.world.walls, self.world.style, self._textured)
+        else:
+            add_floor(p, c, self.world.size, self._textured)
+            rng = np.random.default_rng(self.world.seed)
+            height = self.world.wall_height
+            for k, (cx, cy, hx, hy) in enumerate(self.world.walls.astype(np.float64)):
+                rgb = WALL_PALETTE[rng.integers(len(WALL_PALETTE))] if self._textured else WALL_PALETTE[4]
+                shade = 1.0 if k % 2 == 0 else 0.92
+                add_box(p, c, (cx, cy, height / 2), (hx, hy, height / 2), (*(rgb * shade), 1.0))
         for target in self.world.targets:
             add_target(p, c, target.shape, target.rgba, target.half_extent, target.position)
         for spec in self.robot_specs:

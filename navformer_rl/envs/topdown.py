@@ -1,4 +1,5 @@
-"""Top-down map of a world (OpenCV): walls, targets, robots and their trajectories.
+"""Top-down map of a world (OpenCV): walls (and a furnished world's furniture), targets, robots and their
+trajectories.
 
 World ``(x, y)`` maps to pixel ``(u, v) = (margin + x * px_per_m, margin + (size - y) * px_per_m)``,
 so +y points up in the image. Robot ``i`` and its target share colour ``ROBOT_COLORS[i % 10]``.
@@ -84,8 +85,14 @@ def draw_topdown(
     for k in range(int(math.floor(world.size)) + 1):  # 1 m grid, like the floor tiles
         cv2.line(img, to_px((k, 0)), to_px((k, world.size)), _GRID, 1)
         cv2.line(img, to_px((0, k)), to_px((world.size, k)), _GRID, 1)
-    for cx, cy, hx, hy in world.walls.astype(np.float64):
-        cv2.rectangle(img, to_px((cx - hx, cy + hy)), to_px((cx + hx, cy - hy)), _WALL, -1)
+    style = world.style  # a furnished world: furniture in its own colours, outlined
+    for k, (cx, cy, hx, hy) in enumerate(world.walls.astype(np.float64)):
+        corners = to_px((cx - hx, cy + hy)), to_px((cx + hx, cy - hy))
+        if style is None or style.roles[k] == "wall":
+            cv2.rectangle(img, *corners, _WALL, -1)
+        else:
+            cv2.rectangle(img, *corners, tuple(int(round(255 * v)) for v in style.box_rgba[k, :3]), -1)
+            cv2.rectangle(img, *corners, _WALL, 1)
 
     def robot_color(i: int) -> tuple[int, int, int]:
         return tuple(int(v) for v in ROBOT_COLORS[i % len(ROBOT_COLORS)])

@@ -1,9 +1,10 @@
 """Seeded world generator (pure numpy): mazes and open arenas, targets, collision-free robot starts.
 
 A world is a square ``[0, size]^2`` with axis-aligned wall boxes (paper §VII.A: 3D mazes of 7.5 / 12.5 /
-17.5 m; §V: training worlds from 5 to 17.5 m and a 12.5 m collision-avoidance arena). Everything a
-simulator, an expert or a metric needs is in the frozen :class:`WorldSpec`; the same ``(config, seed)``
-always gives the same world.
+17.5 m; §V: training worlds from 5 to 17.5 m and a 12.5 m collision-avoidance arena; §VII.B: Table II's
+furnished bookstore, café and house, see :mod:`navformer_rl.envs.furnished`). Everything a simulator, an
+expert or a metric needs is in the frozen :class:`WorldSpec`; the same ``(config, seed)`` always gives the
+same world.
 """
 
 from __future__ import annotations
@@ -12,10 +13,12 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from navformer_rl.constants import (
+    FURNISHED_FOOTPRINTS,
     MAX_WORLD_SIZE,
     MIN_WORLD_SIZE,
     SUCCESS_RADIUS,
@@ -25,6 +28,9 @@ from navformer_rl.constants import (
 from navformer_rl.envs.occupancy import OccupancyMap
 from navformer_rl.envs.robots import JACKAL, RobotSpec
 from navformer_rl.utils.checks import check_int, check_number, check_seed, is_integer, is_real
+
+if TYPE_CHECKING:
+    from navformer_rl.envs.furnished import SceneStyle
 
 TARGET_RGBA: dict[str, tuple[float, float, float, float]] = {
     "green": (0.10, 0.80, 0.15, 1.0),
@@ -41,7 +47,8 @@ TARGET_RGBA: dict[str, tuple[float, float, float, float]] = {
 TARGET_HALF_EXTENT: dict[str, float] = {"sphere": 0.25, "box": 0.20}
 """Known target shapes: sphere of radius 0.25 m, cube of side 0.40 m (both resting on the floor)."""
 
-WORLD_KINDS = ("maze", "arena")
+WORLD_KINDS = ("maze", "arena", *FURNISHED_FOOTPRINTS)
+"""Generated kinds: training mazes and arenas, and Table II's furnished worlds (``furnished.FURNISHED_KINDS``)."""
 OCCUPANCY_RESOLUTION = 0.05
 
 
@@ -68,9 +75,12 @@ class WorldConfig:
     """What kind of world to generate.
 
     Attributes:
-        size: side of the square world in metres, in [5, 17.5].
-        kind: ``"maze"`` (random perfect maze with extra openings) or ``"arena"`` (outer walls plus a few
-            short inner walls).
+        size: side of the square world in metres, in [5, 17.5]; for a furnished kind exactly its footprint's
+            longer side (``furnished.furnished_size``: bookstore 15.6, cafe 23.1, house 19.0).
+        kind: ``"maze"`` (random perfect maze with extra openings), ``"arena"`` (outer walls plus a few
+            short inner walls) or a furnished Table II world, ``"bookstore"``, ``"cafe"`` or ``"house"``
+            (:mod:`navformer_rl.envs.furnished`; ``cell_size``, ``loop_fraction``, ``wall_thickness``,
+            ``wall_height`` and the ``arena_*`` fields do not apply to them).
         n_robots: robots to place (each gets its own distinct target), an integer >= 1.
         target_shapes, target_colors: the catalogue targets are drawn from (shape x colour, without
             replacement), non-empty tuples; known shapes are ``TARGET_HALF_EXTENT``'s keys, colours
@@ -125,7 +135,15 @@ class WorldConfig:
                 f"world size must be a number of metres in [{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}], "
                 f"got {self.size!r}"
             )
-        if not MIN_WORLD_SIZE <= self.size <= MAX_WORLD_SIZE:
+        furnished = isinstance(self.kind, str) and self.kind in FURNISHED_FOOTPRINTS
+        side = max(FURNISHED_FOOTPRINTS[self.kind]) if furnished else None
+        if side is not None and self.size != side:
+            fx, fy = FURNISHED_FOOTPRINTS[self.kind]
+            raise ValueError(
+                f"a {self.kind} world is {fx:g} x {fy:g} m in a square of its longer side: size must be "
+                f"{side:g}, got {self.size!r}"
+            )
+        if side is None and not MIN_WORLD_SIZE <= self.size <= MAX_WORLD_SIZE:
             raise ValueError(
                 f"world size {self.size!r} m is outside the supported range [{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}] m"
             )
@@ -207,14 +225,16 @@ class WorldSpec:
 
     Attributes:
         size: side in metres; the world spans ``[0, size]^2``.
-        kind: ``"maze"`` or ``"arena"``.
-        walls: float32 ``[W, 4]`` axis-aligned wall boxes ``(cx, cy, half_x, half_y)``.
+        kind: one of :data:`WORLD_KINDS` (``"custom"`` for :func:`world_from_layout`).
+        walls: float32 ``[W, 4]`` axis-aligned wall boxes ``(cx, cy, half_x, half_y)`` (furniture included).
         wall_height: metres.
         occupancy: :class:`OccupancyMap` at 0.05 m of walls and (solid) targets.
         starts: float32 ``[R, 3]`` start poses ``(x, y, yaw)``.
         targets: one :class:`TargetSpec` per robot, all distinct (shape, colour) pairs.
         seed: the generator seed.
         config: the :class:`WorldConfig` it was generated from.
+        style: a furnished world's :class:`~navformer_rl.envs.furnished.SceneStyle` (each box's colour and
+            height, the floor); None: the training look.
     """
 
     size: float
@@ -226,6 +246,7 @@ class WorldSpec:
     targets: list[TargetSpec]
     seed: int
     config: WorldConfig = field(repr=False)
+    style: SceneStyle | None = field(default=None, repr=False)
 
     @property
     def n_robots(self) -> int:
@@ -414,12 +435,15 @@ def sample_free_positions(
     avoid: np.ndarray | None = None,
     avoid_separation: float = 0.0,
     max_tries: int = 2000,
+    largest_only: bool = True,
 ) -> np.ndarray:
     """Sample ``n`` positions float64 ``[n, 2]`` (free cell centres) in the largest free component of
-    ``inflate(clearance)``, pairwise more than ``min_separation`` apart and more than ``avoid_separation``
-    from every row of ``avoid`` (float ``[K, 2]``). Raises ValueError when they do not fit (after
-    ``max_tries`` draws)."""
-    centres = occupancy.cell_to_world(_free_cells(occupancy, clearance))
+    ``inflate(clearance)`` (in any of its components with ``largest_only=False``: for worlds whose free space
+    is connected at a smaller clearance, e.g. furnished rooms behind doorways narrower than ``2 * clearance``),
+    pairwise more than ``min_separation`` apart and more than ``avoid_separation`` from every row of ``avoid``
+    (float ``[K, 2]``). Raises ValueError when they do not fit (after ``max_tries`` draws)."""
+    cells = _free_cells(occupancy, clearance) if largest_only else np.argwhere(~occupancy.inflate(clearance))
+    centres = occupancy.cell_to_world(cells)
     if avoid is not None and len(centres):
         avoid = np.asarray(avoid, dtype=np.float64).reshape(-1, 2)
         gaps = np.hypot(centres[:, None, 0] - avoid[None, :, 0], centres[:, None, 1] - avoid[None, :, 1])
@@ -614,15 +638,31 @@ def _targets_reachable(occupancy: OccupancyMap, targets: list[TargetSpec], clear
 def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
     """Generate the world for ``(config, seed)`` (deterministic).
 
-    Walls (maze or arena), then ``n_robots`` distinct targets in reachable free space (0.9 m from walls,
-    more than 2 m apart, or 1.2 m where that does not fit), then collision-free starts, each more than ``SUCCESS_RADIUS +
-    start_target_margin`` from its own target. The free space (inflated by ``robot_radius``) is one
-    connected component. ValueError when the robots/targets do not fit.
+    Walls (maze, arena, or a furnished layout from :func:`~navformer_rl.envs.furnished.furnished_walls` for
+    ``config.kind`` bookstore / cafe / house), then ``n_robots`` distinct targets in reachable free space
+    (0.9 m from walls, more than 2 m apart, or 1.2 m where that does not fit), then collision-free starts,
+    each more than ``SUCCESS_RADIUS + start_target_margin`` from its own target. The free space (inflated by
+    ``robot_radius``) is one connected component. ValueError when the robots/targets do not fit.
     """
     if not isinstance(config, WorldConfig):
         raise ValueError(f"config must be a WorldConfig, got {type(config).__name__}")
     seed = check_seed(seed)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EED]))
+    style = None
+    if config.kind in FURNISHED_FOOTPRINTS:
+        from navformer_rl.envs.furnished import furnished_walls  # imports this module
+
+        walls, wall_map, style = furnished_walls(config.kind, config.robot_radius, rng, OCCUPANCY_RESOLUTION)
+    else:
+        walls, wall_map = _maze_or_arena(config, seed, rng)
+    return _place_targets_and_starts(config, seed, rng, walls, wall_map, style)
+
+
+def _maze_or_arena(
+    config: WorldConfig, seed: int, rng: np.random.Generator
+) -> tuple[np.ndarray, OccupancyMap]:
+    """The walls float32 ``[W, 4]`` of a maze or arena and their occupancy map; ValueError when the free space
+    falls apart (maze) or no connected arena is drawn in 100 tries."""
     for _ in range(100):
         walls = _maze_walls(config, rng) if config.kind == "maze" else _arena_walls(config, rng)
         wall_map = OccupancyMap.from_shapes(config.size, OCCUPANCY_RESOLUTION, walls)
@@ -644,7 +684,19 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
             f"arena_inner_walls={config.arena_inner_walls}, arena_wall_length={config.arena_wall_length}); "
             "use a smaller robot_radius or fewer or shorter inner walls"
         )
+    return walls, wall_map
 
+
+def _place_targets_and_starts(
+    config: WorldConfig,
+    seed: int,
+    rng: np.random.Generator,
+    walls: np.ndarray,
+    wall_map: OccupancyMap,
+    style: SceneStyle | None,
+) -> WorldSpec:
+    """The :class:`WorldSpec` of ``walls``: reachable distinct targets, then starts (see :func:`generate_world`)."""
+    furnished = style is not None  # free space connected at robot_radius: every room may hold a target
     pairs = [(s, c) for s in dict.fromkeys(config.target_shapes) for c in dict.fromkeys(config.target_colors)]
     chosen = rng.permutation(len(pairs))[: config.n_robots]
     # a robot must fit between a target and a wall on either side: target + robot diameter + 5 cm
@@ -652,7 +704,9 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
     for attempt in range(40):
         separation = 2.0 if attempt < 20 else 1.2  # targets 2 m apart, closer only where they do not fit
         try:
-            positions = sample_free_positions(wall_map, config.n_robots, target_clearance, separation, rng)
+            positions = sample_free_positions(
+                wall_map, config.n_robots, target_clearance, separation, rng, largest_only=not furnished
+            )
         except ValueError:
             continue
         targets = [
@@ -672,12 +726,13 @@ def generate_world(config: WorldConfig, seed: int) -> WorldSpec:
         size=float(config.size),
         kind=config.kind,
         walls=walls,
-        wall_height=float(config.wall_height),
+        wall_height=float(config.wall_height) if style is None else style.wall_height,
         occupancy=occupancy,
         starts=np.zeros((config.n_robots, 3), dtype=np.float32),
         targets=targets,
         seed=int(seed),
         config=config,
+        style=style,
     )
     starts = sample_start_poses(world, config.n_robots, rng)
     return dataclasses.replace(world, starts=starts)

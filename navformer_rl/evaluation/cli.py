@@ -3,6 +3,7 @@
 Examples::
 
     navformer evaluate --method fca --protocol table1 --out runs/eval/fca --workers 2
+    navformer evaluate --method fca --episodes table1.json --out runs/eval/fca --backend ray --workers 8
     navformer evaluate --method navformer --checkpoint runs/train --episodes table1.json --out runs/eval/nf
     navformer evaluate --method dt --checkpoint pretrained:dt --protocol table1 --out runs/eval/dt_shipped
     navformer evaluate make-episodes --protocol table1 --out table1.json
@@ -14,10 +15,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from navformer_rl.cli import args as cli_args
 from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.utils.backends import add_backend_options, backend_problem
 
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -50,8 +53,12 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     _add_generation_options(parser)
     parser.add_argument("--out", type=cli_args.output_folder, help="output folder")
     parser.add_argument(
-        "--workers", type=cli_args.int_at_least(1), default=1, help="parallel processes (default 1)"
+        "--workers",
+        type=cli_args.int_at_least(1),
+        default=1,
+        help="parallel processes, or Ray tasks at once with --backend ray (default 1)",
     )
+    add_backend_options(parser, "episodes")
     parser.add_argument(
         "--videos",
         type=cli_args.int_at_least(0),
@@ -207,7 +214,7 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--trials-per-setup",
         type=cli_args.int_at_least(1),
-        help=f"with --protocol: trials per setup (default and paper: {PAPER_TRIALS_PER_SETUP})",
+        help=f"with --protocol: trials per setup (default and paper: {PAPER_TRIALS_PER_SETUP}; table2: 30)",
     )
     parser.add_argument(
         "--trials-per-world",
@@ -252,11 +259,10 @@ _GENERATION_OPTIONS = ("trials_per_setup", "trials_per_world", "episode_seed", "
 """Positional arguments of ``make_protocol_episodes`` after the protocol (``--setups`` is a keyword)."""
 
 
-def _generation(args: argparse.Namespace) -> tuple[int, ...]:
-    """(trials per setup, trials per world, episode seed, max steps) with the defaults filled in."""
-    from navformer_rl.evaluation.episodes import PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD
-
-    defaults = (PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD, 0, MAX_EPISODE_STEPS)
+def _generation(args: argparse.Namespace) -> tuple[int | None, ...]:
+    """(trials per setup, trials per world, episode seed, max steps) with the defaults filled in (None: the
+    protocol's trials, see ``episodes.protocol_trials``)."""
+    defaults = (None, None, 0, MAX_EPISODE_STEPS)
     return tuple(
         default if getattr(args, name) is None else getattr(args, name)
         for name, default in zip(_GENERATION_OPTIONS, defaults)
@@ -272,9 +278,14 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     if args.out is None:
         raise ValueError("--out DIR is required")
     if args.episodes is None and args.protocol is None:
-        raise ValueError("give the episodes: --episodes FILE or --protocol {table1,table3,table4,smoke}")
-    # Refuse a bad method / checkpoint / label before spending time on episode generation.
+        raise ValueError(
+            "give the episodes: --episodes FILE or --protocol {table1,table2,table3,table4,smoke}"
+        )
+    # Refuse a bad method / checkpoint / label / backend before spending time on episode generation.
     PolicySpec(args.method, args.checkpoint, args.seed, device=args.device).validate(args.label)
+    problem = backend_problem(args)
+    if problem is not None:
+        raise ValueError(problem)
     if args.episodes is not None:
         given = [name for name in (*_GENERATION_OPTIONS, "setups") if getattr(args, name) is not None]
         if given:  # the file fixes them: silently ignoring them would run other episodes than asked for
@@ -286,8 +297,10 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         episode_set = load_episode_set(args.episodes)
     else:
         _check_setups(args.protocol, args.setups)
+        # generated here: with Ray, --workers may count a cluster's CPUs
+        workers = args.workers if args.backend == "local" else min(args.workers, len(os.sched_getaffinity(0)))
         episode_set = make_protocol_episodes(
-            args.protocol, *_generation(args), workers=args.workers, setups=args.setups
+            args.protocol, *_generation(args), workers=workers, setups=args.setups
         )
     result = evaluate(
         args.method,
@@ -303,6 +316,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         device=args.device,
         progress=not args.no_progress,
         resume=not args.fresh,
+        backend=args.backend,
+        ray_address=args.ray_address,
     )
     print((result.out_dir / "summary.md").read_text(), end="")
     print(f"results in {result.out_dir}")

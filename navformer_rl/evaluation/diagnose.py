@@ -26,7 +26,6 @@ import os
 import time
 import warnings
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -35,10 +34,10 @@ from navformer_rl.evaluation.diagnose_runner import TraceRunner, TraceTask, _ini
 from navformer_rl.evaluation.diagnose_trace import TRACE_VERSION, load_trace, save_trace
 from navformer_rl.evaluation.episodes import EpisodeSet, load_episode_set
 from navformer_rl.evaluation.policy_spec import CHECKPOINT_METHODS, PolicySpec
+from navformer_rl.utils.backends import LocalPool, run_units
 from navformer_rl.utils.checks import check_int
 from navformer_rl.utils.devices import resolve_device
 from navformer_rl.utils.durable import atomic_write_json, atomic_write_text, folder_lock
-from navformer_rl.utils.interrupts import spawn_context
 
 FORMAT = "navformer_rl.diagnosis"
 FORMAT_VERSION = 1
@@ -302,21 +301,10 @@ def _run_tasks(
             finally:
                 runner.close()
                 torch.set_num_threads(threads)
-        else:
-            pool = ProcessPoolExecutor(
-                max_workers=min(workers, len(todo)),
-                mp_context=spawn_context(),
-                initializer=_init_worker,
-                initargs=(spec, max_steps),
-            )
-            try:
-                for future in as_completed([pool.submit(_run_in_worker, task) for task in todo]):
-                    future.result()
+        else:  # on an error or Ctrl-C the pool stops the rest; finished traces are stored
+            with LocalPool(min(workers, len(todo)), _init_worker, (spec, max_steps)) as pool:
+                for _ in run_units(pool, _run_in_worker, ((task, (task,)) for task in todo)):
                     bar.update(1)
-            except BaseException:
-                pool.shutdown(wait=True, cancel_futures=True)  # finished traces are stored; stop the rest
-                raise
-            pool.shutdown()
     finally:
         bar.close()
     return len(todo)

@@ -1,10 +1,12 @@
 """Fixed, versioned evaluation episode sets, saved as JSON, so every method faces the same episodes.
 
 Paper protocol (§VII.A): 60 trials per setup, a new maze every 10 trials, sizes {7.5, 12.5, 17.5} m x
-{2, 4, 6} robots (Table I); Table III: 12.5 m, 4 robots, with Jackal ("seen") or TurtleBot3 ("unseen")
-dynamic obstacles; Table IV: the ablations on 12.5 m, 4 robots. Within one maze every trial draws new
-targets (shape, colour, position) and new robot starts ("robots were randomly located ... target object
-locations were randomly chosen").
+{2, 4, 6} robots (Table I); Table II (§VII.B): 30 trials in each furnished out-of-distribution world kind
+(``bookstore``, ``cafe``, ``house``, :mod:`navformer_rl.envs.furnished`) with 3 Jackals, a new furniture
+layout every 10 trials (the paper had one fixed world per kind); Table III: 12.5 m, 4 robots, with Jackal
+("seen") or TurtleBot3 ("unseen") dynamic obstacles; Table IV: the ablations on 12.5 m, 4 robots. Within one
+world every trial draws new targets (shape, colour, position) and new robot starts ("robots were randomly
+located ... target object locations were randomly chosen").
 
 File format (``FORMAT`` / ``FORMAT_VERSION``)::
 
@@ -12,7 +14,8 @@ File format (``FORMAT`` / ``FORMAT_VERSION``)::
      "generation": {protocol, seed, trials_per_setup, trials_per_world, package_version},
      "content_sha256": sha256 of the canonical JSON of every other field,
      "episodes": [{"episode_id", "setup", "size", "n_robots", "world_index", "trial",
-                   "world": {"config": WorldConfig fields, "seed", "walls_sha256"},
+                   "world": {"config": WorldConfig fields (kind: maze or a furnished kind), "seed",
+                             "walls_sha256"},
                    "robots": [style per robot], "measured": [bool per robot],
                    "starts": [[x, y, yaw] per robot],
                    "targets": [{"position": [x, y], "shape", "color"} per robot],
@@ -33,6 +36,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +44,15 @@ from typing import Any
 
 import numpy as np
 
-from navformer_rl.constants import EVAL_ROBOT_COUNTS, EVAL_SIZES, MAX_EPISODE_STEPS, SUCCESS_RADIUS
+from navformer_rl.constants import (
+    EVAL_ROBOT_COUNTS,
+    EVAL_SIZES,
+    FURNISHED_FOOTPRINTS,
+    MAX_EPISODE_STEPS,
+    SUCCESS_RADIUS,
+    TABLE2_ROBOTS,
+    TABLE2_TRIALS_PER_KIND,
+)
 from navformer_rl.utils.durable import atomic_write_text
 
 FORMAT = "navformer_rl.episode_set"
@@ -50,19 +62,24 @@ SHORTEST_PATH_REACH = 5
 """The grid graph of SPL's l (``OccupancyMap`` module docstring): straight moves of up to 5 cells in 40
 directions; in free space at most 0.49 % longer than the straight line between the same cells (8.2 % for
 the 8-connected grid), on Table I mazes within 0.46 % of moves of up to 12 cells."""
-PROTOCOLS = ("table1", "table3", "table4", "smoke")
+PROTOCOLS = ("table1", "table2", "table3", "table4", "smoke")
 PAPER_TRIALS_PER_SETUP = 60
 PAPER_TRIALS_PER_WORLD = 10
+PROTOCOL_TRIALS: dict[str, tuple[int, int]] = {"table2": (TABLE2_TRIALS_PER_KIND, PAPER_TRIALS_PER_WORLD)}
+"""``(trials per setup, trials per world)`` of a protocol when not given; the others use
+``(PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD)``."""
 
 
 @dataclass(frozen=True)
 class Setup:
-    """One experiment setup: world size, robot styles (one per robot) and which robots are measured."""
+    """One experiment setup: world size, robot styles (one per robot), which robots are measured, and the
+    world ``kind`` (``"maze"``, or a furnished kind whose ``size`` is ``max`` of its footprint)."""
 
     name: str
     size: float
     robots: tuple[str, ...]
     measured: tuple[bool, ...]
+    kind: str = "maze"
 
     @property
     def n_robots(self) -> int:
@@ -78,6 +95,15 @@ def table1_setups() -> list[Setup]:
     ]
 
 
+def table2_setups() -> list[Setup]:
+    """Table II: three Jackal robots, every robot measured, in each furnished world kind (setup = kind)."""
+    return [
+        Setup(kind, float(max(FURNISHED_FOOTPRINTS[kind])), ("jackal",) * TABLE2_ROBOTS, (True,) * TABLE2_ROBOTS,
+              kind)
+        for kind in FURNISHED_FOOTPRINTS
+    ]  # fmt: skip
+
+
 def table3_setups() -> list[Setup]:
     """Table III (12.5 m, 4 robots): one Jackal plus three Jackal ("seen") or TurtleBot3 ("unseen")
     dynamic obstacles. Seen: all four Jackals are measured (the paper's seen row equals its Table I
@@ -89,9 +115,11 @@ def table3_setups() -> list[Setup]:
 
 
 def protocol_setups(protocol: str) -> list[Setup]:
-    """The setups of a named protocol (``table1``, ``table3``, ``table4``, ``smoke``)."""
+    """The setups of a named protocol (``table1``, ``table2``, ``table3``, ``table4``, ``smoke``)."""
     if protocol == "table1":
         return table1_setups()
+    if protocol == "table2":
+        return table2_setups()
     if protocol == "table3":
         return table3_setups()
     if protocol == "table4":
@@ -285,9 +313,10 @@ def make_episode_set(
 ) -> EpisodeSet:
     """Generate an episode set (deterministic in all arguments but ``workers``, which does not change it).
 
-    Each setup gets ``ceil(trials_per_setup / trials_per_world)`` mazes; world ``k`` of a setup has seed
-    drawn from ``SeedSequence([seed, size_cm, n_robots, k])``, so setups with the same size and robot count
-    share their episodes across protocols (e.g. Table I 12.5 m / 4 robots = Table IV = Table III "seen").
+    Each setup gets ``ceil(trials_per_setup / trials_per_world)`` worlds; world ``k`` of a maze setup has
+    seed drawn from ``SeedSequence([seed, size_cm, n_robots, k])``, so setups with the same size and robot
+    count share their episodes across protocols (e.g. Table I 12.5 m / 4 robots = Table IV = Table III
+    "seen"); a furnished setup's seed also mixes in its kind.
     Most of the time goes into SPL's shortest paths (~0.5 s per Table I episode); ``workers > 1`` makes the
     worlds in that many spawned processes.
     """
@@ -325,7 +354,7 @@ def make_episode_set(
         "seed": int(seed),
         "trials_per_setup": int(trials_per_setup),
         "trials_per_world": int(trials_per_world),
-        "setups": [dataclasses.asdict(s) for s in setups],
+        "setups": [_setup_record(s) for s in setups],
         "package_version": __version__,
     }
     generation = json.loads(json.dumps(generation))  # the form it takes after a save / load round trip
@@ -334,8 +363,8 @@ def make_episode_set(
 
 def make_protocol_episodes(
     protocol: str,
-    trials_per_setup: int = PAPER_TRIALS_PER_SETUP,
-    trials_per_world: int = PAPER_TRIALS_PER_WORLD,
+    trials_per_setup: int | None = None,
+    trials_per_world: int | None = None,
     seed: int = 0,
     max_steps: int = MAX_EPISODE_STEPS,
     workers: int = 1,
@@ -343,8 +372,12 @@ def make_protocol_episodes(
 ) -> EpisodeSet:
     """:func:`make_episode_set` for a named protocol (see :func:`protocol_setups`), or for only the setups it
     names in ``setups`` (e.g. ``["7.5m-2r", "12.5m-4r"]`` of ``table1``; ValueError for a name the protocol
-    lacks). A setup's episodes do not depend on which other setups are made."""
+    lacks). A setup's episodes do not depend on which other setups are made. ``trials_per_setup`` /
+    ``trials_per_world`` None: the protocol's (:func:`protocol_trials`: 60 / 10, Table II 30 / 10)."""
     chosen = protocol_setups(protocol)
+    default_setup, default_world = protocol_trials(protocol)
+    trials_per_setup = default_setup if trials_per_setup is None else trials_per_setup
+    trials_per_world = default_world if trials_per_world is None else trials_per_world
     if setups is not None:
         names = [s.name for s in chosen]
         unknown = [name for name in setups if name not in names]
@@ -363,6 +396,13 @@ def make_protocol_episodes(
         protocol,
         workers=workers,
     )
+
+
+def protocol_trials(protocol: str) -> tuple[int, int]:
+    """``(trials per setup, trials per world)`` of a protocol: Table II 30 / 10, the others the paper's 60 /
+    10. ValueError for an unknown protocol."""
+    protocol_setups(protocol)
+    return PROTOCOL_TRIALS.get(protocol, (PAPER_TRIALS_PER_SETUP, PAPER_TRIALS_PER_WORLD))
 
 
 def save_episode_set(episode_set: EpisodeSet, path: str | os.PathLike) -> Path:
@@ -428,6 +468,15 @@ def _world_config(fields: dict[str, Any]):
     return WorldConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
 
 
+def _setup_record(setup: Setup) -> dict[str, Any]:
+    """A setup's fields for ``generation.setups``; a maze setup's record leaves out its kind (maze sets keep
+    the content hash they had before furnished kinds existed)."""
+    record = dataclasses.asdict(setup)
+    if record["kind"] == "maze":
+        del record["kind"]
+    return record
+
+
 def _jsonable(value: Any) -> Any:
     if isinstance(value, tuple | list):
         return [_jsonable(v) for v in value]
@@ -444,20 +493,23 @@ def _make_world_episodes(world: tuple[Setup, int, int, tuple[int, ...]]) -> list
 
 
 def _make_world(setup: Setup, world_index: int, seed: int):
-    """The maze (a ``WorldSpec``) of world ``world_index`` of ``setup``."""
+    """The world (a ``WorldSpec``: a maze or a furnished kind) of world ``world_index`` of ``setup``."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.world import WorldConfig, generate_world
 
     radius = max(get_robot_spec(style).radius for style in setup.robots)
-    config = WorldConfig(size=setup.size, kind="maze", n_robots=setup.n_robots, robot_radius=radius)
-    world_rng = np.random.default_rng(
-        np.random.SeedSequence([seed, round(setup.size * 100), setup.n_robots, world_index])
-    )
+    config = WorldConfig(size=setup.size, kind=setup.kind, n_robots=setup.n_robots, robot_radius=radius)
+    entropy = [seed, round(setup.size * 100), setup.n_robots, world_index]
+    if setup.kind != "maze":
+        entropy.append(zlib.crc32(setup.kind.encode()))
+    world_rng = np.random.default_rng(np.random.SeedSequence(entropy))
     return generate_world(config, int(world_rng.integers(2**31)))
 
 
 def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
-    """Draw the layout of ``trial`` in the maze ``base`` (a ``WorldSpec``): targets, then starts."""
+    """Draw the layout of ``trial`` in the world ``base`` (a ``WorldSpec``): targets, then starts. A furnished
+    world's free space is connected for the robots, so its targets may stand in any room (not only in the
+    largest open area)."""
     from navformer_rl.envs.occupancy import OccupancyMap
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.world import (
@@ -477,7 +529,10 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
     chosen = rng.permutation(len(pairs))[: setup.n_robots]
     wall_map = OccupancyMap.from_shapes(config.size, OCCUPANCY_RESOLUTION, base.walls)
     target_clearance = max(TARGET_HALF_EXTENT.values()) + 2 * config.robot_radius + 0.05
-    positions = sample_free_positions(wall_map, setup.n_robots, target_clearance, 2.0, rng)
+    maze_like = config.kind not in FURNISHED_FOOTPRINTS
+    positions = sample_free_positions(
+        wall_map, setup.n_robots, target_clearance, 2.0, rng, largest_only=maze_like
+    )
     targets = [
         TargetSpec(position=positions[i].astype(np.float32), shape=pairs[k][0], color=pairs[k][1])
         for i, k in enumerate(chosen)

@@ -20,9 +20,12 @@ every robot driven by the evaluated method (paper §VII.A), measures each robot-
   interrupted run resumes where it stopped (``resume=True``, the default, reuses the rows whose method,
   label, checkpoint weights, seed, trial length, episode and visuals are the same).
 
-Episodes run in ``workers`` spawned processes (one env per robot line-up and one policy per process);
-each episode's result depends only on the episode (its world, layout and seed) and the method, never on
-which worker ran it or in which order, so any worker count gives the same records.
+Episodes run in ``workers`` spawned processes (one env per robot line-up and one policy per process), or
+with ``backend="ray"`` as Ray tasks (:mod:`navformer_rl.utils.backends`): each task runs its episode in a
+scratch folder of the machine that runs it and returns its rows and the bytes of its map and video, which
+this process writes where a local worker would have. Each episode's result depends only on the episode (its
+world, layout and seed) and the method, never on which worker or backend ran it or in which order, so any
+worker count and either backend give the same records (and resume each other's runs).
 
 This module orchestrates: it checks the arguments, makes the tasks, reuses stored episode results, runs
 the rest (here or in the worker pool), removes stale outputs and writes the files above. The policy recipe
@@ -38,10 +41,10 @@ import json
 import math
 import os
 import re
+import tempfile
 import time
 import warnings
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -66,10 +69,10 @@ from navformer_rl.evaluation.runner import (
     make_eval_env,
 )
 from navformer_rl.evaluation.tables import SetupSummary, records_to_jsonl, write_summary_files
+from navformer_rl.utils.backends import check_backend, open_backend, run_units
 from navformer_rl.utils.checks import check_int
 from navformer_rl.utils.devices import resolve_device
-from navformer_rl.utils.durable import atomic_write_text, folder_lock
-from navformer_rl.utils.interrupts import spawn_context
+from navformer_rl.utils.durable import atomic_path, atomic_write_text, folder_lock
 from navformer_rl.utils.mp4 import ffmpeg_executable
 
 __all__ = [
@@ -123,6 +126,8 @@ def evaluate(
     device: str = "cpu",
     progress: bool = True,
     resume: bool = True,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> EvaluationResult:
     """Run ``method`` on every episode of ``episode_set`` and write the outputs (module docstring).
 
@@ -138,7 +143,7 @@ def evaluate(
             once, at the start, to one checkpoint folder (a run dir: its latest), which ``run.json`` names
             (a run still training with ``checkpoint.keep_last`` may delete that folder before the workers
             load it: they then fail; evaluate a finished run or a copied checkpoint).
-        workers: processes (>= 1; 1 runs in this process).
+        workers: processes (>= 1; 1 runs in this process), or Ray tasks at once with ``backend="ray"``.
         label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation). A
             label naming a training ablation must match the checkpoint's (ValueError before any episode
             runs, see :func:`label_ablation_problem`); other labels (``navformer-seed1``) are free.
@@ -159,10 +164,17 @@ def evaluate(
         resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
             the same method (your own policy: the same factory), label, checkpoint weights, seed, trial length, video_fps and package version (an
             interrupted run picks up where it stopped); False recomputes everything.
+        backend: where episodes run: ``local`` (default: ``workers`` processes here) or ``ray`` (Ray tasks,
+            ``pip install "navformer_rl[distributed]"``; the model on the CPU only); ValueError otherwise.
+        ray_address: with ``ray``: the cluster to join (``auto``, ``ray://host:10001``; default
+            ``$RAY_ADDRESS``, else a local Ray instance with ``workers`` CPUs, shut down at the end). Every
+            node needs navformer_rl installed and, for ``navformer`` / ``dt``, the checkpoint at the same
+            path.
     """
     invoked = time.perf_counter()
     episode_set = _checked_episode_set(episode_set)
     workers = _check_options(workers, maps_per_setup, videos_per_setup, video_fps, confidence, cluster)
+    check_backend(backend)
     if callable(method):
         factory, method = method, getattr(method, "__name__", "custom")
     else:
@@ -171,10 +183,15 @@ def evaluate(
     spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory, device)
     label = label or method
     description = spec.validate(label)
+    model_device = _model_device(method, factory, device)
+    if backend == "ray" and model_device not in (None, "cpu"):
+        raise ValueError(
+            f"device={device!r} with backend='ray': Ray tasks run the model on the CPU; use device='cpu', "
+            "or the local backend for a GPU"
+        )
     out_dir = Path(out_dir)
     with folder_lock(out_dir, LOCK_FILENAME, "evaluated"):  # one evaluation per folder at a time
         _prepare_folder(out_dir, label, episode_set)
-        model_device = _model_device(method, factory, device)
         identity = _resume_identity(
             method, label, int(seed), episode_set.max_steps, description, model_device
         )
@@ -183,7 +200,16 @@ def evaluate(
             episode_set, out_dir, label, maps_per_setup, videos_per_setup, video_fps, identity
         )
         outputs, computed = _run_tasks(
-            tasks, spec, episode_set.max_steps, video_fps, workers, progress, label, resume
+            tasks,
+            spec,
+            episode_set.max_steps,
+            video_fps,
+            workers,
+            progress,
+            label,
+            resume,
+            backend,
+            ray_address,
         )
         _remove_stale_outputs(out_dir, tasks, outputs)
         records, summaries, files = _write_results(out_dir, label, episode_set, outputs, confidence, cluster)
@@ -193,6 +219,7 @@ def evaluate(
             "checkpoint": spec.checkpoint,
             "seed": int(seed),
             "workers": workers,
+            "backend": backend,
             "episode_set": _episode_set_entry(episode_set),
             "confidence": confidence,
             "cluster": cluster,
@@ -508,13 +535,17 @@ def _run_tasks(
     progress: bool,
     label: str,
     resume: bool,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> tuple[list[dict[str, Any]], int]:
     """Every task's output (stored ones reused when ``resume``) and how many tasks were run.
 
     Each output run here gets ``seconds`` (the episode's own run time, in the process that ran it) and
     ``wall_seconds`` (wall-clock time from the previous episode's finish, or the start, to its own: summed
     over the episodes of a run, the run's wall time without what an interruption discarded); both are stored
-    with the episode, so a resumed run still reports the time that computed a reused one.
+    with the episode, so a resumed run still reports the time that computed a reused one. On an error or a
+    Ctrl-C the episodes not started are dropped (finished ones are already stored for resuming) and the
+    running ones end before this returns, so nothing writes into the folder once its lock is released.
     """
     from tqdm.auto import tqdm
 
@@ -545,7 +576,7 @@ def _run_tasks(
     try:
         if not todo:
             pass
-        elif workers == 1:
+        elif workers == 1 and backend == "local":
             import torch
 
             threads = torch.get_num_threads()
@@ -558,23 +589,57 @@ def _run_tasks(
                 runner.close()
                 torch.set_num_threads(threads)
         else:
-            pool = ProcessPoolExecutor(
-                max_workers=min(workers, len(todo)),
-                mp_context=spawn_context(),  # workers leave Ctrl-C to this process until initialised
+            with open_backend(
+                backend,
+                min(workers, len(todo)),
+                # local workers build their runner once (and end quietly on Ctrl-C); Ray tasks: _run_remotely
                 initializer=_init_worker,
                 initargs=(spec, max_steps, video_fps),
-            )
-            try:
-                futures = {pool.submit(_run_in_worker, task): task for task in todo}
-                for future in as_completed(futures):
-                    finish(futures[future], future.result())
-            except BaseException:
-                # An error or Ctrl-C: drop the queued episodes instead of running them all first (finished
-                # ones are already stored for resuming), and wait for the running ones (a Ctrl-C ends the
-                # workers too), so that nothing writes into the folder once its lock is released.
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
-            pool.shutdown()
+                address=ray_address,
+            ) as pool:
+                if pool.remote:
+                    units = ((task, (spec, max_steps, video_fps, task)) for task in todo)
+                    for task, (output, visuals) in run_units(pool, _run_remotely, units):
+                        _write_visuals(Path(task.out_dir), visuals)
+                        finish(task, output)
+                else:
+                    for task, output in run_units(pool, _run_in_worker, ((task, (task,)) for task in todo)):
+                        finish(task, output)
     finally:
         bar.close()
     return [r for r in results if r is not None], len(todo)
+
+
+_REMOTE_RUNNER: tuple[tuple[Any, ...], EpisodeRunner] | None = None
+"""The :class:`EpisodeRunner` of this Ray worker process, with the arguments that built it."""
+
+
+def _run_remotely(
+    spec: PolicySpec, max_steps: int, video_fps: float, task: EpisodeTask
+) -> tuple[dict[str, Any], dict[str, bytes]]:
+    """A Ray task: run ``task`` in a scratch folder on the machine that runs it; returns the output of
+    :func:`_timed_run` and the bytes of its maps and videos by their names in the output folder. The
+    runner is built once per worker process (one torch thread, as the local workers) and reused."""
+    global _REMOTE_RUNNER
+    key = (spec, max_steps, video_fps)
+    if _REMOTE_RUNNER is None or _REMOTE_RUNNER[0] != key:
+        import torch
+
+        if _REMOTE_RUNNER is not None:
+            _REMOTE_RUNNER[1].close()
+            _REMOTE_RUNNER = None
+        torch.set_num_threads(1)
+        _REMOTE_RUNNER = (key, EpisodeRunner(spec, max_steps, video_fps))
+    with tempfile.TemporaryDirectory(prefix="navformer-evaluate-") as scratch:
+        output = _timed_run(_REMOTE_RUNNER[1], dataclasses.replace(task, out_dir=scratch))
+        visuals = {name: (Path(scratch) / name).read_bytes() for name in output["maps"] + output["videos"]}
+    return output, visuals
+
+
+def _write_visuals(out_dir: Path, visuals: dict[str, bytes]) -> None:
+    """Write the maps and videos a Ray task returned (name relative to ``out_dir`` -> bytes), atomically."""
+    for name, data in visuals.items():
+        path = out_dir / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)

@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 from navformer_rl.data.collect import collect, default_workers, settings_for
 from navformer_rl.data.dataset import open_dataset
 from navformer_rl.data.schema import DatasetKind
+from navformer_rl.utils.backends import session
 
 # recipes/ holds recipe_errors.py, which the recipes share
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -45,10 +46,21 @@ def main(cfg) -> None:
     # and exit status 2 (NAVFORMER_DEBUG=1: the traceback)
     with user_errors("collect.py"):
         workers = default_workers() if cfg.workers is None else int(cfg.workers)
-        for kind, out, settings in make_jobs(cfg):
-            path = collect(kind, out, settings, workers=workers, progress=cfg.progress)
-            meta = open_dataset(path, kind).metadata
-            print(f"{kind.value}: {path}  counts={meta['counts']}")
+        backend, address = str(cfg.backend), cfg.ray_address
+        jobs = make_jobs(cfg)
+        with session(backend, workers, address):  # one Ray session for every kind of kind=all
+            for kind, out, settings in jobs:
+                path = collect(
+                    kind,
+                    out,
+                    settings,
+                    workers=workers,
+                    progress=cfg.progress,
+                    backend=backend,
+                    ray_address=address,
+                )
+                meta = open_dataset(path, kind).metadata
+                print(f"{kind.value}: {path}  counts={meta['counts']}")
 
 
 if __name__ == "__main__":

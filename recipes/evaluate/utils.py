@@ -18,6 +18,7 @@ from navformer_rl.evaluation.episodes import (
 )
 from navformer_rl.evaluation.harness import EvaluationResult, PolicySpec, evaluate
 from navformer_rl.evaluation.measures import check_cluster
+from navformer_rl.utils.backends import check_backend
 
 GENERATION_DEFAULTS = {
     "trials_per_setup": PAPER_TRIALS_PER_SETUP,
@@ -31,9 +32,11 @@ null gets."""
 
 def check_policy(cfg: DictConfig) -> None:
     """Refuse (ValueError) an unknown method, a missing or unreadable checkpoint, a label naming a training
-    ablation the checkpoint was not trained with, an unknown ``cluster`` or an unusable ``device``; the recipe calls it first, before
-    it prints the output folder and generates episodes (``PolicySpec.validate`` loads the checkpoint)."""
+    ablation the checkpoint was not trained with, an unknown ``cluster`` or ``backend`` (or ``ray`` without
+    ray installed) or an unusable ``device``; the recipe calls it first, before it prints the output folder
+    and generates episodes (``PolicySpec.validate`` loads the checkpoint)."""
     check_cluster(str(cfg.cluster))
+    check_backend(str(cfg.backend))
     PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed), device=str(cfg.device)).validate(cfg.label)
 
 
@@ -50,7 +53,10 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
             )
         return load_episode_set(cfg.episodes)
     values = [int(GENERATION_DEFAULTS[n] if v is None else v) for n, v in generation.items()]
-    return make_protocol_episodes(cfg.protocol, *values, workers=int(cfg.workers), setups=setups)
+    workers = int(cfg.workers)
+    if str(cfg.backend) != "local":  # generated here: with Ray, `workers` may count a cluster's CPUs
+        workers = min(workers, len(os.sched_getaffinity(0)))
+    return make_protocol_episodes(cfg.protocol, *values, workers=workers, setups=setups)
 
 
 def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult:
@@ -69,6 +75,8 @@ def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult
         device=str(cfg.device),
         progress=bool(cfg.progress),
         resume=bool(cfg.resume),
+        backend=str(cfg.backend),
+        ray_address=cfg.ray_address,
     )
 
 

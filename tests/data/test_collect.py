@@ -154,12 +154,13 @@ NOT_SHAPING_DATA = {
     "utils/__init__.py",
     "utils/durable.py",
     "utils/interrupts.py",
+    "utils/backends.py",
     "utils/mp4.py",
     "data/writer.py",
     "data/versions.py",
 }
-"""Package modules imported by the collection code that only move bytes, draw, handle Ctrl-C, or give the
-version."""
+"""Package modules imported by the collection code that only move bytes, draw, handle Ctrl-C, schedule the
+work units, or give the version."""
 
 
 def _package_imports(file: Path) -> set[str]:

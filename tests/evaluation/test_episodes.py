@@ -178,3 +178,41 @@ def test_same_size_and_robot_count_share_episodes_across_protocols():
     # Robot 0 is a Jackal in both; the TurtleBot3s' paths use their own (smaller) clearance.
     assert ea.shortest_paths[0] == eb.shortest_paths[0]
     assert ea.shortest_paths[1:] != eb.shortest_paths[1:]
+
+
+def test_table2_protocol():
+    from navformer_rl.evaluation.episodes import protocol_trials
+
+    setups = protocol_setups("table2")
+    assert [(s.name, s.kind, s.size) for s in setups] == [
+        ("bookstore", "bookstore", 15.6),
+        ("cafe", "cafe", 23.1),
+        ("house", "house", 19.0),
+    ]
+    assert all(s.robots == ("jackal",) * 3 and s.measured == (True,) * 3 for s in setups)
+    assert protocol_trials("table2") == (30, 10) and protocol_trials("table1") == (60, 10)
+    with pytest.raises(ValueError, match="unknown protocol"):
+        protocol_trials("table9")
+
+
+def test_table2_episodes_carry_their_world_kind(tmp_path):
+    """A furnished episode rebuilds its world (kind in the record) for the harness like a maze episode."""
+    from navformer_rl.evaluation.episodes import make_protocol_episodes
+
+    made = make_protocol_episodes("table2", trials_per_setup=1, seed=2, setups=["house"])
+    assert made.generation["setups"][0]["kind"] == "house"
+    assert "kind" not in make_episode_set([SETUP], trials_per_setup=1).generation["setups"][0]
+    (episode,) = load_episode_set(save_episode_set(made, tmp_path / "t2.json")).episodes
+    assert episode.episode_id == "house/w00t00" and episode.size == 19.0 and episode.n_robots == 3
+    assert episode.world_config["kind"] == "house"
+    world = episode.world_spec().build()
+    episode.check_world(world)
+    assert world.kind == "house" and world.style is not None
+    np.testing.assert_allclose(world.starts, np.array(episode.starts, dtype=np.float32))
+    for i in range(3):
+        xy = np.array(episode.starts[i][:2])
+        assert world.shortest_path_length(xy, i, clearance=0.30, reach=5) == pytest.approx(
+            episode.shortest_paths[i]
+        )
+        assert np.hypot(*(xy - world.targets[i].position)) > 1.5
+    assert len({(t["shape"], t["color"]) for t in episode.targets}) == 3
