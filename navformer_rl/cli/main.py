@@ -27,6 +27,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.data.cli",
     "navformer_rl.training.cli",
     "navformer_rl.training.validate_cli",
+    "navformer_rl.online.cli",
     "navformer_rl.evaluation.cli",
     "navformer_rl.pretrained.cli",
     "navformer_rl.export.cli",

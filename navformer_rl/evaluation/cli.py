@@ -43,7 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--checkpoint",
         help="navformer, dt: a run dir, its checkpoints/ or checkpoints/latest, a checkpoint folder "
         "(checkpoints/iter_XXXXXX) or its model.safetensors; or shipped weights: pretrained:navformer, "
-        "pretrained:dt (`navformer pretrained list`)",
+        "pretrained:dt (`navformer pretrained list`); dsac, matdn: a `navformer train-ppo` run dir or one "
+        "of its checkpoint folders",
     )
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--episodes", type=Path, help="episode-set JSON file (from `evaluate make-episodes`)")

@@ -55,6 +55,7 @@ from navformer_rl.evaluation.measures import RobotTrial, check_cluster
 from navformer_rl.evaluation.policy_spec import (
     CHECKPOINT_METHODS,
     METHODS,
+    ONLINE_METHODS,
     PolicySpec,
     checkpoint_ablation,
     label_ablation_problem,
@@ -276,9 +277,10 @@ def _check_options(
 def _resolved_checkpoint(
     method: str, factory: Callable[[], Any] | None, checkpoint: str | os.PathLike | None
 ) -> str | os.PathLike | None:
-    """For ``navformer`` / ``dt``: one concrete checkpoint folder for the checks, ``run.json`` and every
-    worker (a run directory's latest, fixed now even while that run keeps training); else ``checkpoint``."""
-    if checkpoint is None or factory is not None or method not in CHECKPOINT_METHODS:
+    """For ``navformer`` / ``dt`` / ``dsac`` / ``matdn``: one concrete checkpoint folder for the checks,
+    ``run.json`` and every worker (a run directory's latest, fixed now even while that run keeps training);
+    else ``checkpoint``."""
+    if checkpoint is None or factory is not None or method not in (*CHECKPOINT_METHODS, *ONLINE_METHODS):
         return checkpoint
     from navformer_rl.training.checkpoint import resolve_checkpoint
 

@@ -21,9 +21,14 @@ from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4
 from navformer_rl.tasks import label_ablation
 from navformer_rl.utils.devices import check_device, resolve_device
 
-METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca")
-"""Methods the harness can run. ``navformer`` / ``dt`` need a checkpoint."""
+METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca", "dsac", "matdn")
+"""Methods the harness can run. ``navformer`` / ``dt`` (training checkpoints) and ``dsac`` / ``matdn`` (PPO
+checkpoints, ``navformer train-ppo``) need a checkpoint."""
 CHECKPOINT_METHODS = ("navformer", "dt")
+"""The methods whose checkpoint holds a ``NavFormerModel`` (run by ``NavFormerPolicy``)."""
+ONLINE_METHODS = ("dsac", "matdn")
+"""The baselines trained online with PPO (:mod:`navformer_rl.baselines.online`); mirrors its
+``ONLINE_METHODS`` (not imported here: this module stays free of torch)."""
 TRAIN_CONFIG_FILENAME = "train_config.json"
 """The resolved training configuration a training run writes into its run directory."""
 
@@ -35,10 +40,10 @@ class PolicySpec:
     Attributes:
         method: one of :data:`METHODS`.
         checkpoint: run dir / checkpoint folder / ``model.safetensors`` / ``pretrained:NAME`` (shipped weights)
-            for ``navformer`` and ``dt``.
+            for ``navformer`` and ``dt``; a PPO run dir / checkpoint folder for ``dsac`` and ``matdn``.
         seed: base seed of stochastic policies (VRW, FCA's noise); each episode adds its own seed.
         device: where ``navformer`` / ``dt`` run their model (``cpu``, ``cuda``, ``cuda:N``, ``auto``); the
-            other methods have no model and ignore it.
+            other methods ignore it (``dsac`` / ``matdn`` run their small networks on the CPU).
     """
 
     method: str
@@ -73,7 +78,9 @@ class PolicySpec:
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
         description: dict[str, Any] = {}
-        if self.method in CHECKPOINT_METHODS:
+        if self.method in ONLINE_METHODS:
+            description = self._validate_online()
+        elif self.method in CHECKPOINT_METHODS:
             if self.checkpoint is None:
                 raise ValueError(
                     f"method {self.method!r} needs a checkpoint: a run directory, a checkpoint folder or "
@@ -104,6 +111,24 @@ class PolicySpec:
             raise ValueError(problem)
         return description
 
+    def _validate_online(self) -> dict[str, Any]:
+        """Load a ``dsac`` / ``matdn`` PPO checkpoint once (ValueError / FileNotFoundError saying why not);
+        its description for ``run.json``."""
+        if self.checkpoint is None:
+            raise ValueError(
+                f"method {self.method!r} needs a checkpoint: the run directory of `navformer train-ppo "
+                f"method={self.method}` or one of its checkpoint folders (CLI --checkpoint PATH)"
+            )
+        from navformer_rl.baselines.online import load_online_policy
+        from navformer_rl.training.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
+
+        _, config = load_online_policy(self.checkpoint, self.method)
+        weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
+        return {
+            "model_config": {"method": self.method, **config.to_dict()},
+            "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
+        }
+
     def _load_checkpoint(self):
         """``(NavFormerPolicy on the CPU, NavFormerConfig)`` of ``navformer`` / ``dt``."""
         from navformer_rl.baselines.dt import load_dt_policy
@@ -116,6 +141,10 @@ class PolicySpec:
         """``(policy, model config or None)``; a ``navformer`` / ``dt`` policy's model on :attr:`device`."""
         if self.factory is not None:
             return self.factory(), None
+        if self.method in ONLINE_METHODS:
+            from navformer_rl.baselines.online import load_online_policy
+
+            return load_online_policy(self.checkpoint, self.method)  # small CNNs: on the CPU, beside the env
         if self.method in CHECKPOINT_METHODS:
             policy, config = self._load_checkpoint()
             policy.native = self.native

@@ -10,24 +10,23 @@ from omegaconf import DictConfig
 
 from navformer_rl.constants import MAX_EPISODE_STEPS
 from navformer_rl.evaluation.episodes import (
-    PAPER_TRIALS_PER_SETUP,
-    PAPER_TRIALS_PER_WORLD,
     EpisodeSet,
     load_episode_set,
     make_protocol_episodes,
+    protocol_trials,
 )
 from navformer_rl.evaluation.harness import EvaluationResult, PolicySpec, evaluate
 from navformer_rl.evaluation.measures import check_cluster
 from navformer_rl.utils.backends import check_backend
 
 GENERATION_DEFAULTS = {
-    "trials_per_setup": PAPER_TRIALS_PER_SETUP,
-    "trials_per_world": PAPER_TRIALS_PER_WORLD,
+    "trials_per_setup": None,
+    "trials_per_world": None,
     "episode_seed": 0,
     "max_steps": MAX_EPISODE_STEPS,
 }
 """The config keys that shape generated episodes (in ``make_protocol_episodes``' order), with the value a
-null gets."""
+null gets (None: the protocol's own, :func:`~navformer_rl.evaluation.episodes.protocol_trials`)."""
 
 
 def check_policy(cfg: DictConfig) -> None:
@@ -52,7 +51,11 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
                 "seeds and steps per trial"
             )
         return load_episode_set(cfg.episodes)
-    values = [int(GENERATION_DEFAULTS[n] if v is None else v) for n, v in generation.items()]
+    defaults = {
+        **GENERATION_DEFAULTS,
+        **dict(zip(("trials_per_setup", "trials_per_world"), protocol_trials(cfg.protocol))),
+    }
+    values = [int(defaults[n] if v is None else v) for n, v in generation.items()]
     workers = int(cfg.workers)
     if str(cfg.backend) != "local":  # generated here: with Ray, `workers` may count a cluster's CPUs
         workers = min(workers, len(os.sched_getaffinity(0)))

@@ -72,13 +72,16 @@ def test_negative_seeds_are_refused_by_every_command(capsys):
 def test_cli_errors(tmp_path, capsys):
     for argv in (
         ["evaluate", "--method", "random", "--protocol", "smoke", "--out", str(tmp_path)],
-        ["evaluate", "make-episodes", "--protocol", "table2", "--out", str(tmp_path / "x.json")],
+        ["evaluate", "make-episodes", "--protocol", "table9", "--out", str(tmp_path / "x.json")],
     ):
         with pytest.raises(SystemExit):
             _run(argv)
     err = capsys.readouterr().err
-    assert "argument --method: invalid choice: 'random' (choose from 'navformer', 'dt', 'vrw', 'fca')" in err
-    assert "argument --protocol: invalid choice: 'table2'" in err
+    assert (
+        "argument --method: invalid choice: 'random' (choose from 'navformer', 'dt', 'vrw', 'fca', 'dsac', 'matdn')"
+        in err
+    )
+    assert "argument --protocol: invalid choice: 'table9'" in err
     with pytest.raises(ValueError, match="--episodes FILE or --protocol"):
         _run(["evaluate", "--method", "vrw", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="--setups: only with --protocol"):

@@ -152,9 +152,11 @@ def test_corrupt_checkpoints_name_the_file(tmp_path, tiny_episodes, checkpoints)
 
 
 def test_unknown_method_lists_the_valid_ones(tmp_path, tiny_episodes):
-    with pytest.raises(ValueError, match="unknown method 'dsac'; expected one of navformer, dt, vrw, fca"):
-        evaluate("dsac", tiny_episodes, tmp_path / "x", progress=False)
-    assert METHODS == ("navformer", "dt", "vrw", "fca")
+    with pytest.raises(
+        ValueError, match="unknown method 'a3c'; expected one of navformer, dt, vrw, fca, dsac, matdn"
+    ):
+        evaluate("a3c", tiny_episodes, tmp_path / "x", progress=False)
+    assert METHODS == ("navformer", "dt", "vrw", "fca", "dsac", "matdn")
 
 
 def test_bad_episode_file_and_worker_count(tmp_path, tiny_episodes):

@@ -1,0 +1,110 @@
+"""The Gaussian actor-critic that DSAC and MA-TDN share: a method's trunk, a policy head and a value head.
+
+Keys (the ``MultiRobotNavEnv`` group ``"agents"``, robot dimension ``A`` or a flat batch of robot-steps):
+
+- the trunk reads the method's inputs (``("agents", "pixels")``, ``("agents", "target_pixels")``, ...) and
+  writes ``("agents", "features")`` float ``[*, F]``;
+- the actor (:meth:`ActorCriticNet.actor`, a ``ProbabilisticActor``) writes ``("agents", "loc")``,
+  ``("agents", "scale")`` ``[*, 2]``, ``("agents", "action")`` float32 ``[*, 2]`` in ``[-1, 1]`` (a
+  ``TanhNormal``: a Gaussian squashed by tanh onto the env's action bounds, not clipped) and
+  ``("agents", "action_log_prob")`` ``[*]``;
+- the critic (:meth:`ActorCriticNet.critic`, the trunk then a ``ValueOperator``) writes only
+  ``("agents", "state_value")`` ``[*, 1]``.
+
+Actor and critic share the trunk (one network with two heads, as in A3C / PPO on images), so
+``ClipPPOLoss`` trains the trunk with both losses.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict.nn import (
+    AddStateIndependentNormalScale,
+    TensorDictModule,
+    TensorDictModuleBase,
+    TensorDictSequential,
+)
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
+
+AGENTS = "agents"
+PIXELS_KEY = (AGENTS, "pixels")
+TARGET_PIXELS_KEY = (AGENTS, "target_pixels")
+STEP_COUNT_KEY = (AGENTS, "step_count")
+FEATURES_KEY = (AGENTS, "features")
+LOC_KEY = (AGENTS, "loc")
+SCALE_KEY = (AGENTS, "scale")
+ACTION_KEY = (AGENTS, "action")
+LOG_PROB_KEY = (AGENTS, "action_log_prob")
+VALUE_KEY = (AGENTS, "state_value")
+ACTION_DIM = 2
+
+
+class ActorCriticNet(nn.Module):
+    """A trunk with a Gaussian policy head and a value head; one ``state_dict`` for the whole network.
+
+    Args:
+        trunk: ``TensorDictModuleBase`` writing ``("agents", "features")`` float ``[*, features]``.
+        features: the trunk's output width F.
+        init_std: initial standard deviation of the (state-independent) pre-tanh Gaussian.
+    """
+
+    def __init__(self, trunk: TensorDictModuleBase, features: int, init_std: float = 1.0) -> None:
+        super().__init__()
+        self.trunk = trunk
+        loc = nn.Linear(features, ACTION_DIM)
+        nn.init.orthogonal_(loc.weight, gain=0.01)  # near-zero initial means: every action is tried
+        nn.init.zeros_(loc.bias)
+        self.policy_head = nn.Sequential(
+            loc, AddStateIndependentNormalScale(ACTION_DIM, init_value=math.log(init_std))
+        )
+        self.value_head = nn.Linear(features, 1)
+        self._views: dict[str, TensorDictModuleBase] = {}  # not registered: no duplicate state_dict keys
+
+    def actor(self) -> ProbabilisticActor:
+        """The policy: trunk -> ``(loc, scale)`` -> ``TanhNormal`` on [-1, 1]^2 -> action and its log-prob.
+
+        Sampling follows TorchRL's exploration type (random in collectors; the mean action ``tanh(loc)``
+        under ``set_exploration_type(DETERMINISTIC)``).
+        """
+        if "actor" not in self._views:
+            head = TensorDictModule(self.policy_head, in_keys=[FEATURES_KEY], out_keys=[LOC_KEY, SCALE_KEY])
+            self._views["actor"] = ProbabilisticActor(
+                TensorDictSequential(self.trunk, head),
+                in_keys={"loc": LOC_KEY, "scale": SCALE_KEY},
+                out_keys=[ACTION_KEY],
+                spec=Bounded(-1.0, 1.0, (ACTION_DIM,)),  # one robot's action
+                distribution_class=TanhNormal,
+                distribution_kwargs={"low": -1.0, "high": 1.0},
+                return_log_prob=True,
+                log_prob_key=LOG_PROB_KEY,
+            )
+        return self._views["actor"]  # type: ignore[return-value]
+
+    def critic(self) -> TensorDictSequential:
+        """The value function: trunk -> ``ValueOperator`` -> ``("agents", "state_value")`` (its only output)."""
+        if "critic" not in self._views:
+            value = ValueOperator(self.value_head, in_keys=[FEATURES_KEY], out_keys=[VALUE_KEY])
+            self._views["critic"] = TensorDictSequential(self.trunk, value, selected_out_keys=[VALUE_KEY])
+        return self._views["critic"]  # type: ignore[return-value]
+
+    def forward(self, *args, **kwargs):  # pragma: no cover - use actor() / critic()
+        raise RuntimeError("ActorCriticNet is a container: call net.actor() or net.critic()")
+
+
+def load_state_checked(net: nn.Module, state: dict[str, torch.Tensor], source: str) -> None:
+    """``net.load_state_dict(state)`` after checking names and shapes; ValueError naming the first
+    mismatches (weights of another method or model configuration)."""
+    expected = net.state_dict()
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    wrong = sorted(k for k in set(state) & set(expected) if state[k].shape != expected[k].shape)
+    if missing or unexpected or wrong:
+        raise ValueError(
+            f"{source} does not match the network: missing {missing[:5]}, unexpected {unexpected[:5]}, "
+            f"wrong shapes {wrong[:5]}"
+        )
+    net.load_state_dict(state)
