@@ -266,7 +266,9 @@ def test_the_demo_evaluates_the_shipped_navformer_beside_its_own_models(shipped,
     assert run["label"] == "pretrained:navformer"
     assert run["checkpoint"] == str(shipped / "navformer")
     same_episodes = [
-        sorted(json.loads(line)["episode_id"] for line in (folder / "episodes.jsonl").read_text().splitlines())
+        sorted(
+            json.loads(line)["episode_id"] for line in (folder / "episodes.jsonl").read_text().splitlines()
+        )
         for folder in folders
     ]
     assert same_episodes[0] == same_episodes[1]
