@@ -98,13 +98,9 @@ class ActorCriticNet(nn.Module):
 def load_state_checked(net: nn.Module, state: dict[str, torch.Tensor], source: str) -> None:
     """``net.load_state_dict(state)`` after checking names and shapes; ValueError naming the first
     mismatches (weights of another method or model configuration)."""
-    expected = net.state_dict()
-    missing = sorted(set(expected) - set(state))
-    unexpected = sorted(set(state) - set(expected))
-    wrong = sorted(k for k in set(state) & set(expected) if state[k].shape != expected[k].shape)
-    if missing or unexpected or wrong:
-        raise ValueError(
-            f"{source} does not match the network: missing {missing[:5]}, unexpected {unexpected[:5]}, "
-            f"wrong shapes {wrong[:5]}"
-        )
+    from navformer_rl.training.checkpoint import state_dict_mismatch
+
+    mismatch = state_dict_mismatch(net.state_dict(), state)
+    if mismatch:
+        raise ValueError(f"{source} does not match the network: {mismatch}")
     net.load_state_dict(state)

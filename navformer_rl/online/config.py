@@ -291,21 +291,12 @@ def ppo_config_from_dict(values: Mapping[str, Any]) -> PPOConfig:
 def load_ppo_config(overrides: list[str] | None = None, path: str | os.PathLike | None = None) -> PPOConfig:
     """Read ``ppo.yaml`` (packaged default, or ``path``) and apply hydra-style ``key=value`` overrides
     (OmegaConf dotlist: ``method=matdn``, ``collector.num_workers=2``, ``env.sizes=[7.5]``)."""
-    import yaml
-    from omegaconf import DictConfig, OmegaConf
+    from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
-    try:
-        base = OmegaConf.load(path or default_ppo_config_path())
-    except (OSError, yaml.YAMLError) as err:
-        raise ValueError(f"--config {path}: cannot read it as YAML ({type(err).__name__}: {err})") from None
-    if not isinstance(base, DictConfig):
-        raise ValueError(
-            f"--config {path}: expected a YAML mapping of config keys, got {type(base).__name__}"
-        )
-    OmegaConf.set_struct(base, True)
-    if "model" in base:
-        OmegaConf.set_struct(base.model, False)  # the method's fields; model_config checks them
+    from navformer_rl.training.config_io import read_config_file
+
+    base = read_config_file(path, default_ppo_config_path())
     try:
         if overrides:
             bad = [item for item in overrides if "=" not in item]

@@ -134,14 +134,7 @@ def train_ppo(cfg: PPOConfig) -> PPOResult:
     from navformer_rl.utils.durable import atomic_write_text
 
     run_dir = Path(cfg.output_dir)
-    if run_dir.exists() and not run_dir.is_dir():
-        raise ValueError(f"output_dir={str(run_dir)!r} is a file; expected a folder (created if missing)")
-    latest = ckpt.latest_checkpoint(run_dir) if (run_dir / ckpt.CHECKPOINTS_DIRNAME).is_dir() else None
-    if latest is not None and not cfg.resume:
-        raise FileExistsError(
-            f"output_dir={str(run_dir)!r} already holds checkpoints (latest {latest.name}); set resume=true "
-            "to continue that run or choose another output_dir"
-        )
+    latest = ckpt.run_folder_latest(run_dir, cfg.resume)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     model_cfg = model_config(cfg)

@@ -151,6 +151,24 @@ def _latest_in(root: Path) -> Path | None:
     return target
 
 
+def run_folder_latest(run_dir: Path, resume: bool) -> Path | None:
+    """The latest checkpoint of the run folder ``run_dir``, None for a new or checkpoint-less folder.
+
+    Raises:
+        ValueError: ``run_dir`` is a file.
+        FileExistsError: ``run_dir`` holds checkpoints and ``resume`` is False (a fresh run never overwrites).
+    """
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"output_dir={str(run_dir)!r} is a file; expected a folder (created if missing)")
+    latest = latest_checkpoint(run_dir) if (run_dir / CHECKPOINTS_DIRNAME).is_dir() else None
+    if latest is not None and not resume:
+        raise FileExistsError(
+            f"output_dir={str(run_dir)!r} already holds checkpoints (latest {latest.name}); "
+            "set resume=true to continue that run or choose another output_dir"
+        )
+    return latest
+
+
 def latest_checkpoint(run_dir: str | os.PathLike) -> Path | None:
     """The newest complete checkpoint folder of ``run_dir`` (``None`` when it has none)."""
     return _latest_in(Path(run_dir) / CHECKPOINTS_DIRNAME)
@@ -327,17 +345,24 @@ def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str 
     from navformer_rl.modules.models.navformer import upgrade_state_dict
 
     state = upgrade_state_dict(state)
-    expected = model.state_dict()
+    mismatch = state_dict_mismatch(model.state_dict(), state)
+    if mismatch:
+        raise ValueError(
+            f"checkpoint {path} does not match NavFormerModel({model.config}): {mismatch} (written by another "
+            "version of the model code?)"
+        )
+    model.load_state_dict(state)
+
+
+def state_dict_mismatch(expected: dict[str, torch.Tensor], state: dict[str, torch.Tensor]) -> str | None:
+    """``"missing [...], unexpected [...], wrong shapes [...]"`` (the first five names of each) when ``state``
+    cannot load into a module whose ``state_dict()`` is ``expected``; None when it can."""
     missing = sorted(set(expected) - set(state))
     unexpected = sorted(set(state) - set(expected))
     wrong_shape = sorted(k for k in set(state) & set(expected) if state[k].shape != expected[k].shape)
-    if missing or unexpected or wrong_shape:
-        raise ValueError(
-            f"checkpoint {path} does not match NavFormerModel({model.config}): missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}, wrong shapes {wrong_shape[:5]} (written by another version of "
-            "the model code?)"
-        )
-    model.load_state_dict(state)
+    if not (missing or unexpected or wrong_shape):
+        return None
+    return f"missing {missing[:5]}, unexpected {unexpected[:5]}, wrong shapes {wrong_shape[:5]}"
 
 
 def load_resume_state(path: str | os.PathLike) -> dict[str, Any]:

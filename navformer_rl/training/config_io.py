@@ -11,7 +11,7 @@ import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from navformer_rl.training.config import (
     CheckpointConfig,
@@ -23,6 +23,9 @@ from navformer_rl.training.config import (
     ValidationConfig,
     model_config,
 )
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig
 
 _SECTIONS = {
     "data": DataConfig,
@@ -160,20 +163,15 @@ def _check_types(config_cls: type, values: Mapping[str, Any], prefix: str = "") 
             raise ValueError(f"{prefix}{key}={value!r}: expected {expected}")
 
 
-def load_train_config(
-    overrides: list[str] | None = None, path: str | os.PathLike | None = None
-) -> TrainConfig:
-    """Read ``train.yaml`` (packaged default, or ``path``) and apply hydra-style ``key=value`` overrides.
-
-    Overrides are parsed with OmegaConf's dotlist (``optim.lr=1e-4``, ``data.ssl_path=/data/ssl``,
-    ``model.autocast_dtype=bfloat16``); a key that is not in the file raises ``ValueError``.
-    """
+def read_config_file(path: str | os.PathLike | None, default: str | os.PathLike) -> DictConfig:
+    """The YAML mapping at ``path`` (``default`` when None) as a struct ``DictConfig``: unknown keys are refused,
+    except in its ``model`` section, whose model config checks the names itself. ValueError naming the file
+    when it is not readable YAML or not a mapping."""
     import yaml
     from omegaconf import DictConfig, OmegaConf
-    from omegaconf.errors import OmegaConfBaseException
 
     try:
-        base = OmegaConf.load(path or default_config_path())
+        base = OmegaConf.load(path or default)
     except (OSError, yaml.YAMLError) as err:
         raise ValueError(f"--config {path}: cannot read it as YAML ({type(err).__name__}: {err})") from None
     if not isinstance(base, DictConfig):
@@ -182,7 +180,22 @@ def load_train_config(
         )
     OmegaConf.set_struct(base, True)
     if "model" in base:
-        OmegaConf.set_struct(base.model, False)  # any NavFormerConfig field; NavFormerConfig checks names
+        OmegaConf.set_struct(base.model, False)
+    return base
+
+
+def load_train_config(
+    overrides: list[str] | None = None, path: str | os.PathLike | None = None
+) -> TrainConfig:
+    """Read ``train.yaml`` (packaged default, or ``path``) and apply hydra-style ``key=value`` overrides.
+
+    Overrides are parsed with OmegaConf's dotlist (``optim.lr=1e-4``, ``data.ssl_path=/data/ssl``,
+    ``model.autocast_dtype=bfloat16``); a key that is not in the file raises ``ValueError``.
+    """
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+
+    base = read_config_file(path, default_config_path())
     try:
         if overrides:
             bad = [item for item in overrides if "=" not in item]

@@ -67,14 +67,7 @@ def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None)
     if cfg.keep_freed_memory:
         keep_freed_memory()
     run_dir = Path(cfg.output_dir)
-    if run_dir.exists() and not run_dir.is_dir():
-        raise ValueError(f"output_dir={str(run_dir)!r} is a file; expected a folder (created if missing)")
-    latest = ckpt.latest_checkpoint(run_dir) if (run_dir / ckpt.CHECKPOINTS_DIRNAME).is_dir() else None
-    if latest is not None and not cfg.resume:
-        raise FileExistsError(
-            f"output_dir={str(run_dir)!r} already holds checkpoints (latest {latest.name}); "
-            "set resume=true to continue that run or choose another output_dir"
-        )
+    latest = ckpt.run_folder_latest(run_dir, cfg.resume)
     if latest is not None:
         cfg = _recorded_init_from(cfg, latest)
     source = resolve_init_source(cfg) if cfg.init_from is not None and latest is None else None
