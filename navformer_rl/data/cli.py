@@ -22,6 +22,8 @@ kinds:
   all  the three, under OUT/e, OUT/ca, OUT/ssl
 
 Interrupted? Run the same command again: finished work units are kept and the result is identical.
+DAgger round (e / ca): --dagger-policy runs/navformer mixes the trained policy into the expert's driving
+(the stored actions stay the expert's); then fine-tune on the aggregate, docs/datasets.md ("DAgger").
 --backend ray runs each work unit as a Ray task (pip install "navformer_rl[distributed]"): a local Ray
 instance with --workers CPUs, or the cluster of --ray-address / $RAY_ADDRESS (docs/datasets.md, "Ray").
 """
@@ -64,6 +66,21 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="e / ca: std of Gaussian noise on the executed normalised actions, labels stay the expert's "
         "(DART; not in the paper; default 0)",
     )
+    parser.add_argument(
+        "--dagger-policy",
+        metavar="CHECKPOINT",
+        default=None,
+        help="e / ca: DAgger (not in the paper): a NavFormer / DT checkpoint (run dir, checkpoint folder or "
+        "file, pretrained:NAME) that drives the robots at the steps the expert does not; every trajectory "
+        "is kept, labels stay the expert's",
+    )
+    parser.add_argument(
+        "--dagger-beta",
+        type=cli_args.number_between(0.0, 1.0),
+        default=None,
+        help="with --dagger-policy: probability that a robot executes the expert's action at a step "
+        "(default 0.5)",
+    )
     add_backend_options(parser, "work units")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run_collect)
@@ -76,6 +93,15 @@ def run_collect(args: argparse.Namespace) -> int:
         return _error("--n applies to one dataset kind, not to 'all'")
     if args.kind == "ssl" and args.action_noise is not None:
         return _error("--action-noise applies to e and ca (D_ssl has no actions)")
+    if args.kind == "ssl" and args.dagger_policy is not None:
+        return _error("--dagger-policy applies to e and ca (D_ssl has no actions)")
+    if args.dagger_beta is not None and args.dagger_policy is None:
+        return _error("--dagger-beta needs --dagger-policy CHECKPOINT")
+    if args.dagger_policy is not None and args.action_noise:
+        return _error(
+            "--dagger-policy and --action-noise together: choose one (the policy in the loop already takes "
+            "the robots off the expert's path)"
+        )
     problem = backend_problem(args)
     if problem is not None:
         return _error(problem)
@@ -84,16 +110,24 @@ def run_collect(args: argparse.Namespace) -> int:
     from navformer_rl.data.schema import DatasetKind
 
     workers = default_workers() if args.workers is None else args.workers
-    noise = {} if args.action_noise is None else {"action_noise": args.action_noise}
+    options = {} if args.action_noise is None else {"action_noise": args.action_noise}
+    if args.dagger_policy is not None:
+        from navformer_rl.data.dagger import dagger_settings
+
+        beta = 0.5 if args.dagger_beta is None else args.dagger_beta
+        try:
+            options["dagger"] = dagger_settings(args.dagger_policy, beta)
+        except (ValueError, FileNotFoundError) as err:
+            return _error(f"--dagger-policy: {err}")
     if args.kind == "all":
         jobs = [
-            (kind, args.out / kind.value, {} if kind is DatasetKind.SSL else dict(noise))
+            (kind, args.out / kind.value, {} if kind is DatasetKind.SSL else dict(options))
             for kind in DatasetKind
         ]
     else:
         kind = DatasetKind.parse(args.kind)
         field = "n_worlds" if kind is DatasetKind.SSL else "n_trajectories"
-        jobs = [(kind, args.out, {**noise, **({} if args.n is None else {field: args.n})})]
+        jobs = [(kind, args.out, {**options, **({} if args.n is None else {field: args.n})})]
     try:
         with session(args.backend, workers, args.ray_address):  # one Ray session for every kind of 'all'
             for kind, out, overrides in jobs:

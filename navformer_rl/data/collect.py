@@ -14,7 +14,6 @@ its ``metadata.json``.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 import warnings
@@ -25,7 +24,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from navformer_rl.data.collect_settings import SEED_DERIVATION, CollectionSettings, target_count
+from navformer_rl.data.collect_settings import (
+    DAGGER_MIXING,
+    SEED_DERIVATION,
+    CollectionSettings,
+    settings_record,
+    target_count,
+)
 from navformer_rl.data.collect_settings import settings_for as settings_for  # re-exported
 from navformer_rl.data.expert_episodes import (
     SSL_PLACEMENT,
@@ -124,7 +129,8 @@ def _collect_locked(
     address: str | None,
 ) -> Path:
     """The body of :func:`collect`, run while holding the folder lock."""
-    settings_dict = {"kind": kind.value, **dataclasses.asdict(settings), VERSIONS_KEY: data_versions(kind)}
+    versions = data_versions(kind, dagger=True) if getattr(settings, "dagger", None) else data_versions(kind)
+    settings_dict = {"kind": kind.value, **settings_record(settings), VERSIONS_KEY: versions}
     target = target_count(kind, settings)
     writer = DatasetWriter(out, kind, settings_dict, target_count=target)
     if writer.is_complete:
@@ -173,10 +179,14 @@ def _collect_locked(
 
 def _provenance(kind: DatasetKind, settings: CollectionSettings) -> dict[str, Any]:
     """What ``metadata.json`` records besides the settings: the base seed and how unit seeds derive from
-    it, and for D_ssl how robots are fitted to a world."""
+    it, for D_ssl how robots are fitted to a world, and with DAgger the policy's checkpoint folder and the
+    mixing rule."""
     extra: dict[str, Any] = {"seeds": {"base": settings.seed, "derivation": SEED_DERIVATION}}
     if kind is DatasetKind.SSL:
         extra["robot_placement"] = SSL_PLACEMENT
+    dagger = getattr(settings, "dagger", None)
+    if dagger is not None:
+        extra["dagger"] = {"checkpoint": dagger.checkpoint, "mixing": DAGGER_MIXING}
     return extra
 
 

@@ -2,6 +2,7 @@
 
 A dataset is a sequence of deterministic **work units**; item ``k`` of unit ``u`` is seeded from
 ``(seed, kind, u, k)`` (:func:`unit_seed`), so a unit's content depends on its settings and index alone.
+A collection's identity is :func:`settings_record` of its settings (stored in ``metadata.json``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,46 @@ SEED_DERIVATION = (
 )
 """How :func:`unit_seed` derives the seeds, as recorded in a dataset's ``metadata.json``."""
 
+DAGGER_MIXING = (
+    "at every step each robot executes the expert's action when its draw u < beta, else the policy's; the "
+    "stored action is always the expert's; the draws of item k of unit u are "
+    "default_rng(SeedSequence([unit_seed(seed, kind, u, k), 0xDA66E2])).random(robots) per step"
+)
+"""How DAgger mixes expert and policy (:func:`mixing_generator`), as recorded in a DAgger dataset's
+``metadata.json``."""
+
+
+@dataclass(frozen=True)
+class DaggerSettings:
+    """DAgger (Ross et al. 2011; not in the paper): a trained policy in the collection loop.
+
+    At every step each robot executes the expert's action with probability ``beta``, else the policy's; the
+    stored action is always the expert's (the label). ``checkpoint`` is the checkpoint folder the workers
+    load (resolved from what the user gave, :func:`navformer_rl.data.dagger.dagger_settings`); the data's
+    identity is :meth:`record`: the weights' sha256, ``beta`` and the transformer-step path, not the path.
+    """
+
+    checkpoint: str
+    weights_sha256: str
+    beta: float = 0.5
+    transformer_step: str = "torch"
+    """``"native"`` (the compiled kernel) or ``"torch"``: every worker decodes the same way."""
+
+    def __post_init__(self) -> None:
+        check_number(self.beta, "dagger beta", at_least=0.0, at_most=1.0)
+        if self.transformer_step not in ("native", "torch"):
+            raise ValueError(
+                f"dagger transformer_step={self.transformer_step!r}: expected 'native' or 'torch'"
+            )
+
+    def record(self) -> dict[str, Any]:
+        """What the dataset's settings store (and a resume must match)."""
+        return {
+            "beta": float(self.beta),
+            "weights_sha256": self.weights_sha256,
+            "transformer_step": self.transformer_step,
+        }
+
 
 @dataclass(frozen=True)
 class ExplorationSettings:
@@ -41,6 +82,8 @@ class ExplorationSettings:
     action_noise: float = 0.0
     """Std of the Gaussian noise added to the *executed* normalised actions; the stored labels stay the
     expert's (DART, Laskey et al. 2017; not in the paper). 0 (default) records the plain expert."""
+    dagger: DaggerSettings | None = None
+    """A policy in the loop (:class:`DaggerSettings`); None (default) records the plain expert."""
 
 
 @dataclass(frozen=True)
@@ -56,6 +99,8 @@ class CollisionAvoidanceSettings:
     seed: int = 0
     action_noise: float = 0.0
     """As in :class:`ExplorationSettings` (every robot's executed actions are perturbed)."""
+    dagger: DaggerSettings | None = None
+    """As in :class:`ExplorationSettings` (every robot mixes its own draws; one policy drives them all)."""
 
 
 @dataclass(frozen=True)
@@ -100,7 +145,29 @@ def settings_for(kind: DatasetKind | str, scale: str = "small", seed: int = 0, *
         raise ValueError(f"unknown {kind.value} collection setting(s) {sorted(unknown)}")
     if "action_noise" in overrides:
         check_number(overrides["action_noise"], f"{kind.value} action_noise", at_least=0.0, at_most=1.0)
-    return dataclasses.replace(base, seed=seed, **overrides)
+    settings = dataclasses.replace(base, seed=seed, **overrides)
+    dagger = getattr(settings, "dagger", None)
+    if dagger is not None:
+        if not isinstance(dagger, DaggerSettings):
+            raise ValueError(f"{kind.value} dagger={dagger!r}: expected None or a DaggerSettings")
+        if settings.action_noise > 0.0:
+            raise ValueError(
+                f"{kind.value}: dagger and action_noise={settings.action_noise} together; choose one (the "
+                "policy in the loop already takes the robots off the expert's path)"
+            )
+    return settings
+
+
+def settings_record(settings: CollectionSettings) -> dict[str, Any]:
+    """The settings as a dataset records them: ``dataclasses.asdict``, with ``dagger`` as
+    :meth:`DaggerSettings.record` and left out when None (so a plain collection records what it always
+    did)."""
+    record = dataclasses.asdict(settings)
+    record.pop("dagger", None)
+    dagger = getattr(settings, "dagger", None)
+    if dagger is not None:
+        record["dagger"] = dagger.record()
+    return record
 
 
 def target_count(kind: DatasetKind, settings: CollectionSettings) -> int:
@@ -120,3 +187,9 @@ def noise_generator(seed: int, kind: DatasetKind, unit: int, index: int = 0) -> 
     """The generator of the action noise of item ``index`` of unit ``unit`` (apart from the world's and the
     expert's streams, so the noise changes no other draw)."""
     return np.random.default_rng(np.random.SeedSequence([unit_seed(seed, kind, unit, index), 0xDA27]))
+
+
+def mixing_generator(seed: int, kind: DatasetKind, unit: int, index: int = 0) -> np.random.Generator:
+    """The generator of DAgger's per-step expert-or-policy draws of item ``index`` of unit ``unit`` (a stream
+    of its own, like :func:`noise_generator`'s)."""
+    return np.random.default_rng(np.random.SeedSequence([unit_seed(seed, kind, unit, index), 0xDA66E2]))

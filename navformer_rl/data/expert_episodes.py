@@ -9,9 +9,11 @@
   robots are hidden and o^s is rendered from the same pose.
 
 Failed expert episodes (target not reached within ``max_steps``, or the expert reports failure) are
-dropped and counted; they are never stored. Every function here depends on its settings and unit index
-alone (seeds from :func:`~navformer_rl.data.collect_settings.unit_seed`). A change to what they produce
-is a bump of the matching number in :mod:`navformer_rl.data.versions`.
+dropped and counted; they are never stored. With DAgger (``settings.dagger``: a trained policy in the loop,
+:mod:`navformer_rl.data.dagger`) every trajectory the mixture drives is stored, successful or not (its
+rewards say which), since the states the policy reaches are the point. Every function here depends on its
+settings and unit index alone (seeds from :func:`~navformer_rl.data.collect_settings.unit_seed`). A change
+to what they produce is a bump of the matching number in :mod:`navformer_rl.data.versions`.
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ from tensordict import TensorDict
 from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.data.collect_settings import (
     CollisionAvoidanceSettings,
+    DaggerSettings,
     ExplorationSettings,
     SSLSettings,
+    mixing_generator,
     noise_generator,
     unit_seed,
 )
@@ -34,6 +38,7 @@ from navformer_rl.data.schema import TASK_ID, DatasetKind, ssl_rows, trajectory_
 from navformer_rl.envs.sim import COLLISION_ROBOT
 
 if TYPE_CHECKING:
+    from navformer_rl.data.dagger import DaggerMixture
     from navformer_rl.envs.world import WorldSpec
 
 SSL_PLACEMENT = (
@@ -47,7 +52,8 @@ SSL_PLACEMENT = (
 @dataclass
 class RobotTrajectory:
     """One robot's recorded steps: frames uint8 ``[T, 84, 84, 3]``, actions ``[T, 2]``, collisions ``[T]``,
-    poses ``[T, 3]``; ``succeeded`` when it ended within ``SUCCESS_RADIUS`` of its target."""
+    poses ``[T, 3]``; ``succeeded`` when it ended within ``SUCCESS_RADIUS`` of its target;
+    ``policy_steps``: steps that executed the DAgger policy's action instead of the recorded expert's."""
 
     frames: list[np.ndarray]
     actions: list[np.ndarray]
@@ -55,6 +61,11 @@ class RobotTrajectory:
     poses: list[np.ndarray]
     succeeded: bool = False
     robot_collisions: int = 0
+    policy_steps: int = 0
+
+    def kept(self, dagger: bool) -> bool:
+        """Whether the dataset stores this trajectory: a success, or with DAgger any non-empty one."""
+        return self.succeeded or (dagger and len(self.actions) > 0)
 
     def rows(self, task: int, episode: int, target_position: np.ndarray) -> TensorDict:
         """The trajectory in the schema (``target_id == episode``: one target image per trajectory)."""
@@ -89,6 +100,7 @@ def run_episode(
     record: bool = True,
     action_noise: float = 0.0,
     noise_rng: np.random.Generator | None = None,
+    mixture: DaggerMixture | None = None,
 ) -> list[RobotTrajectory]:
     """Drive every robot of ``sim`` with ``expert`` until each reached its target or ``max_steps``.
 
@@ -101,9 +113,13 @@ def run_episode(
     ``noise_rng``) while a_t stays the recorded label (DART): the data then holds states off the expert's
     own path, each labelled with the expert's correction.
 
-    The cameras run after the episode, and only for robots that succeeded: every robot is put back at its
-    pose of step t and o_t is rendered (the scene is then exactly as it was at t), so failed episodes cost no
-    rendering. ``record=False`` skips the cameras altogether (to time the planners alone). Returns one
+    With ``mixture`` (DAgger, :class:`~navformer_rl.data.dagger.DaggerMixture`) the simulator executes, per
+    robot and step, the expert's a_t or the policy's action on the robot's current frame, a_t again the
+    recorded label; every robot's trajectory is then kept (:meth:`RobotTrajectory.kept`).
+
+    The stored cameras run after the episode, and only for the kept robots: every robot is put back at its
+    pose of step t and o_t is rendered (the scene is then exactly as it was at t), so failed expert episodes
+    cost no rendering. ``record=False`` skips them altogether (to time the planners alone). Returns one
     :class:`RobotTrajectory` per robot.
     """
     if action_noise > 0.0 and noise_rng is None:
@@ -122,6 +138,9 @@ def run_episode(
         if action_noise > 0.0:
             noise = noise_rng.normal(0.0, action_noise, size=(R, 2)).astype(np.float32)
             executed = np.clip(actions + noise, -1.0, 1.0)
+        from_policy = np.zeros(R, dtype=bool)
+        if mixture is not None:
+            executed, from_policy = mixture.executed(sim, actions, active)
         contacts = sim.step(np.where(active[:, None], executed, 0.0), active)
         reached = reached_targets(sim, world)
         failed = np.asarray(expert.failed, dtype=bool).reshape(R)
@@ -131,20 +150,21 @@ def run_episode(
             t.collisions.append(bool(contacts.collided[i]))
             t.robot_collisions += int(contacts.kind[i] == COLLISION_ROBOT)
             t.poses.append(poses[i])
+            t.policy_steps += int(from_policy[i])
             if reached[i]:
                 t.succeeded = True
         active &= ~reached & ~failed
     if record:
-        _render_successes(sim, trajs, history)
+        _render_kept(sim, trajs, history, mixture is not None)
     return trajs
 
 
-def _render_successes(
-    sim, trajs: list[RobotTrajectory], history: list[tuple[np.ndarray, np.ndarray]]
+def _render_kept(
+    sim, trajs: list[RobotTrajectory], history: list[tuple[np.ndarray, np.ndarray]], dagger: bool
 ) -> None:
-    """Fill ``frames`` of the successful trajectories: for each step, restore every robot's pose and render
-    the robots that were active then."""
-    keep = np.array([t.succeeded for t in trajs])
+    """Fill ``frames`` of the kept trajectories (:meth:`RobotTrajectory.kept`): for each step, restore every
+    robot's pose and render the robots that were active then."""
+    keep = np.array([t.kept(dagger) for t in trajs])
     for poses, active in history:
         todo = np.flatnonzero(active & keep)
         if len(todo) == 0:
@@ -185,15 +205,20 @@ def exploration_unit(settings: ExplorationSettings, unit: int, by_item: dict[str
     """D_e unit ``unit``: ``(rows, targets, counters)``, one rows TensorDict and one uint8 ``[84, 84, 3]``
     target image per successful episode, and the unit's ``attempted`` / ``failed`` episodes,
     ``robot_steps`` (of every episode) and ``collision_steps`` (of the stored ones). ``by_item``, when
-    given, receives each counter's value through each stored trajectory (failures before it included)."""
+    given, receives each counter's value through each stored trajectory (failures before it included).
+    With ``settings.dagger`` every non-empty trajectory is stored, and ``policy_steps`` counts the robot
+    steps that executed the policy's action."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.envs.target_image import render_target_image
     from navformer_rl.experts.policies import ExplorationExpert
 
     spec = get_robot_spec(settings.robot)
+    dagger = settings.dagger is not None
     rows, targets = [], []
     counters = {"attempted": 0, "failed": 0, "collision_steps": 0, "robot_steps": 0}
+    if dagger:
+        counters["policy_steps"] = 0
     for k in range(settings.episodes_per_unit):
         world, rng = exploration_world(settings, unit, k)
         sim = Simulator(world, spec)
@@ -201,20 +226,37 @@ def exploration_unit(settings: ExplorationSettings, unit: int, by_item: dict[str
             expert = ExplorationExpert()
             expert.reset(world, sim, rng)
             noise = noise_generator(settings.seed, DatasetKind.EXPLORATION, unit, k)
-            (traj,) = run_episode(world, sim, expert, settings.max_steps, True, settings.action_noise, noise)
+            mixture = _mixture(settings.dagger, world, DatasetKind.EXPLORATION, settings.seed, unit, k)
+            (traj,) = run_episode(
+                world, sim, expert, settings.max_steps, True, settings.action_noise, noise, mixture
+            )
         finally:
             sim.close()
         counters["attempted"] += 1
         counters["robot_steps"] += len(traj.actions)
+        if dagger:
+            counters["policy_steps"] += traj.policy_steps
         if not traj.succeeded:
             counters["failed"] += 1
+        if not traj.kept(dagger):
             continue
         counters["collision_steps"] += int(np.sum(traj.collisions))
         target = world.targets[0]
         rows.append(traj.rows(TASK_ID[DatasetKind.EXPLORATION], len(targets), target.position))
         targets.append(render_target_image(target.shape, target.color))
-        _snapshot(by_item, counters, ("attempted", "failed", "collision_steps", "robot_steps"))
+        _snapshot(by_item, counters, tuple(counters))
     return rows, targets, counters
+
+
+def _mixture(
+    dagger: DaggerSettings | None, world, kind: DatasetKind, seed: int, unit: int, index: int = 0
+) -> DaggerMixture | None:
+    """The DAgger mixture of item ``index`` of unit ``unit`` (None without ``dagger``)."""
+    if dagger is None:
+        return None
+    from navformer_rl.data.dagger import dagger_mixture
+
+    return dagger_mixture(dagger, world, mixing_generator(seed, kind, unit, index))
 
 
 def _snapshot(by_item: dict[str, list[int]] | None, counters: dict[str, int], names: tuple[str, ...]) -> None:
@@ -232,29 +274,40 @@ def collision_avoidance_unit(
     """D_ca unit ``unit`` (one arena episode): ``(rows, targets, counters)``, one trajectory per robot that
     reached its target, in robot order. ``by_item``, when given, receives ``attempted``, ``failed``,
     ``robot_steps`` and ``collision_steps`` through each stored trajectory's robot (the robots before it
-    included); ``episodes`` and ``robot_robot_collision_episodes`` count the whole episode."""
+    included); ``episodes`` and ``robot_robot_collision_episodes`` count the whole episode. With
+    ``settings.dagger`` every robot's non-empty trajectory is stored, and ``policy_steps`` counts the robot
+    steps that executed the policy's action."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.envs.target_image import render_target_image
     from navformer_rl.experts.policies import NHORCAExpert
 
     spec = get_robot_spec(settings.robot)
+    dagger = settings.dagger is not None
     world, rng = collision_avoidance_world(settings, unit)
     sim = Simulator(world, spec)
     try:
         expert = NHORCAExpert()
         expert.reset(world, sim, rng)
         noise = noise_generator(settings.seed, DatasetKind.COLLISION_AVOIDANCE, unit)
-        trajs = run_episode(world, sim, expert, settings.max_steps, True, settings.action_noise, noise)
+        mixture = _mixture(settings.dagger, world, DatasetKind.COLLISION_AVOIDANCE, settings.seed, unit)
+        trajs = run_episode(
+            world, sim, expert, settings.max_steps, True, settings.action_noise, noise, mixture
+        )
     finally:
         sim.close()
     rows, targets = [], []
     through = {"attempted": 0, "failed": 0, "collision_steps": 0, "robot_steps": 0}  # robots 0..i
+    if dagger:
+        through["policy_steps"] = 0
     for i, traj in enumerate(trajs):
         through["attempted"] += 1
         through["robot_steps"] += len(traj.actions)
+        if dagger:
+            through["policy_steps"] += traj.policy_steps
         if not traj.succeeded:
             through["failed"] += 1
+        if not traj.kept(dagger):
             continue
         through["collision_steps"] += int(np.sum(traj.collisions))
         target = world.targets[i]

@@ -5,6 +5,8 @@
 (finishing it would mix data of two behaviours); a complete dataset is used as it is, with a warning.
 
 Bump a number when its code changes the data it makes; moves, renames and comments change nothing.
+:data:`DAGGER_VERSIONS` apply only to DAgger collections (a trained policy in the loop), so a plain
+collection records exactly the numbers of :data:`KIND_VERSIONS`.
 ``tests/data/test_data_versions.py`` collects a tiny dataset of each kind and compares its signature (counts and
 integer columns exactly, floats and images within tolerances) with ``tests/data/data_versions_signature.json``,
 recorded next to these numbers, so a change in the data without a bump fails.
@@ -13,6 +15,7 @@ recorded next to these numbers, so a change in the data without a bump fails.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from navformer_rl.data.schema import DatasetKind
 
@@ -28,6 +31,13 @@ class DataVersion:
     number: int
     what: str
     covers: tuple[str, ...]
+
+
+def _package_files(folder: str) -> tuple[str, ...]:
+    """Every source file (``.py``, ``.c``) under ``navformer_rl/<folder>/``, relative to ``navformer_rl/``."""
+    package = Path(__file__).resolve().parents[1]
+    files = (p for p in (package / folder).rglob("*") if p.suffix in (".py", ".c"))
+    return tuple(sorted(p.relative_to(package).as_posix() for p in files))
 
 
 _EXPERTS = ("experts/policies.py",)
@@ -82,6 +92,19 @@ DATA_VERSIONS: dict[str, DataVersion] = {
     "ssl_pairs": DataVersion(
         1, "D_ssl's units: world and robot draws, placement retries, the o^s / o^d pairs", _EPISODES
     ),
+    "dagger_policy": DataVersion(
+        1,
+        "DAgger's policy in the loop: checkpoint loading, the NavFormer / DT model and its KV-cached "
+        "decoding, the per-step expert-or-policy mixing",
+        (
+            "data/dagger.py",
+            "training/checkpoint.py",
+            "training/pretrained_registry.py",
+            "pretrained/__init__.py",
+            "utils/lazy.py",
+            *_package_files("modules"),
+        ),
+    ),
 }
 """Every version, by the name stored in the settings."""
 
@@ -104,7 +127,12 @@ KIND_VERSIONS: dict[DatasetKind, tuple[str, ...]] = {
 }
 """The versions each kind's data depends on."""
 
+DAGGER_VERSIONS: tuple[str, ...] = ("dagger_policy",)
+"""The versions a DAgger collection (D_e / D_ca with a policy in the loop) depends on besides its kind's."""
 
-def data_versions(kind: DatasetKind | str) -> dict[str, int]:
-    """``{name: number}`` of the versions the data of ``kind`` depends on (stored under :data:`VERSIONS_KEY`)."""
-    return {name: DATA_VERSIONS[name].number for name in KIND_VERSIONS[DatasetKind.parse(kind)]}
+
+def data_versions(kind: DatasetKind | str, dagger: bool = False) -> dict[str, int]:
+    """``{name: number}`` of the versions the data of ``kind`` depends on (stored under :data:`VERSIONS_KEY`);
+    ``dagger``: a collection with a policy in the loop, which also depends on :data:`DAGGER_VERSIONS`."""
+    names = KIND_VERSIONS[DatasetKind.parse(kind)] + (DAGGER_VERSIONS if dagger else ())
+    return {name: DATA_VERSIONS[name].number for name in names}

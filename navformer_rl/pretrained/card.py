@@ -62,7 +62,7 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
         path = data.get(path_key)
         if path is None:
             continue
-        available, seed = _dataset_items(Path(path))
+        available, seed = _datasets_items([path] if isinstance(path, str) else list(path))
         limit = data.get(limit_key)
         used = None if available is None else (available if limit is None else min(available, limit))
         datasets.append(
@@ -85,6 +85,15 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
         "training_seconds": seconds,
         "timing_source": None if seconds is None else str(log),
     }
+
+
+def _datasets_items(paths: list[str]) -> tuple[int | None, int | None]:
+    """``(items, collection seed)`` of one folder or a list of folders read as one (``data.*_path`` as a list):
+    the summed items (None when any folder's are unknown) and the seed they share (None when they differ)."""
+    found = [_dataset_items(Path(path)) for path in paths]
+    items = None if any(n is None for n, _ in found) else sum(n for n, _ in found)
+    seeds = {seed for _, seed in found}
+    return items, seeds.pop() if len(seeds) == 1 else None
 
 
 def _dataset_items(path: Path) -> tuple[int | None, int | None]:
@@ -232,7 +241,8 @@ def render_card(
             else f"{dataset['used']} of its {dataset['available']} {dataset['unit']} used"
             + ("" if dataset["seed"] is None else f" (collection seed {dataset['seed']})")
         )
-        lines.append(f"| {dataset['name']} | `{dataset['path']}`: {size} |")
+        path = dataset["path"] if isinstance(dataset["path"], str) else " + ".join(dataset["path"])
+        lines.append(f"| {dataset['name']} | `{path}`: {size} |")
     seconds = training["training_seconds"]
     timing = (
         "not recorded (no training log reaching this iteration)"

@@ -32,6 +32,29 @@ TASK_OF_KIND = {kind: DATASETS[kind].task for kind in TRAJECTORY_KINDS}
 PATH_KEYS = {kind: DATASETS[kind].path_key for kind in TRAJECTORY_KINDS}
 """The ``validation.`` key of each held-out dataset kind."""
 
+DatasetPaths = str | list[str] | None
+"""A dataset setting: one folder, a list of folders of one kind read as one (their trajectories in list
+order, :class:`~navformer_rl.data.concat.ConcatNavDataset`), or None."""
+
+
+def dataset_folders(value: DatasetPaths) -> list[str]:
+    """The folders of a dataset setting: ``[]`` for None, ``[path]`` for one path, the list as given."""
+    if value is None:
+        return []
+    return [value] if isinstance(value, str) else list(value)
+
+
+def check_dataset_paths(value: object, key: str) -> None:
+    """ValueError naming ``key`` unless ``value`` is None, a non-empty path or a non-empty list of them."""
+    expected = "expected null, a dataset folder or a non-empty list of dataset folders"
+    if value is None or (isinstance(value, str) and value.strip()):
+        return
+    if not isinstance(value, list | tuple) or not value:
+        raise ValueError(f"{key}={value!r}: {expected}")
+    for i, item in enumerate(value):
+        if not isinstance(item, str) or not item.strip():
+            raise ValueError(f"{key}[{i}]={item!r}: {expected}")
+
 
 @dataclass
 class ValidationConfig:
@@ -39,7 +62,8 @@ class ValidationConfig:
 
     Attributes:
         exploration_path / collision_path: held-out D_e / D_ca dataset folders (collected with a seed other
-            than the training data's). Validation runs when at least one is set.
+            than the training data's), each one folder or a list read as one (as ``data.*_path``).
+            Validation runs when at least one is set.
         interval: iterations between validations (the last iteration is always validated); 0 = never.
         batch_trajs: trajectories per forward pass (a memory setting: the result is the mean over all
             valid steps of all windows whatever the batch, up to float summation order).
@@ -54,8 +78,8 @@ class ValidationConfig:
             same windows).
     """
 
-    exploration_path: str | None = None
-    collision_path: str | None = None
+    exploration_path: DatasetPaths = None
+    collision_path: DatasetPaths = None
     interval: int = 500
     batch_trajs: int = 16
     max_trajectories: int | None = None
@@ -67,13 +91,15 @@ class ValidationConfig:
     def enabled(self) -> bool:
         return self.interval > 0 and any(getattr(self, key) for key in PATH_KEYS.values())
 
-    def held_out_paths(self) -> dict[str, str]:
-        """``{kind: path}`` of the held-out datasets set (kinds ``e`` / ``ca``)."""
+    def held_out_paths(self) -> dict[str, str | list[str]]:
+        """``{kind: path or list of paths}`` of the held-out datasets set (kinds ``e`` / ``ca``)."""
         return {kind: getattr(self, key) for kind, key in PATH_KEYS.items() if getattr(self, key)}
 
 
 def validate_validation_config(cfg: ValidationConfig) -> None:
     """ValueError naming the key when a setting of ``cfg`` is out of range (no file is opened)."""
+    for key in PATH_KEYS.values():
+        check_dataset_paths(getattr(cfg, key), f"validation.{key}")
     check_int(cfg.interval, "validation.interval", minimum=0)
     check_int(cfg.batch_trajs, "validation.batch_trajs")
     if cfg.max_trajectories is not None:
@@ -89,7 +115,9 @@ class DataConfig:
     Attributes:
         exploration_path / collision_path / ssl_path: dataset folders of D_e, D_ca, D_ssl (absolute paths
             recommended: the hydra recipe and ``navformer train`` read relative paths from where they start). A path may be None only when the ablation does
-            not use that dataset.
+            not use that dataset. ``exploration_path`` / ``collision_path`` may also be a list of folders of
+            that kind, read as one folder holding their trajectories in list order (e.g. the paper's data
+            plus DAgger rounds: ``data.exploration_path=[data/e,data/dagger1/e]``).
         exploration_batch_trajs / collision_batch_trajs: trajectories per batch (25 / 150).
         ssl_batch_pairs: D_ssl image pairs per batch (512).
         context_steps: longest trajectory window in steps; None = what fits the model's context
@@ -97,14 +125,15 @@ class DataConfig:
             at a random offset.
         exploration_trajectories / collision_trajectories / ssl_pairs: train on the first N trajectories
             (pairs) of a dataset folder only; None = all of it (:meth:`~navformer_rl.data.NavDataset.head`).
-            For data-scaling studies from one collection.
+            For data-scaling studies from one collection. With a list of folders: the first N of their
+            concatenation.
         prefetch: draw the next iteration's batches in a background thread while this one trains
             (:class:`~navformer_rl.data.prefetch.Prefetcher`; the same batches, so the same losses). On CUDA the
             batches are also gathered into page-locked memory, so their copies to the GPU are asynchronous.
     """
 
-    exploration_path: str | None = None
-    collision_path: str | None = None
+    exploration_path: DatasetPaths = None
+    collision_path: DatasetPaths = None
     ssl_path: str | None = None
     exploration_batch_trajs: int = 25
     collision_batch_trajs: int = 150
@@ -319,6 +348,9 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
         "data.ssl_path": (cfg.uses_ssl, cfg.data.ssl_path, "D_ssl"),
     }
     for key, (used, path, name) in needed.items():
+        check_dataset_paths(path, key)
+        if key == "data.ssl_path" and not isinstance(path, str | None):
+            raise ValueError(f"{key}={path!r}: expected null or one D_ssl dataset folder")
         if require_data and used and not path:
             raise ValueError(f"{key} is not set, but ablation={cfg.ablation!r} trains on {name}")
     model = model_config(cfg)  # NavFormerConfig validates its own fields

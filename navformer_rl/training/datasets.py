@@ -1,6 +1,11 @@
 """The datasets of a training run: :func:`open_datasets` (D_e, D_ca, D_ssl as the ablation needs them),
 :func:`open_validation_datasets` (the held-out sets) and :func:`check_datasets_fit_model` (the configured
 model can read them). Errors name the config key to change.
+
+A trajectory dataset setting may list several folders of its kind (``data.exploration_path=[a,b]``): they
+are read as one (:class:`~navformer_rl.data.concat.ConcatNavDataset`, their trajectories in list order), and
+``data.exploration_trajectories`` / ``data.collision_trajectories`` keep the first N of the concatenation.
+One folder (or a list of one) is opened exactly as before.
 """
 
 from __future__ import annotations
@@ -10,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from navformer_rl.tasks import DATASETS
-from navformer_rl.training.config import PATH_KEYS, TrainConfig, model_config
+from navformer_rl.training.config import PATH_KEYS, DatasetPaths, TrainConfig, dataset_folders, model_config
 
 DATASET_KEYS = {kind: d.path_key for kind, d in DATASETS.items()}
 """The config key (under ``data.``) of each dataset kind."""
@@ -87,10 +92,24 @@ def open_validation_datasets(cfg: TrainConfig) -> dict[str, Any]:
     }
 
 
-def _open_dataset(path: str, kind: str, key: str) -> Any:
-    """``open_dataset(path, kind)`` with errors that name the config ``key``."""
+def _open_dataset(path: DatasetPaths, kind: str, key: str) -> Any:
+    """``open_dataset(path, kind)`` with errors that name the config ``key``; a list of several folders is
+    opened folder by folder (errors name ``key[i]``) and read as one (:func:`~navformer_rl.data.concat.concat_datasets`)."""
     from navformer_rl.data import open_dataset
+    from navformer_rl.data.concat import concat_datasets
 
+    folders = dataset_folders(path)
+    if len(folders) == 1:
+        return _open_one(open_dataset, folders[0], kind, key)
+    parts = [_open_one(open_dataset, folder, kind, f"{key}[{i}]") for i, folder in enumerate(folders)]
+    try:
+        return concat_datasets(parts)
+    except ValueError as err:
+        raise ValueError(f"{key}: {err}") from None
+
+
+def _open_one(open_dataset: Any, path: str, kind: str, key: str) -> Any:
+    """``open_dataset(path, kind)`` of one folder, with errors that name the config ``key``."""
     if not Path(path).exists():
         raise FileNotFoundError(f"{key}={path!r} does not exist")
     try:
@@ -120,5 +139,11 @@ def check_datasets_fit_model(cfg: TrainConfig, datasets: Mapping[str, Any], sect
     """
     from navformer_rl.data.fit import check_model_reads
 
-    names = {kind: f"{section}.{DATASET_KEYS[kind]}" for kind in datasets}
-    check_model_reads(model_config(cfg), datasets, names, tunable=True)
+    model = model_config(cfg)
+    for kind, dataset in datasets.items():
+        key = f"{section}.{DATASET_KEYS[kind]}"
+        parts = getattr(dataset, "parts", None)
+        if parts is None:
+            check_model_reads(model, {kind: dataset}, {kind: key}, tunable=True)
+        for i, part in enumerate(parts or ()):
+            check_model_reads(model, {kind: part}, {kind: f"{key}[{i}]"}, tunable=True)

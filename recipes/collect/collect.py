@@ -32,12 +32,34 @@ def make_jobs(cfg) -> list[tuple[DatasetKind, Path, object]]:
     for key, value in overrides.items():
         if isinstance(value, list):
             overrides[key] = tuple(value)
+    if cfg.get("dagger_policy") is not None and cfg.kind == "ssl":
+        raise ValueError("dagger_policy applies to e and ca (D_ssl has no actions)")
+    if "dagger" in overrides:
+        raise ValueError("set dagger_policy= (and dagger_beta=), not settings.dagger")
+    dagger = {} if cfg.get("dagger_policy") is None else {"dagger": _dagger(cfg)}
     if cfg.kind == "all":
         if overrides:
             raise ValueError("settings overrides apply to one dataset kind, not to kind=all")
-        return [(kind, out / kind.value, settings_for(kind, cfg.scale, cfg.seed)) for kind in DatasetKind]
+        return [
+            (
+                kind,
+                out / kind.value,
+                settings_for(kind, cfg.scale, cfg.seed, **({} if kind is DatasetKind.SSL else dagger)),
+            )
+            for kind in DatasetKind
+        ]
     kind = DatasetKind.parse(cfg.kind)
-    return [(kind, out, settings_for(kind, cfg.scale, cfg.seed, **overrides))]
+    return [(kind, out, settings_for(kind, cfg.scale, cfg.seed, **dagger, **overrides))]
+
+
+def _dagger(cfg):
+    """The DAgger settings of ``dagger_policy`` / ``dagger_beta`` (a relative path from the launch folder)."""
+    from navformer_rl.data.dagger import dagger_settings
+
+    policy = str(cfg.dagger_policy)
+    if not policy.startswith("pretrained:"):
+        policy = hydra.utils.to_absolute_path(policy)
+    return dagger_settings(policy, float(cfg.dagger_beta))
 
 
 @hydra.main(config_path="", config_name="config", version_base="1.3")

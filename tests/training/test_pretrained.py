@@ -274,3 +274,13 @@ def test_the_demo_evaluates_the_shipped_navformer_beside_its_own_models(shipped,
     assert same_episodes[0] == same_episodes[1]
     with pytest.raises(ValueError, match="pretrained name 'Bad Name'"):
         DemoConfig(shipped=("Bad Name",)).validate()
+
+
+def test_the_card_counts_a_list_of_dataset_folders_as_one(datasets):
+    """A run trained on ``data.exploration_path=[a, b]`` gets a card row with the summed items."""
+    from navformer_rl.pretrained.card import _datasets_items
+
+    items, seed = _datasets_items([str(datasets["e"])])
+    assert items >= 1
+    assert _datasets_items([str(datasets["e"]), str(datasets["e"])]) == (2 * items, seed)
+    assert _datasets_items([str(datasets["e"]), str(datasets["e"] / "absent")]) == (None, None)  # unknown
