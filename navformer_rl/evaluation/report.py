@@ -27,6 +27,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from navformer_rl.constants import FURNISHED_FOOTPRINTS
 from navformer_rl.evaluation.harness import checkpoint_ablation, label_ablation_problem
 from navformer_rl.evaluation.measures import RobotTrial, check_cluster
 from navformer_rl.evaluation.paper_results import (
@@ -34,6 +35,7 @@ from navformer_rl.evaluation.paper_results import (
     METHOD_TO_PAPER_COLUMN,
     PAPER_SOURCE,
     TABLE1,
+    TABLE2,
     TABLE3,
     TABLE4,
     TABLE4_SETUP,
@@ -100,9 +102,13 @@ def _recorded_ablation(run: dict[str, Any]) -> str | None:
         return None
 
 
-def _paper_numbers(summary: SetupSummary, column: str) -> tuple[float, float, float] | None:
+def _paper_numbers(
+    summary: SetupSummary, column: str, table2: bool = False
+) -> tuple[float, float, float] | None:
+    """The paper's (SR, SPL, CR) for ``summary``'s setup in ``column``; ``table2``: the setups are Table II's
+    world kinds, whose pooled row is compared with the paper's one Table II row."""
     if summary.setup == ALL_SETUPS:
-        return None
+        return TABLE2.get(column) if table2 else None
     if column in ABLATION_TO_TABLE4.values():
         # Table IV: four measured Jackals, not the unseen-obstacle setup
         same_setup = (summary.size, summary.n_robots) == TABLE4_SETUP
@@ -120,15 +126,19 @@ def paper_comparison_markdown(
     columns: Mapping[str, str | None] | None = None,
 ) -> str:
     """Side-by-side table: per setup and method, ``ours / paper`` for SR, SPL and CR (paper's Table I, or
-    Table III for the ``-seen`` / ``-unseen`` setups); empty when no method/setup has a paper value.
+    Table III for the ``-seen`` / ``-unseen`` setups, or for Table II's world kinds the pooled ``all`` row
+    beside the paper's single Table II row); empty when no method/setup has a paper value.
 
     ``columns`` maps a method label to the paper column or Table IV row it is compared with (None: not
     compared); a label it leaves out gets the column its name implies (``_paper_column``).
     """
     columns = {m: (columns[m] if columns is not None and m in columns else _paper_column(m)) for m in methods}
-    by_key = {(s.method, s.setup): s for s in summaries if s.setup != ALL_SETUPS}
+    by_key = {(s.method, s.setup): s for s in summaries}
     compared = [m for m in methods if columns[m] is not None]
     setups = [setup for _, _, setup in ordered_setups(summaries) if setup != ALL_SETUPS]
+    table2 = bool(setups) and set(setups) <= set(FURNISHED_FOOTPRINTS)  # Table II: one row over its 3 worlds
+    if table2:
+        setups.append(ALL_SETUPS)
     header = ["Setup"]
     for method in compared:
         header += [f"{method} SR (ours / paper {columns[method]})", "SPL (ours / paper)", "CR (ours / paper)"]
@@ -138,7 +148,7 @@ def paper_comparison_markdown(
         cells = [setup]
         for method in compared:
             s = by_key.get((method, setup))
-            paper = None if s is None else _paper_numbers(s, columns[method])
+            paper = None if s is None else _paper_numbers(s, columns[method], table2)
             if s is None or paper is None:
                 cells += ["-", "-", "-"]
                 continue

@@ -378,3 +378,28 @@ def test_report_names_folders_whose_videos_are_not_h264(tmp_path, vrw_run):
     writer.release()
     text = write_report([out_dir], tmp_path / "report.md").read_text()
     assert "Not H.264: the videos of vrw (mpeg4)" in text
+
+
+def test_table2_worlds_are_compared_with_the_papers_single_table2_row():
+    import dataclasses
+
+    from navformer_rl.evaluation.measures import RobotTrial
+    from navformer_rl.evaluation.report import paper_comparison_markdown
+    from navformer_rl.evaluation.tables import summarize_by_setup
+
+    base = RobotTrial(
+        method="fca", episode_id="", setup="", size=0.0, n_robots=3, world_seed=0, trial=0, robot=0,
+        robot_style="jackal", measured=True, success=True, success_step=10, steps=10, collisions=0,
+        path_length=5.0, shortest_path=4.0, shortest_path_to_disc=3.0, final_distance=0.5,
+    )  # fmt: skip
+    records = [
+        dataclasses.replace(base, episode_id=f"{kind}-{i}", setup=kind, size=size)
+        for kind, size in (("bookstore", 15.6), ("cafe", 23.1), ("house", 19.0))
+        for i in range(2)
+    ]
+    header, _, *rows = paper_comparison_markdown(summarize_by_setup(records), ["fca"]).strip().splitlines()
+    by_setup = {row.split(" | ")[0].strip("| "): row for row in rows}
+    assert list(by_setup) == ["bookstore", "house", "cafe", "all"]  # by world size
+    assert by_setup["bookstore"] == "| bookstore | - | - | - |"  # the paper gives one row for the three
+    # Table II, FCA: 82.22 % / 0.612 / 0.092
+    assert by_setup["all"] == "| all | 100.00% / 82.22% | 0.800 / 0.612 | 0.000 / 0.092 |"
