@@ -194,6 +194,18 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
     )
     diagnose.set_defaults(run=_run_diagnose)
 
+    strip = commands.add_parser(
+        "strip",
+        help="evenly spaced frames of an evaluation video side by side in one PNG",
+        description="Write a frame strip of an evaluation video (videos/*.mp4): --frames evenly spaced frames, "
+        "first and last included, side by side and scaled to --width pixels, each labelled with its time.",
+    )
+    strip.add_argument("strip_video", type=Path, metavar="VIDEO", help="an mp4 from an evaluation's videos/")
+    strip.add_argument("--out", dest="strip_out", type=Path, required=True, help="the .png to write")
+    strip.add_argument("--frames", dest="strip_frames", type=cli_args.int_at_least(1), default=5)
+    strip.add_argument("--width", dest="strip_width", type=cli_args.int_at_least(16), default=1600)
+    strip.set_defaults(run=_run_strip)
+
 
 def _add_cluster_option(parser: argparse.ArgumentParser, default: str | None) -> None:
     from navformer_rl.evaluation.measures import CLUSTER_LEVELS
@@ -384,6 +396,13 @@ def _run_report(args: argparse.Namespace) -> int:
         args.folders, _output_file(args.report_out, "--out"), title=args.title, cluster=args.cluster_by
     )
     print(f"wrote {path}")
+    return 0
+
+
+def _run_strip(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.strip import frame_strip
+
+    print(frame_strip(args.strip_video, args.strip_out, frames=args.strip_frames, width=args.strip_width))
     return 0
 
 

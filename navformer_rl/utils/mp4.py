@@ -199,3 +199,19 @@ def _pad_to_even(frame: np.ndarray) -> np.ndarray:
     if height % 2 == 0 and width % 2 == 0:
         return frame
     return np.pad(frame, ((0, height % 2), (0, width % 2), (0, 0)), constant_values=255)
+
+
+def read_mp4_frames(path: str | os.PathLike) -> tuple[float, list[np.ndarray]]:
+    """``(fps, frames)`` of a video: every frame as uint8 RGB ``[H, W, 3]`` (decoded by the ffmpeg binary of
+    ``imageio-ffmpeg``). FileNotFoundError when ``path`` is missing; ValueError when ffmpeg cannot read it."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no video at {str(path)!r}")
+    try:
+        reader = imageio_ffmpeg.read_frames(str(path))
+        meta = next(reader)
+        width, height = meta["size"]
+        frames = [np.frombuffer(raw, np.uint8).reshape(height, width, 3).copy() for raw in reader]
+    except (RuntimeError, OSError, StopIteration) as error:
+        raise ValueError(f"{path} is not a readable video ({type(error).__name__}: {error})") from None
+    return float(meta["fps"]), frames
