@@ -46,5 +46,7 @@ def test_bad_input_is_one_line(grey_ramp, tmp_path, capsys):
         frame_strip(grey_ramp, tmp_path / "s.png", frames=0)
     assert main(["evaluate", "strip", str(tmp_path / "absent.mp4"), "--out", str(tmp_path / "s.png")]) == 2
     assert "no video at" in capsys.readouterr().err
-    assert main(["evaluate", "strip", str(grey_ramp), "--out", str(tmp_path / "ok.png"), "--frames", "2"]) == 0
+    assert (
+        main(["evaluate", "strip", str(grey_ramp), "--out", str(tmp_path / "ok.png"), "--frames", "2"]) == 0
+    )
     assert (tmp_path / "ok.png").is_file()
