@@ -152,6 +152,15 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     seeds.add_argument(
         "--json", dest="seeds_json", action="store_true", help="print JSON instead of markdown"
     )
+    seeds.add_argument(
+        "--plot",
+        dest="seeds_plot",
+        type=Path,
+        metavar="PNG",
+        help="also draw SR per group (mean ± std, each seed a dot); groups named SERIES@X (e.g. "
+        "navformer@3496) become one line per SERIES over X",
+    )
+    seeds.add_argument("--x-label", dest="seeds_x_label", default="x", help="--plot's x-axis label")
     _add_cluster_option(seeds, "trial")
     seeds.set_defaults(run=_run_seeds)
     _register_diagnose(commands, METHODS)
@@ -378,10 +387,15 @@ def _run_seeds(args: argparse.Namespace) -> int:
             raise ValueError(f"--group {name} is given twice; give each group's folders once")
         groups[name] = [Path(folder) for folder in folders]
     out = _output_file(args.seeds_out, "--out") if args.seeds_out is not None else None
+    plot = _output_file(args.seeds_plot, "--plot") if args.seeds_plot is not None else None
     summaries = summarize_seed_groups(groups, cluster=args.cluster_by)
     table = seed_table_markdown(summaries)
     if out is not None:
         atomic_write_text(out, table)
+    if plot is not None:
+        from navformer_rl.evaluation.plots import plot_seed_groups
+
+        plot_seed_groups(summaries, plot, x_label=args.seeds_x_label)
     if args.seeds_json:
         print(json.dumps([s.to_dict() for s in summaries], indent=2))
     else:

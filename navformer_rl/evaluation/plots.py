@@ -1,4 +1,5 @@
-"""Bar plots of SR / SPL / CR per setup with confidence-interval error bars (matplotlib, Agg backend)."""
+"""Bar plots of SR / SPL / CR per setup with confidence-interval error bars, and SR over training seeds per
+configuration (matplotlib, Agg backend)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from navformer_rl.evaluation.seeds import SeedGroupSummary
 from navformer_rl.evaluation.tables import ALL_SETUPS, SetupSummary, ordered_setups
 from navformer_rl.utils.durable import atomic_path
 
@@ -106,3 +108,69 @@ def plot_setup_bars(
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
     return path
+
+
+SERIES_NAME = r"^(?P<series>.+)@(?P<x>[0-9]+(?:\.[0-9]+)?)$"
+"""A seed group named ``SERIES@X`` (e.g. ``navformer@3496``) is point X of the line SERIES."""
+
+
+def plot_seed_groups(
+    summaries: Sequence[SeedGroupSummary], path: str | os.PathLike, x_label: str = "x"
+) -> dict[str, list[tuple[float, float, float]]]:
+    """SR of several configurations over their training seeds, as a PNG at ``path``.
+
+    When every group is named ``SERIES@X`` (:data:`SERIES_NAME`), one line per series over X (e.g. SR
+    against dataset size), else one bar per group. Each point or bar is the mean over the seeds with the
+    standard deviation as its error bar, and every seed's own SR drawn as a dot. Returns the drawn values,
+    ``{series (or group name): [(x, mean SR, std), ...]}`` (x is the bar position for bars).
+    """
+    import re
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    if not summaries:
+        raise ValueError("no seed groups to plot")
+    matches = [re.match(SERIES_NAME, group.name) for group in summaries]
+    drawn: dict[str, list[tuple[float, float, float]]] = {}
+    fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
+    colors = plt.get_cmap("tab10").colors
+    if all(matches):
+        series = list(dict.fromkeys(match["series"] for match in matches))
+        for k, name in enumerate(series):
+            points = sorted(
+                (float(match["x"]), group)
+                for match, group in zip(matches, summaries)
+                if match["series"] == name
+            )
+            xs = [x for x, _ in points]
+            means = [100 * group.mean["sr"] for _, group in points]
+            stds = [100 * np.nan_to_num(group.std["sr"]) for _, group in points]
+            ax.errorbar(xs, means, yerr=stds, marker="o", capsize=4, color=colors[k % 10], label=name)
+            for x, group in points:
+                seeds = [100 * run.metrics.sr for run in group.runs]
+                ax.scatter([x] * len(seeds), seeds, s=14, color=colors[k % 10], alpha=0.45, zorder=3)
+            drawn[name] = [(x, m, s) for x, m, s in zip(xs, means, stds)]
+        if max(x for points in drawn.values() for x, _, _ in points) >= 5 * min(
+            x for points in drawn.values() for x, _, _ in points
+        ):
+            ax.set_xscale("log")
+        ax.set_xlabel(x_label)
+        ax.legend()
+    else:
+        for k, group in enumerate(summaries):
+            mean, std = 100 * group.mean["sr"], 100 * np.nan_to_num(group.std["sr"])
+            ax.bar(k, mean, yerr=std, capsize=4, color=colors[k % 10], alpha=0.8)
+            seeds = [100 * run.metrics.sr for run in group.runs]
+            ax.scatter([k] * len(seeds), seeds, s=14, color="black", zorder=3)
+            drawn[group.name] = [(float(k), mean, std)]
+        ax.set_xticks(range(len(summaries)), [group.name for group in summaries])
+    ax.set_ylabel("SR (%): mean ± std over seeds; dots: seeds")
+    ax.set_ylim(0, 100)
+    ax.grid(alpha=0.3)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120)
+    plt.close(fig)
+    return drawn

@@ -1,6 +1,7 @@
 """`navformer evaluate seeds`: per-seed metrics, mean ± std over seeds and the pooled estimate, on
 hand-made evaluation folders whose answers are computed by hand."""
 
+import dataclasses
 import json
 import math
 
@@ -128,3 +129,30 @@ def test_cli_prints_the_table_writes_it_and_refuses_bad_groups(tmp_path, two_see
     assert "give the group's evaluation folders" in capsys.readouterr().err
     assert main(["evaluate", "seeds", "--group", "nf", str(a), "--group", "nf", str(b)]) != 0
     assert "given twice" in capsys.readouterr().err
+
+
+def test_series_groups_plot_as_lines_of_mean_and_std(tmp_path, two_seeds):
+    from navformer_rl.evaluation.plots import plot_seed_groups
+
+    c = _folder(tmp_path, "s2", [True, True, True, False], [0, 0, 0, 0], checkpoint_sha="3")
+    d = _folder(tmp_path, "s3", [True, True, True, True], [0, 0, 0, 0], checkpoint_sha="4")
+    summaries = summarize_seed_groups({"navformer@350": list(two_seeds), "navformer@3496": [c, d]})
+    drawn = plot_seed_groups(summaries, tmp_path / "slope.png", x_label="D_e trajectories")
+    # seeds' SR: 50 % and 25 % at 350; 75 % and 100 % at 3,496 (sample std of two values: |a - b| / sqrt(2))
+    assert list(drawn) == ["navformer"]
+    (x0, m0, s0), (x1, m1, s1) = drawn["navformer"]
+    assert (x0, x1) == (350.0, 3496.0)
+    assert (m0, m1) == pytest.approx((37.5, 87.5))
+    assert (s0, s1) == pytest.approx((25 / 2**0.5, 25 / 2**0.5))
+    assert (tmp_path / "slope.png").stat().st_size > 0
+    bars = plot_seed_groups(summaries[:1] + [dataclasses.replace(summaries[1], name="dt")], tmp_path / "b.png")
+    assert [name for name in bars] == ["navformer@350", "dt"]  # not all SERIES@X: one bar per group
+
+
+def test_cli_writes_the_seed_plot(tmp_path, two_seeds, capsys):
+    out = tmp_path / "plot.png"
+    argv = ["evaluate", "seeds", "--group", "nf@1", *map(str, two_seeds), "--plot", str(out), "--x-label", "n"]
+    assert main(argv) == 0
+    assert out.stat().st_size > 0
+    assert main(["evaluate", "seeds", "--group", "nf", *map(str, two_seeds), "--plot", str(tmp_path)]) == 2
+    assert "--plot" in capsys.readouterr().err
