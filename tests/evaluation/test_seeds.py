@@ -145,13 +145,25 @@ def test_series_groups_plot_as_lines_of_mean_and_std(tmp_path, two_seeds):
     assert (m0, m1) == pytest.approx((37.5, 87.5))
     assert (s0, s1) == pytest.approx((25 / 2**0.5, 25 / 2**0.5))
     assert (tmp_path / "slope.png").stat().st_size > 0
-    bars = plot_seed_groups(summaries[:1] + [dataclasses.replace(summaries[1], name="dt")], tmp_path / "b.png")
+    bars = plot_seed_groups(
+        summaries[:1] + [dataclasses.replace(summaries[1], name="dt")], tmp_path / "b.png"
+    )
     assert [name for name in bars] == ["navformer@350", "dt"]  # not all SERIES@X: one bar per group
 
 
 def test_cli_writes_the_seed_plot(tmp_path, two_seeds, capsys):
     out = tmp_path / "plot.png"
-    argv = ["evaluate", "seeds", "--group", "nf@1", *map(str, two_seeds), "--plot", str(out), "--x-label", "n"]
+    argv = [
+        "evaluate",
+        "seeds",
+        "--group",
+        "nf@1",
+        *map(str, two_seeds),
+        "--plot",
+        str(out),
+        "--x-label",
+        "n",
+    ]
     assert main(argv) == 0
     assert out.stat().st_size > 0
     assert main(["evaluate", "seeds", "--group", "nf", *map(str, two_seeds), "--plot", str(tmp_path)]) == 2
