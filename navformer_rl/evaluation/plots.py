@@ -157,6 +157,9 @@ def plot_seed_groups(
             x for points in drawn.values() for x, _, _ in points
         ):
             ax.set_xscale("log")
+            ax.minorticks_off()
+        ticks = sorted({x for points in drawn.values() for x, _, _ in points})
+        ax.set_xticks(ticks, [f"{x:g}" for x in ticks])
         ax.set_xlabel(x_label)
         ax.legend()
     else:
