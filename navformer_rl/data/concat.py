@@ -13,14 +13,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import torch
-from tensordict import TensorDict
 
 from navformer_rl.data.dataset import NavDataset
 from navformer_rl.data.samplers import (
     DEFAULT_CONTEXT_STEPS,
     EpisodeTable,
     TrajectoryBatcher,
-    TrajectoryDraw,
     TrajectorySampler,
 )
 
@@ -177,8 +175,8 @@ def _gather_parts(
 class ConcatTrajectoryBatcher(TrajectoryBatcher):
     """A :class:`~navformer_rl.data.samplers.TrajectoryBatcher` over a :class:`ConcatNavDataset`: the sampler
     draws over the concatenated episode table and each key is gathered part by part (:func:`_gather_parts`)
-    into the same reusable buffers, so ``sample()`` / ``gather(draw)`` return what one folder holding the same
-    trajectories would."""
+    into the same reusable buffers, so ``sample()`` / ``gather(draw)`` (inherited) return what one folder
+    holding the same trajectories would."""
 
     def __init__(
         self,
@@ -203,27 +201,14 @@ class ConcatTrajectoryBatcher(TrajectoryBatcher):
             ("target_id",): dataset.target_offsets[:-1],
         }
 
-    def gather(self, draw: TrajectoryDraw) -> TensorDict:
-        """The batch of the windows in ``draw`` (keys and shapes of ``TrajectoryBatcher.gather``)."""
-        N, T = draw.index.shape
-        if N > self.sampler.num_trajectories:
-            raise ValueError(
-                f"the draw holds {N} trajectories, more than this batcher's {self.sampler.num_trajectories}"
-            )
-        flat = draw.index.reshape(-1)
-        turn, self._turn = self._turn, (self._turn + 1) % len(self._buffer_sets)
-        buffers = self._buffer_sets[turn]
-        out = TensorDict(batch_size=[N])
-        for key, spec in self.fields.items():
-            buffer = self._buffer(buffers, key, flat.numel(), N)
-            sources, shifts = self._part_sources[key], self._shifts.get(key)
-            gathered = _gather_parts(sources, self._row_offsets, flat, buffer, self.pin_memory, shifts)
-            out.set(key, gathered.view(N, T, *spec.shape))
-        target_rows = self.sampler.episodes.target_id[draw.trajectory]
-        target = _gather_parts(
-            self._part_targets, self._target_offsets, target_rows, self._target_buffers[turn], self.pin_memory
+    def _gather_rows(
+        self, key: tuple[str, ...], index: torch.Tensor, buffer: torch.Tensor | None
+    ) -> torch.Tensor:
+        """Rows ``index`` of the concatenation's column ``key``, gathered part by part (ids shifted to global)."""
+        return _gather_parts(
+            self._part_sources[key], self._row_offsets, index, buffer, self.pin_memory, self._shifts.get(key)
         )
-        out.set("target_pixels", target)
-        out.set("mask", draw.mask)
-        out.set("trajectory", draw.trajectory)
-        return out
+
+    def _gather_targets(self, index: torch.Tensor, buffer: torch.Tensor | None) -> torch.Tensor:
+        """Target images ``index`` of the concatenation, gathered part by part."""
+        return _gather_parts(self._part_targets, self._target_offsets, index, buffer, self.pin_memory)

@@ -363,14 +363,22 @@ class TrajectoryBatcher:
         out = TensorDict(batch_size=[N])
         for key, spec in self.fields.items():
             buffer = self._buffer(buffers, key, flat.numel(), N)
-            gathered = _gather_into(self._sources[key], flat, buffer, self.pin_memory)
-            out.set(key, gathered.view(N, T, *spec.shape))
+            out.set(key, self._gather_rows(key, flat, buffer).view(N, T, *spec.shape))
         target_rows = self.sampler.episodes.target_id[draw.trajectory]
-        target = _gather_into(self.targets, target_rows, self._target_buffers[turn], self.pin_memory)
-        out.set("target_pixels", target)
+        out.set("target_pixels", self._gather_targets(target_rows, self._target_buffers[turn]))
         out.set("mask", draw.mask)
         out.set("trajectory", draw.trajectory)
         return out
+
+    def _gather_rows(
+        self, key: tuple[str, ...], index: torch.Tensor, buffer: torch.Tensor | None
+    ) -> torch.Tensor:
+        """Rows ``index`` (int64 ``[N*T]``) of column ``key``, written into ``buffer`` when one is given."""
+        return _gather_into(self._sources[key], index, buffer, self.pin_memory)
+
+    def _gather_targets(self, index: torch.Tensor, buffer: torch.Tensor | None) -> torch.Tensor:
+        """Target images ``index`` (int64 ``[N]``) as uint8 ``[N, 84, 84, 3]``, into ``buffer`` when given."""
+        return _gather_into(self.targets, index, buffer, self.pin_memory)
 
     def state_dict(self) -> dict[str, Any]:
         return self.sampler.state_dict()
