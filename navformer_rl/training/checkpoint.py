@@ -272,7 +272,15 @@ def load_model_state(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str,
     return header["model_config"], state
 
 
-def _config_from_dict(config_cls: type, values: Mapping[str, Any]) -> Any:
+def _config_from_dict(config_cls: type, values: Mapping[str, Any], path: str | os.PathLike) -> Any:
+    """``config_cls`` from a checkpoint's ``model_config``; a PPO baseline's checkpoint (its config names a
+    ``method``) is refused with the method to use instead."""
+    method = values.get("method")
+    if isinstance(method, str) and "method" not in {f.name for f in fields(config_cls)}:
+        raise ValueError(
+            f"checkpoint {path} holds the {method} baseline (trained with PPO, `navformer train-ppo`), not a "
+            f"NavFormer / DT model (`navformer evaluate --method {method}` evaluates it)"
+        )
     known = {f.name for f in fields(config_cls)}
     unknown = sorted(set(values) - known)
     if unknown:
@@ -293,7 +301,7 @@ def read_model_config(path: str | os.PathLike) -> Any:
     """
     from navformer_rl.modules import NavFormerConfig
 
-    return _config_from_dict(NavFormerConfig, read_checkpoint_config(path)["model_config"])
+    return _config_from_dict(NavFormerConfig, read_checkpoint_config(path)["model_config"], path)
 
 
 def load_policy_model(path: str | os.PathLike, expected_config: Any | None = None) -> tuple[Any, Any]:
@@ -315,7 +323,7 @@ def load_policy_model(path: str | os.PathLike, expected_config: Any | None = Non
     from navformer_rl.modules import NavFormerConfig, NavFormerModel
 
     config_fields, state = load_model_state(path)
-    config = _config_from_dict(NavFormerConfig, config_fields)
+    config = _config_from_dict(NavFormerConfig, config_fields, path)
     if expected_config is not None and expected_config != config:
         diff = {
             f.name: (getattr(config, f.name), getattr(expected_config, f.name))

@@ -42,6 +42,15 @@ def test_a_checkpoint_of_another_method_is_refused(ppo_checkpoints):
         load_online_net(run_dir / "missing", "dsac")
 
 
+def test_a_ppo_checkpoint_read_as_navformer_names_its_method(ppo_checkpoints):
+    run_dir, _ = ppo_checkpoints["matdn"]
+    expected = r"holds the matdn baseline .*`navformer evaluate --method matdn` evaluates it"
+    with pytest.raises(ValueError, match=expected):
+        ckpt.load_policy_model(run_dir)
+    with pytest.raises(ValueError, match=expected):
+        ckpt.read_model_config(run_dir)
+
+
 def test_resuming_from_a_checkpoint_gives_the_uninterrupted_update(tmp_path, small_net):
     """Two PPO updates in a row equal one update, a checkpoint, a restore into fresh objects, one update."""
     torch.set_num_threads(1)
