@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from navformer_rl.constants import FURNISHED_FOOTPRINTS
 from navformer_rl.evaluation.measures import (
     MetricSummary,
     RobotTrial,
@@ -186,6 +187,14 @@ def format_ratio(value: float, ci: tuple[float, float] | None = None) -> str:
     return f"{text} [{ci[0]:.2f}, {ci[1]:.2f}]" if _has_interval(ci) else f"{text} [n/a]"
 
 
+def _env_size(setup: str, size: float | None) -> str:
+    """The "Env size (m)" cell: a maze's side twice, a Table II world's footprint, ``all`` for the pooled row."""
+    if size is None:
+        return "all"
+    footprint = FURNISHED_FOOTPRINTS.get(setup)
+    return f"{footprint[0]:g} × {footprint[1]:g}" if footprint else f"{size:g} × {size:g}"
+
+
 def table_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str] | None = None) -> str:
     """Markdown table in the paper's Table I layout: one row per setup (size x robots), and for each
     method three columns SR / SPL / CR, each ``value [95 % CI]``."""
@@ -200,7 +209,7 @@ def table_markdown(summaries: Sequence[SetupSummary], methods: Sequence[str] | N
     for size, n_robots, setup in rows:
         cells = [
             setup,
-            "all" if size is None else f"{size:g} × {size:g}",
+            _env_size(setup, size),
             "-" if n_robots is None else str(n_robots),
         ]
         for method in methods:

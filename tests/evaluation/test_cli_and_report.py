@@ -403,3 +403,11 @@ def test_table2_worlds_are_compared_with_the_papers_single_table2_row():
     assert by_setup["bookstore"] == "| bookstore | - | - | - |"  # the paper gives one row for the three
     # Table II, FCA: 82.22 % / 0.612 / 0.092
     assert by_setup["all"] == "| all | 100.00% / 82.22% | 0.800 / 0.612 | 0.000 / 0.092 |"
+    # our table gives each world's footprint, not a square of its longer side
+    from navformer_rl.evaluation.tables import table_markdown
+
+    sizes = {
+        row.split(" | ")[0].strip("| "): row.split(" | ")[1]
+        for row in table_markdown(summarize_by_setup(records)).splitlines()[2:]
+    }
+    assert sizes == {"bookstore": "14.3 × 15.6", "house": "19 × 11", "cafe": "9.3 × 23.1", "all": "all"}
