@@ -49,7 +49,9 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
     """What the checkpoint folder and its run directory record about the training.
 
     Returns ``{"checkpoint", "iteration", "model_config", "train_config", "data": [{"name", "path", "unit",
-    "available", "used", "seed"}], "training_seconds", "timing_source"}``; ``available`` / ``used`` /
+    "available", "used", "seed"}], "training_seconds", "timing_source", "init_from"}`` (``init_from``: the
+    run's record of the weights it was fine-tuned from, ``{"checkpoint", "folder", "iteration",
+    "weights_sha256"}``, or None); ``available`` / ``used`` /
     ``seed`` (the collection's) / ``training_seconds`` are None where the files that would give them are not
     there.
     """
@@ -84,6 +86,7 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
         "data": datasets,
         "training_seconds": seconds,
         "timing_source": None if seconds is None else str(log),
+        "init_from": (header.get("run") or {}).get("init_from"),
     }
 
 
@@ -250,6 +253,13 @@ def render_card(
         else f"{seconds:.0f} s ({seconds / 3600:.2f} h): the summed iteration times of "
         f"`{training['timing_source']}` (validation and checkpoint writes excluded)"
     )
+    source = training.get("init_from")
+    if source:
+        lines.append(
+            f"| initialised from | `{source.get('checkpoint')}`: iteration {source.get('iteration')} of "
+            f"`{source.get('folder')}` (weights sha256 `{str(source.get('weights_sha256'))[:16]}...`); fine-tuned "
+            "with fresh optimisers, so the iterations and training time here are this run's own |"
+        )
     lines += [
         f"| device setting | {config.get('device', 'not recorded')} |",
         f"| hardware | {prose.get('hardware', 'not recorded')} |",

@@ -89,6 +89,13 @@ def test_the_run_records_its_source_and_resume_wins_over_init_from(source, tiny_
     identity = recorded["run"]["init_from"]
     assert recorded["init_from"] == str(run_dir) and identity["iteration"] == 2
     assert recorded["run"]["world_size"] == 1
+    # a shipped fine-tuned run's model card names the weights it started from
+    write_pretrained(out, "navformer", out_dir=tmp_path / "shipped")
+    card = (tmp_path / "shipped" / "navformer" / "MODEL_CARD.md").read_text()
+    assert (
+        f"| initialised from | `{run_dir}`: iteration 2 of `{identity['folder']}` (weights sha256 "
+        f"`{identity['weights_sha256'][:16]}...`); fine-tuned with fresh optimisers" in card
+    )
     assert ckpt.read_checkpoint_config(out)["run"]["init_from"] == identity
     assert load_train_config(["output_dir=x"], out / "train_config.json").init_from == str(
         run_dir
