@@ -9,7 +9,7 @@
 #   train        train NavFormer (or an ablation / the DT baseline) on D_e / D_ca / D_ssl
 #   validate     teacher-forced action loss of checkpoints on held-out D_e / D_ca
 #   train-ppo    train the DSAC / MA-TDN baselines online with PPO
-#   evaluate     measure SR / SPL / CR of a method on fixed episodes (and make-episodes / report / seeds / diagnose / strip)
+#   evaluate     measure SR / SPL / CR of a method on fixed episodes (and make-episodes / report / seeds / compare / diagnose / strip)
 #   pretrained   list the shipped weights (pretrained:NAME), or ship a trained run
 #   export       write a dataset in another tool's format (minari)
 # `./run.sh COMMAND --help` shows a command's options. Relative paths in the arguments (--out,

@@ -93,7 +93,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     parser.set_defaults(run=_run_evaluate)
 
-    commands = parser.add_subparsers(dest="evaluate_command", metavar="{make-episodes,report,seeds,diagnose}")
+    commands = parser.add_subparsers(
+        dest="evaluate_command", metavar="{make-episodes,report,seeds,compare,diagnose,strip}"
+    )
     make = commands.add_parser(
         "make-episodes",
         help="write a fixed, versioned episode-set file",
@@ -163,6 +165,25 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     seeds.add_argument("--x-label", dest="seeds_x_label", default="x", help="--plot's x-axis label")
     _add_cluster_option(seeds, "trial")
     seeds.set_defaults(run=_run_seeds)
+
+    compare = commands.add_parser(
+        "compare",
+        help="paired difference A - B of SR / SPL / CR on the same episodes, with intervals",
+        description="Compare two evaluation folders of one episode set robot-trial by robot-trial: per setup "
+        "and pooled, the mean difference A - B of success, SPL and CR with a cluster-bootstrap interval "
+        "(docs/evaluation.md, 'Paired comparisons').",
+    )
+    compare.add_argument("compare_a", type=Path, metavar="A", help="evaluation folder of the first method")
+    compare.add_argument("compare_b", type=Path, metavar="B", help="evaluation folder of the second method")
+    compare.add_argument(
+        "--out",
+        dest="compare_out",
+        type=Path,
+        metavar="FILE",
+        help="also write the markdown table to this file",
+    )
+    _add_cluster_option(compare, "trial")
+    compare.set_defaults(run=_run_compare)
     _register_diagnose(commands, METHODS)
     return parser
 
@@ -372,6 +393,19 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
             )
     path = save_episode_set(episode_set, out)
     print(f"wrote {len(episode_set)} episodes ({', '.join(episode_set.setups)}) to {path}")
+    return 0
+
+
+def _run_compare(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.paired import paired_differences, paired_markdown
+    from navformer_rl.utils.durable import atomic_write_text
+
+    out = _output_file(args.compare_out, "--out") if args.compare_out is not None else None
+    labels, rows = paired_differences(args.compare_a, args.compare_b, cluster=args.cluster_by)
+    table = paired_markdown(labels, rows, cluster=args.cluster_by)
+    if out is not None:
+        atomic_write_text(out, table)
+    print(table, end="")
     return 0
 
 

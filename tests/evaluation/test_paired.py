@@ -1,0 +1,120 @@
+"""Paired differences of two evaluations of the same episodes (`navformer evaluate compare`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from navformer_rl.cli.main import main
+from navformer_rl.evaluation.measures import RobotTrial
+from navformer_rl.evaluation.paired import paired_differences, paired_markdown
+from navformer_rl.evaluation.tables import records_to_jsonl
+
+BASE = RobotTrial(
+    method="navformer", episode_id="", setup="", size=7.5, n_robots=2, world_seed=0, trial=0, robot=0,
+    robot_style="jackal", measured=True, success=False, success_step=None, steps=100, collisions=0,
+    path_length=5.0, shortest_path=4.0, shortest_path_to_disc=3.0, final_distance=3.0,
+)  # fmt: skip
+
+
+def trials(successes: list[list[bool]], setup: str = "7.5m-2r", collisions: int = 0) -> list[RobotTrial]:
+    """One record per robot: ``successes[trial][robot]``; a success drives 5 m of a 4 m shortest path."""
+    return [
+        dataclasses.replace(
+            BASE,
+            episode_id=f"{setup}-{t}",
+            setup=setup,
+            size=float(setup.split("m")[0]),
+            world_seed=t // 2,
+            trial=t,
+            robot=r,
+            success=ok,
+            success_step=50 if ok else None,
+            collisions=collisions,
+        )  # fmt: skip
+        for t, robots in enumerate(successes)
+        for r, ok in enumerate(robots)
+    ]
+
+
+def write(folder, label: str, records: list[RobotTrial], digest: str = "abc"):
+    folder.mkdir()
+    (folder / "run.json").write_text(json.dumps({"label": label, "episode_set": {"content_sha256": digest}}))
+    (folder / "episodes.jsonl").write_text(records_to_jsonl(records))
+    return folder
+
+
+def test_known_differences_and_their_intervals(tmp_path):
+    n = 10
+    a = write(tmp_path / "a", "navformer", trials([[True, True]] * n, collisions=10))
+    b = write(tmp_path / "b", "dt", trials([[True, False]] * n, collisions=30))
+    labels, rows = paired_differences(a, b)
+    assert labels == ("navformer", "dt") and [row.setup for row in rows] == ["7.5m-2r", "all"]
+    row = rows[-1]
+    assert (row.n_trials, row.n_robot_trials, row.n_clusters) == (n, 2 * n, n)
+    assert row.a["sr"] == 1.0 and row.b["sr"] == 0.5 and row.difference["sr"] == pytest.approx(0.5)
+    # every trial differs by exactly one success of two robots: no spread, the interval is the point
+    assert row.interval["sr"] == pytest.approx((0.5, 0.5)) and row.excludes_zero("sr")
+    assert row.difference["cr"] == pytest.approx(0.1 - 0.3) and row.interval["cr"] == pytest.approx(
+        (-0.2, -0.2)
+    )
+    assert row.difference["spl"] == pytest.approx(0.8 - 0.4)
+    table = paired_markdown(labels, rows)
+    assert "| all | 10 | 20 | 100.0 % | 50.0 % | +50.0 [+50.0, +50.0] * |" in table
+
+
+def test_equal_evaluations_differ_by_nothing_and_noise_gives_an_interval_around_the_difference(tmp_path):
+    rng = np.random.default_rng(0)
+    outcomes = rng.random((40, 3)) < 0.4
+    a = write(tmp_path / "a", "navformer", trials(outcomes.tolist()))
+    same = write(tmp_path / "same", "navformer-copy", trials(outcomes.tolist()))
+    _, rows = paired_differences(a, same)
+    assert rows[-1].difference["sr"] == 0.0 and rows[-1].interval["sr"] == (0.0, 0.0)
+    assert not rows[-1].excludes_zero("sr")
+    flipped = outcomes.copy()
+    flipped[:10, 0] = ~flipped[:10, 0]  # ten robot-trials change outcome
+    b = write(tmp_path / "b", "dt", trials(flipped.tolist()))
+    _, rows = paired_differences(a, b)
+    low, high = rows[-1].interval["sr"]
+    assert low <= rows[-1].difference["sr"] <= high and high - low > 0
+    # seeded: the same folders give the same interval; clustering by maze gives another
+    assert paired_differences(a, b)[1][-1].interval == rows[-1].interval
+    assert paired_differences(a, b, cluster="world")[1][-1].n_clusters == 20
+
+
+def test_setups_are_compared_separately_and_unmeasured_robots_are_left_out(tmp_path):
+    records = trials([[True, False]] * 6, "7.5m-2r") + trials([[False, False]] * 6, "12.5m-2r")
+    records[1] = dataclasses.replace(records[1], measured=False)
+    other = [dataclasses.replace(r, success=True) for r in records]
+    a = write(tmp_path / "a", "navformer", records)
+    b = write(tmp_path / "b", "fca", other)
+    _, rows = paired_differences(a, b)
+    by_setup = {row.setup: row for row in rows}
+    assert list(by_setup) == ["7.5m-2r", "12.5m-2r", "all"]
+    assert by_setup["7.5m-2r"].n_robot_trials == 11 and by_setup["12.5m-2r"].difference["sr"] == -1.0
+
+
+def test_evaluations_of_other_episodes_are_refused(tmp_path):
+    a = write(tmp_path / "a", "navformer", trials([[True]] * 6))
+    other_set = write(tmp_path / "b", "dt", trials([[True]] * 6), digest="def")
+    with pytest.raises(ValueError, match="ran different episode sets .*same --episodes file"):
+        paired_differences(a, other_set)
+    unfinished = write(tmp_path / "c", "dt", trials([[True]] * 5))
+    with pytest.raises(ValueError, match=r"has robot 0 of episode '7.5m-2r-5' \(and 0 more\) that .* lacks"):
+        paired_differences(a, unfinished)
+    with pytest.raises(FileNotFoundError, match="not an evaluation folder"):
+        paired_differences(a, tmp_path)
+
+
+def test_cli_prints_and_writes_the_table(tmp_path, capsys):
+    a = write(tmp_path / "a", "navformer", trials([[True, True]] * 6))
+    b = write(tmp_path / "b", "dt", trials([[False, True]] * 6))
+    out = tmp_path / "paired.md"
+    assert main(["evaluate", "compare", str(a), str(b), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert printed == out.read_text() and "SR navformer - dt (points)" in printed
+    assert main(["evaluate", "compare", str(a), str(tmp_path / "missing")]) == 2
+    assert "navformer evaluate: error:" in capsys.readouterr().err
