@@ -72,8 +72,16 @@ def shipped_evaluation(shipped, tmp_path_factory):
     return out
 
 
-def test_the_packaged_registry_is_readable():
-    assert isinstance(read_registry(PACKAGED_ROOT), dict)
+def test_the_packaged_weights_check_out_and_load(monkeypatch):
+    """Every name the package ships resolves (each file's sha256 checked) and loads as its method's model."""
+    monkeypatch.delenv(PRETRAINED_DIR_ENV, raising=False)
+    registry = read_registry(PACKAGED_ROOT)
+    assert "navformer" in registry
+    for name, entry in registry.items():
+        assert resolve_pretrained(name) == PACKAGED_ROOT / name
+        model, config = load_pretrained(name)
+        assert not model.training and (config.thsc == (entry["method"] == "navformer"))
+        assert (PACKAGED_ROOT / name / "MODEL_CARD.md").is_file()
 
 
 def test_pretrained_names_resolve_to_the_exact_weights(shipped, trained_run, monkeypatch):
