@@ -250,11 +250,17 @@ def _shipped_note(eval_dirs: Sequence[Path]) -> list[str]:
     ]
     if not names:
         return []
-    shipped = ", ".join(f"`pretrained:{name}`" for name in names)
+    from navformer_rl.training.checkpoint import read_checkpoint_config
+
+    described = []
+    for name in names:
+        header = read_checkpoint_config(f"pretrained:{name}")
+        described.append(f"`pretrained:{name}` ({header['iteration']:,} training iterations)")
     return [
-        f"{shipped}: the shipped weights, trained at the paper's scale (their model cards are in "
-        "`navformer_rl/pretrained/weights/`, docs/pretrained.md), evaluated on the same episodes: what a "
-        "trained policy does, beside what the demo's small training reaches.\n"
+        f"{', '.join(described)}: the shipped weights (their data, training and results with intervals are on "
+        "their model cards, `navformer_rl/pretrained/weights/<name>/MODEL_CARD.md`, docs/pretrained.md), "
+        "evaluated on the same episodes: a longer-trained policy beside what the demo's small training "
+        "reaches.\n"
     ]
 
 

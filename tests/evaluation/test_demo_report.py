@@ -354,3 +354,18 @@ def test_the_video_captions_of_a_real_evaluation_name_its_method_and_robots(tmp_
     assert videos and len(lines) == 3 + len(videos)
     assert all(line.startswith("- [vrw, episode ") for line in lines[2 : 2 + len(videos)])
     assert "robot 0 " in lines[2]
+
+
+def test_the_report_describes_shipped_weights_from_their_checkpoint(tmp_path, monkeypatch):
+    from navformer_rl.demo.report import _shipped_note
+    from navformer_rl.training.checkpoint import read_checkpoint_config
+    from navformer_rl.training.pretrained_registry import PRETRAINED_DIR_ENV
+
+    monkeypatch.delenv(PRETRAINED_DIR_ENV, raising=False)
+    assert _shipped_note([tmp_path / "navformer", tmp_path / "vrw"]) == []
+    (note,) = _shipped_note([tmp_path / "navformer", tmp_path / "pretrained_navformer"])
+    iterations = read_checkpoint_config("pretrained:navformer")["iteration"]
+    assert note.startswith(
+        f"`pretrained:navformer` ({iterations:,} training iterations): the shipped weights"
+    )
+    assert "MODEL_CARD.md" in note and "paper's scale" not in note
