@@ -87,8 +87,9 @@ def _difference(
     seed: int,
     n_resamples: int,
 ) -> PairedDifference:
-    a = {m: np.array([_metric_values(x)[m] for x, _ in pairs]) for m in PAIRED_METRICS}
-    b = {m: np.array([_metric_values(y)[m] for _, y in pairs]) for m in PAIRED_METRICS}
+    values = [(_metric_values(x), _metric_values(y)) for x, y in pairs]
+    a = {m: np.array([va[m] for va, _ in values]) for m in PAIRED_METRICS}
+    b = {m: np.array([vb[m] for _, vb in values]) for m in PAIRED_METRICS}
     if cluster == "trial":
         keys = [x.episode_id for x, _ in pairs]
     else:

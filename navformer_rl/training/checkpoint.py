@@ -275,13 +275,13 @@ def load_model_state(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str,
 def _config_from_dict(config_cls: type, values: Mapping[str, Any], path: str | os.PathLike) -> Any:
     """``config_cls`` from a checkpoint's ``model_config``; a PPO baseline's checkpoint (its config names a
     ``method``) is refused with the method to use instead."""
+    known = {f.name for f in fields(config_cls)}
     method = values.get("method")
-    if isinstance(method, str) and "method" not in {f.name for f in fields(config_cls)}:
+    if isinstance(method, str) and "method" not in known:
         raise ValueError(
             f"checkpoint {path} holds the {method} baseline (trained with PPO, `navformer train-ppo`), not a "
             f"NavFormer / DT model (`navformer evaluate --method {method}` evaluates it)"
         )
-    known = {f.name for f in fields(config_cls)}
     unknown = sorted(set(values) - known)
     if unknown:
         raise ValueError(
