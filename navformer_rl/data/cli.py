@@ -22,7 +22,10 @@ kinds:
   all  the three, under OUT/e, OUT/ca, OUT/ssl
 
 Interrupted? Run the same command again: finished work units are kept and the result is identical.
-DAgger round (e / ca): --dagger-policy runs/navformer mixes the trained policy into the expert's driving
+--worlds bookstore|cafe|house|furnished collects in Table II's furnished worlds instead of the training
+worlds ('furnished' draws the kind per world), e.g. small data for fine-tuning in a new world style (paper
+§VIII): --worlds furnished --robots 2 for two-robot D_ca (docs/datasets.md, "Other worlds").
+DAgger (e / ca): --dagger-policy runs/navformer mixes the trained policy into the expert's driving
 (the stored actions stay the expert's); then fine-tune on the aggregate, docs/datasets.md ("DAgger").
 --backend ray runs each work unit as a Ray task (pip install "navformer_rl[distributed]"): a local Ray
 instance with --workers CPUs, or the cluster of --ray-address / $RAY_ADDRESS (docs/datasets.md, "Ray").
@@ -81,6 +84,20 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="with --dagger-policy: probability that a robot executes the expert's action at a step "
         "(default 0.5)",
     )
+    parser.add_argument(
+        "--worlds",
+        choices=("bookstore", "cafe", "house", "furnished"),
+        default=None,
+        help="collect in Table II's furnished worlds of this kind ('furnished': a kind drawn per world) "
+        "instead of the paper's training worlds (default: mazes for e / ssl, the arena for ca)",
+    )
+    parser.add_argument(
+        "--robots",
+        type=robot_range,
+        default=None,
+        metavar="N|LO-HI",
+        help="ca / ssl: robots per world, the ego robot included (default: the paper's, ca 3-9, ssl 4-25)",
+    )
     add_backend_options(parser, "work units")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run_collect)
@@ -95,6 +112,8 @@ def run_collect(args: argparse.Namespace) -> int:
         return _error("--action-noise applies to e and ca (D_ssl has no actions)")
     if args.kind == "ssl" and args.dagger_policy is not None:
         return _error("--dagger-policy applies to e and ca (D_ssl has no actions)")
+    if args.kind == "e" and args.robots is not None:
+        return _error("--robots applies to ca and ssl (D_e has one robot per world)")
     if args.dagger_beta is not None and args.dagger_policy is None:
         return _error("--dagger-beta needs --dagger-policy CHECKPOINT")
     if args.dagger_policy is not None and args.action_noise:
@@ -111,6 +130,7 @@ def run_collect(args: argparse.Namespace) -> int:
 
     workers = default_workers() if args.workers is None else args.workers
     options = {} if args.action_noise is None else {"action_noise": args.action_noise}
+    world_options = {} if args.worlds is None else {"worlds": args.worlds}
     if args.dagger_policy is not None:
         from navformer_rl.data.dagger import dagger_settings
 
@@ -121,13 +141,14 @@ def run_collect(args: argparse.Namespace) -> int:
             return _error(f"--dagger-policy: {err}")
     if args.kind == "all":
         jobs = [
-            (kind, args.out / kind.value, {} if kind is DatasetKind.SSL else dict(options))
+            (kind, args.out / kind.value, _overrides(kind, options, world_options, args.robots))
             for kind in DatasetKind
         ]
     else:
         kind = DatasetKind.parse(args.kind)
         field = "n_worlds" if kind is DatasetKind.SSL else "n_trajectories"
-        jobs = [(kind, args.out, {**options, **({} if args.n is None else {field: args.n})})]
+        size = {} if args.n is None else {field: args.n}
+        jobs = [(kind, args.out, {**_overrides(kind, options, world_options, args.robots), **size})]
     try:
         with session(args.backend, workers, args.ray_address):  # one Ray session for every kind of 'all'
             for kind, out, overrides in jobs:
@@ -145,6 +166,31 @@ def run_collect(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError, RuntimeError) as err:
         return _error(str(err))
     return 0
+
+
+def robot_range(text: str) -> tuple[int, int]:
+    """``--robots``: ``N`` or ``LO-HI`` robots per world (ego included), 1 <= LO <= HI."""
+    lo, sep, hi = text.partition("-")
+    try:
+        bounds = (int(lo), int(hi) if sep else int(lo))
+    except ValueError:
+        bounds = (0, -1)
+    if not 1 <= bounds[0] <= bounds[1]:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected N or LO-HI robots with 1 <= LO <= HI")
+    return bounds
+
+
+def _overrides(kind, options: dict, world_options: dict, robots: tuple[int, int] | None) -> dict:
+    """The settings overrides of one dataset ``kind``: the action options (e / ca), the worlds, and the
+    robot count (ca: ``other_robots`` excludes the ego robot; ssl: ``robots``)."""
+    from navformer_rl.data.schema import DatasetKind
+
+    overrides = {**world_options} if kind is DatasetKind.SSL else {**options, **world_options}
+    if robots is not None and kind is DatasetKind.COLLISION_AVOIDANCE:
+        overrides["other_robots"] = (robots[0] - 1, robots[1] - 1)
+    elif robots is not None and kind is DatasetKind.SSL:
+        overrides["robots"] = robots
+    return overrides
 
 
 def _error(message: str) -> int:

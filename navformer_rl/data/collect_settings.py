@@ -20,6 +20,14 @@ from navformer_rl.utils.checks import check_number
 MAZE_SIZES = (5.0, 7.5, 10.0, 12.5, 15.0, 17.5)
 """World sides for D_e and D_ssl: the paper's 5-17.5 m range on the 2.5 m maze-cell grid."""
 
+FURNISHED_WORLDS = ("bookstore", "cafe", "house", "furnished")
+"""``worlds`` values that collect in Table II's furnished worlds (``envs/furnished.py``) instead of the
+training worlds: one kind, or ``"furnished"`` (each world's kind drawn uniformly from the three). Not in the
+paper's training data; for fine-tuning in a new world style (paper §VIII)."""
+
+TRAINING_WORLDS = {"e": "maze", "ca": "arena", "ssl": "maze"}
+"""The paper's training worlds of each kind (§V), the default ``worlds``."""
+
 KIND_CODE = {DatasetKind.EXPLORATION: 1, DatasetKind.COLLISION_AVOIDANCE: 2, DatasetKind.SSL: 3}
 """The kind's entry of every unit seed's ``spawn_key`` (:func:`unit_seed`)."""
 
@@ -84,6 +92,9 @@ class ExplorationSettings:
     expert's (DART, Laskey et al. 2017; not in the paper). 0 (default) records the plain expert."""
     dagger: DaggerSettings | None = None
     """A policy in the loop (:class:`DaggerSettings`); None (default) records the plain expert."""
+    worlds: str = "maze"
+    """``"maze"`` (the paper's, sized from ``world_sizes``) or one of :data:`FURNISHED_WORLDS` (each at its
+    footprint; ``world_sizes`` unused)."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +112,9 @@ class CollisionAvoidanceSettings:
     """As in :class:`ExplorationSettings` (every robot's executed actions are perturbed)."""
     dagger: DaggerSettings | None = None
     """As in :class:`ExplorationSettings` (every robot mixes its own draws; one policy drives them all)."""
+    worlds: str = "arena"
+    """``"arena"`` (the paper's, ``arena_size``) or one of :data:`FURNISHED_WORLDS` (each at its footprint;
+    the experts follow geodesic fields, so furniture is avoided like walls)."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +128,8 @@ class SSLSettings:
     robots: tuple[int, int] = (4, 25)
     robot: str = "jackal"
     seed: int = 0
+    worlds: str = "maze"
+    """As in :class:`ExplorationSettings`."""
 
 
 CollectionSettings = ExplorationSettings | CollisionAvoidanceSettings | SSLSettings
@@ -145,6 +161,15 @@ def settings_for(kind: DatasetKind | str, scale: str = "small", seed: int = 0, *
         raise ValueError(f"unknown {kind.value} collection setting(s) {sorted(unknown)}")
     if "action_noise" in overrides:
         check_number(overrides["action_noise"], f"{kind.value} action_noise", at_least=0.0, at_most=1.0)
+    if "worlds" in overrides:
+        allowed = (TRAINING_WORLDS[kind.value], *FURNISHED_WORLDS)
+        if overrides["worlds"] not in allowed:
+            raise ValueError(f"{kind.value} worlds={overrides['worlds']!r}: expected one of {allowed}")
+    for key, least in (("other_robots", 0), ("robots", 1)):
+        if key in overrides:
+            if isinstance(overrides[key], list):  # as a config file gives it
+                overrides[key] = tuple(overrides[key])
+            _check_range(overrides[key], f"{kind.value} {key}", least)
     settings = dataclasses.replace(base, seed=seed, **overrides)
     dagger = getattr(settings, "dagger", None)
     if dagger is not None:
@@ -158,12 +183,26 @@ def settings_for(kind: DatasetKind | str, scale: str = "small", seed: int = 0, *
     return settings
 
 
+def _check_range(value: Any, name: str, least: int) -> None:
+    """Refuse a robot-count range that is not ``(lo, hi)`` integers with ``least <= lo <= hi``."""
+    ok = (
+        isinstance(value, tuple)
+        and len(value) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+        and least <= value[0] <= value[1]
+    )
+    if not ok:
+        raise ValueError(f"{name}={value!r}: expected (lo, hi) integers with {least} <= lo <= hi")
+
+
 def settings_record(settings: CollectionSettings) -> dict[str, Any]:
     """The settings as a dataset records them: ``dataclasses.asdict``, with ``dagger`` as
-    :meth:`DaggerSettings.record` and left out when None (so a plain collection records what it always
-    did)."""
+    :meth:`DaggerSettings.record` and left out when None, and ``worlds`` left out when it is the paper's
+    training worlds (so a plain collection records what it always did)."""
     record = dataclasses.asdict(settings)
     record.pop("dagger", None)
+    if record.get("worlds") in TRAINING_WORLDS.values():
+        record.pop("worlds")
     dagger = getattr(settings, "dagger", None)
     if dagger is not None:
         record["dagger"] = dagger.record()

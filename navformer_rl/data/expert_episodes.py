@@ -174,21 +174,35 @@ def _render_kept(
             trajs[i].frames.append(sim.render(int(i)))
 
 
+def world_kind_and_size(worlds: str, sizes: tuple[float, ...], rng: np.random.Generator) -> tuple[str, float]:
+    """``(kind, size)`` of one collection world of ``worlds`` (a settings' ``worlds``), drawing from ``rng``:
+    a maze's size from ``sizes``; ``"furnished"``'s kind uniformly from the three furnished kinds; a
+    furnished world at its footprint. (``"arena"`` is not drawn here: its size is the settings'.)"""
+    from navformer_rl.envs.furnished import FURNISHED_KINDS, furnished_size
+
+    if worlds == "maze":
+        return "maze", float(sizes[int(rng.integers(len(sizes)))])
+    kind = FURNISHED_KINDS[int(rng.integers(len(FURNISHED_KINDS)))] if worlds == "furnished" else worlds
+    return kind, furnished_size(kind)
+
+
 def exploration_world(settings: ExplorationSettings, unit: int, k: int):
-    """``(world, rng)`` of episode ``k`` of D_e unit ``unit``: a single-robot maze of a size drawn from
-    ``settings.world_sizes``; ``rng`` (numpy Generator) then seeds the expert."""
+    """``(world, rng)`` of episode ``k`` of D_e unit ``unit``: a single-robot world of ``settings.worlds``
+    (the paper's: a maze of a size drawn from ``settings.world_sizes``); ``rng`` (numpy Generator) then seeds
+    the expert."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.world import WorldConfig, generate_world
 
     seed = unit_seed(settings.seed, DatasetKind.EXPLORATION, unit, k)
     rng = np.random.default_rng(seed)
-    size = float(settings.world_sizes[int(rng.integers(len(settings.world_sizes)))])
+    kind, size = world_kind_and_size(settings.worlds, settings.world_sizes, rng)
     radius = get_robot_spec(settings.robot).radius
-    return generate_world(WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=radius), seed), rng
+    return generate_world(WorldConfig(size=size, kind=kind, n_robots=1, robot_radius=radius), seed), rng
 
 
 def collision_avoidance_world(settings: CollisionAvoidanceSettings, unit: int):
-    """``(world, rng)`` of D_ca unit ``unit``: the arena with the ego robot plus a drawn number of others."""
+    """``(world, rng)`` of D_ca unit ``unit``: a world of ``settings.worlds`` (the paper's: the arena) with the
+    ego robot plus a drawn number of others."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.world import WorldConfig, generate_world
 
@@ -196,8 +210,12 @@ def collision_avoidance_world(settings: CollisionAvoidanceSettings, unit: int):
     rng = np.random.default_rng(seed)
     lo, hi = settings.other_robots
     n_robots = 1 + int(rng.integers(lo, hi + 1))
+    if settings.worlds == "arena":
+        kind, size = "arena", settings.arena_size
+    else:
+        kind, size = world_kind_and_size(settings.worlds, (), rng)
     radius = get_robot_spec(settings.robot).radius
-    config = WorldConfig(size=settings.arena_size, kind="arena", n_robots=n_robots, robot_radius=radius)
+    config = WorldConfig(size=size, kind=kind, n_robots=n_robots, robot_radius=radius)
     return generate_world(config, seed), rng
 
 
@@ -347,25 +365,25 @@ def ssl_layouts(
         except ValueError as err:
             last = err
     raise ValueError(
-        f"D_ssl unit {unit}: cannot place even one robot in its {world.size} m maze "
+        f"D_ssl unit {unit}: cannot place even one robot in its {world.size} m {world.kind} "
         f"(drawn {n_drawn} robots; last error: {last})"
     )
 
 
 def ssl_world(settings: SSLSettings, unit: int) -> tuple[WorldSpec, int, np.random.Generator]:
-    """``(world, n_drawn, rng)`` of D_ssl unit ``unit``: a maze of a size drawn from
-    ``settings.world_sizes``, the robot count drawn from ``settings.robots`` (before :func:`ssl_layouts`
+    """``(world, n_drawn, rng)`` of D_ssl unit ``unit``: a world of ``settings.worlds`` (the paper's: a maze of
+    a size drawn from ``settings.world_sizes``), the robot count drawn from ``settings.robots`` (before :func:`ssl_layouts`
     fits it to the maze) and the unit's numpy Generator, which then places the robots."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.world import WorldConfig, generate_world
 
     seed = unit_seed(settings.seed, DatasetKind.SSL, unit)
     rng = np.random.default_rng(seed)
-    size = float(settings.world_sizes[int(rng.integers(len(settings.world_sizes)))])
+    kind, size = world_kind_and_size(settings.worlds, settings.world_sizes, rng)
     lo, hi = settings.robots
     n_drawn = int(rng.integers(lo, hi + 1))
     radius = get_robot_spec(settings.robot).radius
-    world = generate_world(WorldConfig(size=size, kind="maze", n_robots=1, robot_radius=radius), seed)
+    world = generate_world(WorldConfig(size=size, kind=kind, n_robots=1, robot_radius=radius), seed)
     return world, n_drawn, rng
 
 

@@ -76,6 +76,7 @@ def train_stage(cfg: DemoConfig, data: dict[str, Path], method: str, progress: b
     """Stage 2: train ``method`` (``navformer`` or the ``dt`` baseline); returns its run folder."""
     from navformer_rl.data.schema import DatasetKind
     from navformer_rl.training import load_train_config, train
+    from navformer_rl.utils.devices import fast_autocast_dtype, resolve_device
 
     run_dir = cfg.out_dir / "train" / method
     overrides = [
@@ -91,11 +92,13 @@ def train_stage(cfg: DemoConfig, data: dict[str, Path], method: str, progress: b
         f"data.ssl_batch_pairs={cfg.ssl_batch}",
         f"optim.iterations={cfg.iterations}",
         f"checkpoint.interval={max(1, cfg.iterations // 4)}",
-        "model.autocast_dtype=bfloat16",
         "model.encoder_micro_batch=512",
         f"logger.progress={str(progress).lower()}",
         f"validation.interval={max(1, cfg.iterations // 4)}",
     ]
+    autocast = fast_autocast_dtype(resolve_device("auto"))  # bf16 where the hardware has it, else fp32
+    if autocast is not None:
+        overrides.append(f"model.autocast_dtype={autocast}")
     for kind, key in (("e", "exploration_path"), ("ca", "collision_path")):
         if f"held_out_{kind}" in data:
             overrides.append(f"validation.{key}={data[f'held_out_{kind}']}")

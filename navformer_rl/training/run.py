@@ -22,6 +22,7 @@ from navformer_rl.training.datasets import check_datasets_fit_model, open_datase
 from navformer_rl.training.init_from import load_initial_weights, resolve_init_source
 from navformer_rl.training.trainer import Trainer
 from navformer_rl.utils.allocator import keep_freed_memory, release_free_memory
+from navformer_rl.utils.devices import bfloat16_autocast_warning
 from navformer_rl.utils.durable import atomic_write_text
 
 
@@ -86,6 +87,9 @@ def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None)
     trainer = Trainer(
         cfg, datasets=datasets, validation_datasets=validation_datasets, distributed=distributed
     )
+    slow_bf16 = bfloat16_autocast_warning(trainer.device, trainer.model_config.autocast_dtype)
+    if slow_bf16 is not None and distributed.is_main:
+        warnings.warn(slow_bf16, UserWarning, stacklevel=2)
     if latest is not None:
         trainer.restore(latest)
     elif source is not None:

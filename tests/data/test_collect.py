@@ -83,6 +83,7 @@ def test_tiny_exploration_collection(tmp_path):
     meta = ds.metadata
     assert meta["settings"]["world_sizes"] == [5.0] and meta["counts"]["attempted"] >= 2
     assert meta["settings"][VERSIONS_KEY] == data_versions("e") and "code_sha256" not in meta["settings"]
+    assert "worlds" not in meta["settings"]  # the training worlds: the identity plain collections always had
     assert meta["seeds"]["base"] == 0
 
 
@@ -135,6 +136,45 @@ def test_tiny_ssl_collection_pairs_share_the_pose(tmp_path):
     # same pose: apart from the robots, most pixels are identical in every pair
     same = (static == dynamic).all(-1).flatten(1).float().mean(1)
     assert (same > 0.5).all()
+
+
+def test_collections_in_furnished_worlds(tmp_path, capsys):
+    """``worlds=`` collects each kind in Table II's furnished worlds: the experts succeed there, the worlds
+    are the drawn kinds at their footprints, and the setting is part of the dataset's identity."""
+    s = settings_for("e", "small", seed=4, n_trajectories=2, episodes_per_unit=1, worlds="furnished")
+    kinds = {expert_episodes.exploration_world(s, u, 0)[0].kind for u in range(12)}
+    assert kinds == {"bookstore", "cafe", "house"}  # 'furnished' draws the kind per world
+    ds = open_dataset(collect("e", tmp_path / "e", s, workers=1, progress=False), kind="e")
+    assert ds.num_trajectories == 2 and ds.metadata["settings"]["worlds"] == "furnished"
+    _check_trajectories(ds, task=0, settings=s)
+    # CLI: two-robot D_ca in cafes, as the fine-tuning protocol of paper §VIII asks
+    out = tmp_path / "ca"
+    args = ["collect", "ca", "--worlds", "cafe", "--robots", "2", "--n", "2", "--seed", "1", "--workers", "1"]
+    assert cli_main([*args, "--out", str(out), "--no-progress"]) == 0
+    ca = open_dataset(out, kind="ca")
+    settings = ca.metadata["settings"]
+    assert settings["worlds"] == "cafe" and settings["other_robots"] == [1, 1]
+    ca_settings = settings_for("ca", "small", seed=1, n_trajectories=2, other_robots=(1, 1), worlds="cafe")
+    world = expert_episodes.collision_avoidance_world(ca_settings, 0)[0]
+    assert world.kind == "cafe" and len(world.starts) == 2
+    _check_trajectories(ca, task=1, settings=ca_settings)
+    ssl = settings_for("ssl", "small", seed=2, n_worlds=1, pairs_per_world=4, robots=(3, 3), worlds="house")
+    pairs = open_dataset(collect("ssl", tmp_path / "ssl", ssl, workers=1, progress=False), kind="ssl")
+    assert len(pairs) == 4 and expert_episodes.ssl_world(ssl, 0)[0].kind == "house"
+    # another worlds setting is another dataset: resuming into the folder is refused
+    other = settings_for("e", "small", seed=4, n_trajectories=2, episodes_per_unit=1, worlds="cafe")
+    with pytest.raises(ValueError, match="worlds"):
+        collect("e", tmp_path / "e", other, workers=1, progress=False)
+    capsys.readouterr()
+    assert cli_main(["collect", "e", "--robots", "2", "--out", str(tmp_path / "x")]) == 2
+    assert "--robots applies to ca and ssl" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli_main(["collect", "ca", "--robots", "0", "--out", str(tmp_path / "x")])
+    assert "'0': expected N or LO-HI robots with 1 <= LO <= HI" in capsys.readouterr().err
+    with pytest.raises(ValueError, match=r"e worlds='arena': expected one of \('maze'"):
+        settings_for("e", worlds="arena")
+    with pytest.raises(ValueError, match="ca other_robots=\\(2, 1\\): expected"):
+        settings_for("ca", other_robots=(2, 1))
 
 
 def test_failed_episodes_are_dropped_and_counted():
