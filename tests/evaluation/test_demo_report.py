@@ -264,6 +264,26 @@ def test_held_out_sets_come_from_other_mazes_and_validate_the_training(tmp_path,
     assert configs[-1].validation.exploration_path is None and not configs[-1].validation.enabled
 
 
+@pytest.mark.parametrize("native", [True, False])
+def test_the_demo_trains_in_bf16_only_where_the_cpu_has_it(tmp_path, monkeypatch, native):
+    """bf16 autocast where the hardware computes it; fp32 on a CPU that would emulate bf16 (several times
+    slower there, docs/training.md)."""
+    import navformer_rl.training as training_module
+    from navformer_rl.utils import devices
+
+    monkeypatch.setattr(devices, "cpu_has_native_bfloat16", lambda: native)
+    configs = []
+    monkeypatch.setattr(
+        training_module, "train", lambda cfg: configs.append(cfg) or type("R", (), {"run_dir": None})
+    )
+    cfg = DemoConfig.preset("quick", out_dir=tmp_path)
+    data = {"e": tmp_path / "e", "ca": tmp_path / "ca", "ssl": tmp_path / "ssl"}
+    demo.train_stage(cfg, data, "navformer", progress=False)
+    on_gpu = devices.resolve_device("auto").type == "cuda"
+    expected = "bfloat16" if native or on_gpu else None
+    assert configs[-1].model.get("autocast_dtype") == expected
+
+
 def test_the_demo_ends_with_a_table_of_its_stage_times(tmp_path, clock, monkeypatch):
     cfg = DemoConfig.preset("quick", out_dir=tmp_path, methods=("navformer", "vrw"))
 
