@@ -225,6 +225,25 @@ def test_the_wheels_cover_the_training_paths_imports(tmp_path):
     check_wheels_cover(json.loads(done.stdout.splitlines()[-1]))
 
 
+def test_the_navformer_command_loads_without_the_simulator_or_ffmpeg(tmp_path):
+    """``python -m navformer_rl train ...`` runs where neither pybullet nor imageio-ffmpeg is installed (the
+    GPU machine): the command's modules load, and asking for a video names the missing encoder."""
+    hide = tmp_path / "hide"
+    hide.mkdir()
+    (hide / "sitecustomize.py").write_text(
+        "import sys\nfor name in ('ray', 'pybullet', 'imageio_ffmpeg'):\n    sys.modules[name] = None\n"
+    )
+    code = (
+        "import navformer_rl.cli.main, navformer_rl.training.run\n"
+        "from navformer_rl.utils.mp4 import VideoEncoderError, ffmpeg_executable\n"
+        "try:\n    ffmpeg_executable()\nexcept VideoEncoderError as error:\n    print(error)\n"
+    )
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(hide), "RL_LOGGING_LEVEL": "WARNING"}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "no ffmpeg binary for the mp4 videos" in done.stdout and "imageio-ffmpeg" in done.stdout
+
+
 @pytest.mark.slow
 def test_tiny_cpu_run_through_gpu_run_sh(tmp_path):
     """The whole call as on the GPU machine, less the wheel install: the shell script, a fresh process, ray

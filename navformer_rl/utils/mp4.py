@@ -17,7 +17,6 @@ import weakref
 from fractions import Fraction
 from pathlib import Path
 
-import imageio_ffmpeg
 import numpy as np
 
 from navformer_rl.utils.durable import atomic_path
@@ -36,8 +35,10 @@ def ffmpeg_executable() -> str:
     """Path of the ffmpeg binary of ``imageio-ffmpeg`` (:class:`VideoEncoderError` naming the fix when it is
     missing)."""
     try:
+        import imageio_ffmpeg  # here, not at the top: training and collection run without it (a GPU machine)
+
         return imageio_ffmpeg.get_ffmpeg_exe()
-    except RuntimeError as error:
+    except (ImportError, RuntimeError) as error:
         raise VideoEncoderError(
             f"no ffmpeg binary for the mp4 videos ({error}); reinstall imageio-ffmpeg for this platform, or "
             "set IMAGEIO_FFMPEG_EXE to an ffmpeg with libx264"
@@ -46,6 +47,8 @@ def ffmpeg_executable() -> str:
 
 def video_codec(path: str | os.PathLike) -> str:
     """The codec of the video stream of ``path`` (``"h264"``, ``"mpeg4"`` for OpenCV's ``mp4v``, ...)."""
+    import imageio_ffmpeg
+
     reader = imageio_ffmpeg.read_frames(str(path))
     try:
         return str(next(reader)["codec"])
@@ -207,6 +210,8 @@ def read_mp4_frames(path: str | os.PathLike) -> tuple[float, list[np.ndarray]]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no video at {str(path)!r}")
+    import imageio_ffmpeg
+
     try:
         reader = imageio_ffmpeg.read_frames(str(path))
         meta = next(reader)
