@@ -234,8 +234,13 @@ def render_card(
         f"| iterations | {training['iteration']} (of optim.iterations={optim.get('iterations', 'not recorded')}) |",
         f"| seed | {config.get('seed', 'not recorded')} |",
         f"| batches | {data_config.get('exploration_batch_trajs')} D_e trajectories, "
-        f"{data_config.get('collision_batch_trajs')} D_ca trajectories, "
-        f"{data_config.get('ssl_batch_pairs')} D_ssl pairs |",
+        f"{data_config.get('collision_batch_trajs')} D_ca trajectories"
+        + (
+            ""
+            if data_config.get("ssl_path") is None
+            else f", {data_config.get('ssl_batch_pairs')} D_ssl pairs"
+        )
+        + " |",
     ]
     for dataset in training["data"]:
         size = (

@@ -16,6 +16,7 @@ import tempfile
 import weakref
 from fractions import Fraction
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -31,14 +32,25 @@ class VideoEncoderError(OSError):
     """The ffmpeg encoder is missing, or failed while writing a video (its message included)."""
 
 
+def _imageio_ffmpeg() -> ModuleType:
+    """The ``imageio_ffmpeg`` module, imported on first use so that training and collection run where it is
+    not installed (a GPU machine); :class:`VideoEncoderError` naming the fix when it is missing."""
+    try:
+        import imageio_ffmpeg
+    except ImportError as error:
+        raise VideoEncoderError(
+            f"no ffmpeg binary for the mp4 videos ({error}); reinstall imageio-ffmpeg for this platform"
+        ) from None
+    return imageio_ffmpeg
+
+
 def ffmpeg_executable() -> str:
     """Path of the ffmpeg binary of ``imageio-ffmpeg`` (:class:`VideoEncoderError` naming the fix when it is
     missing)."""
+    imageio_ffmpeg = _imageio_ffmpeg()
     try:
-        import imageio_ffmpeg  # here, not at the top: training and collection run without it (a GPU machine)
-
         return imageio_ffmpeg.get_ffmpeg_exe()
-    except (ImportError, RuntimeError) as error:
+    except RuntimeError as error:
         raise VideoEncoderError(
             f"no ffmpeg binary for the mp4 videos ({error}); reinstall imageio-ffmpeg for this platform, or "
             "set IMAGEIO_FFMPEG_EXE to an ffmpeg with libx264"
@@ -47,9 +59,7 @@ def ffmpeg_executable() -> str:
 
 def video_codec(path: str | os.PathLike) -> str:
     """The codec of the video stream of ``path`` (``"h264"``, ``"mpeg4"`` for OpenCV's ``mp4v``, ...)."""
-    import imageio_ffmpeg
-
-    reader = imageio_ffmpeg.read_frames(str(path))
+    reader = _imageio_ffmpeg().read_frames(str(path))
     try:
         return str(next(reader)["codec"])
     finally:
@@ -210,8 +220,7 @@ def read_mp4_frames(path: str | os.PathLike) -> tuple[float, list[np.ndarray]]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no video at {str(path)!r}")
-    import imageio_ffmpeg
-
+    imageio_ffmpeg = _imageio_ffmpeg()
     try:
         reader = imageio_ffmpeg.read_frames(str(path))
         meta = next(reader)
