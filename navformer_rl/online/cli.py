@@ -6,6 +6,7 @@ Configuration = the packaged ``navformer_rl/config/ppo.yaml`` (or ``--config FIL
     navformer train-ppo method=dsac output_dir=runs/ppo/dsac
     navformer train-ppo method=matdn output_dir=runs/ppo/matdn collector.total_frames=500000
     navformer train-ppo method=matdn output_dir=runs/ppo/matdn resume=true
+    navformer train-ppo --compare runs/ppo/dsac runs/ppo/matdn --out runs/ppo/curves.png
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ examples:
   navformer train-ppo method=matdn output_dir=runs/ppo/matdn collector.num_workers=2 env.robot_counts=[4]
   navformer train-ppo method=matdn output_dir=runs/ppo/matdn resume=true
   navformer train-ppo --print-config method=matdn
+  navformer train-ppo --compare runs/ppo/dsac runs/ppo/matdn --out runs/ppo/curves.png
   navformer evaluate --method dsac --checkpoint runs/ppo/dsac --protocol table1 --out runs/eval/dsac
 
 methods: dsac (Zhu et al. 2017), matdn (Mezghani et al. 2022); every key: docs/baselines.md
@@ -51,12 +53,21 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="print the resolved configuration as YAML and exit (a valid --config FILE)",
     )
+    parser.add_argument(
+        "--compare",
+        nargs="+",
+        metavar="RUN",
+        help="plot the learning curves of these run folders together into --out (trains nothing)",
+    )
+    parser.add_argument("--out", metavar="PNG", help="the plot --compare writes")
     parser.set_defaults(run=run)
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
-    """Resolve the configuration, train, print where the results are."""
+    """Resolve the configuration, train, print where the results are (or plot runs with ``--compare``)."""
+    if args.compare:
+        return compare(args.compare, args.out, args.overrides)
     from navformer_rl.online.config import load_ppo_config, validate_ppo_config
 
     cfg = load_ppo_config(args.overrides, args.config)
@@ -69,4 +80,34 @@ def run(args: argparse.Namespace) -> int:
     from navformer_rl.online.train import train_ppo
 
     print(train_ppo(cfg).summary())
+    return 0
+
+
+def compare(run_dirs: list[str], out: str | None, overrides: list[str]) -> int:
+    """``--compare RUN ... --out PNG``: one learning-curve plot of several runs, each labelled with its
+    method (and its folder when two runs share a method)."""
+    import json
+    from pathlib import Path
+
+    from navformer_rl.online.curve import PROGRESS_FILENAME, plot_learning_curves
+    from navformer_rl.online.train import CONFIG_FILENAME
+
+    if overrides:
+        raise ValueError(f"--compare plots finished runs and takes no overrides; got {' '.join(overrides)}")
+    if not out:
+        raise ValueError("--compare needs --out PNG, the file to write")
+    methods = []
+    for run_dir in run_dirs:
+        folder = Path(run_dir)
+        if not (folder / PROGRESS_FILENAME).is_file() or not (folder / CONFIG_FILENAME).is_file():
+            raise ValueError(
+                f"--compare {run_dir}: no {PROGRESS_FILENAME} and {CONFIG_FILENAME} there; expected a "
+                "`navformer train-ppo` run folder"
+            )
+        methods.append(json.loads((folder / CONFIG_FILENAME).read_text())["method"])
+    runs = {}
+    for run_dir, method in zip(run_dirs, methods):
+        label = method if methods.count(method) == 1 else f"{method} ({run_dir})"
+        runs[label] = Path(run_dir) / PROGRESS_FILENAME
+    print(f"wrote {plot_learning_curves(runs, out, 'PPO learning curves')}")
     return 0

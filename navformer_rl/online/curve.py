@@ -1,5 +1,5 @@
 """The learning curve: the policy on a small fixed episode set (:func:`fixed_episode_eval`), the log
-(:class:`ProgressLog`, ``progress.csv``) and its plot (:func:`plot_learning_curve`).
+(:class:`ProgressLog`, ``progress.csv``) and its plot (:func:`plot_learning_curves`, one run or several).
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import dataclasses
 import io
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -116,28 +116,46 @@ def read_progress(path: str | os.PathLike) -> list[dict[str, float]]:
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
 
 
-def plot_learning_curve(progress_csv: str | os.PathLike, path: str | os.PathLike, title: str = "") -> Path:
-    """PNG with two panels against env frames: the mean per-robot shaped return (training episodes and the
-    fixed evaluation episodes) and the success rate (the same two); written atomically."""
+def running_mean(values: Sequence[float], window: int) -> list[float]:
+    """Mean of the last ``window`` non-NaN values at each position (NaN until one exists)."""
+    out: list[float] = []
+    recent: list[float] = []
+    for value in values:
+        if not math.isnan(value):
+            recent = (recent + [value])[-window:]
+        out.append(sum(recent) / len(recent) if recent else math.nan)
+    return out
+
+
+def plot_learning_curves(
+    runs: Mapping[str, str | os.PathLike], path: str | os.PathLike, title: str = "", window: int = 10
+) -> Path:
+    """PNG with two panels against env frames, one colour per run (``{label: progress.csv}``): the mean
+    per-robot shaped return and the success rate of the training episodes (each batch faint, the running
+    mean over ``window`` batches solid) and of the fixed evaluation episodes (markers); written atomically."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    rows = read_progress(progress_csv)
-    frames = [r["frames"] for r in rows]
     fig, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True, layout="constrained")
-    for ax, (train_key, eval_key, label) in zip(
-        axes,
-        (
-            ("train_return", "eval_return", "return per robot"),
-            ("train_success_rate", "eval_success_rate", "SR"),
-        ),
-    ):
-        ax.plot(frames, [r[train_key] for r in rows], ".-", alpha=0.6, label="training episodes")
-        evaluated = [(f, r[eval_key]) for f, r in zip(frames, rows) if not math.isnan(r[eval_key])]
-        if evaluated:
-            ax.plot(*zip(*evaluated), "o-", label="fixed episodes (mean action)")
+    for index, (label, progress_csv) in enumerate(runs.items()):
+        rows = read_progress(progress_csv)
+        frames = [r["frames"] for r in rows]
+        color = f"C{index}"
+        name = f"{label}: " if label else ""
+        for ax, train_key, eval_key in (
+            (axes[0], "train_return", "eval_return"),
+            (axes[1], "train_success_rate", "eval_success_rate"),
+        ):
+            train = [r[train_key] for r in rows]
+            ax.plot(frames, train, ".", color=color, alpha=0.25, markersize=3)
+            ax.plot(frames, running_mean(train, window), "-", color=color,
+                    label=f"{name}training episodes ({window}-batch mean)")  # fmt: skip
+            evaluated = [(f, r[eval_key]) for f, r in zip(frames, rows) if not math.isnan(r[eval_key])]
+            if evaluated:
+                ax.plot(*zip(*evaluated), "o--", color=color, label=f"{name}fixed episodes (mean action)")
+    for ax, label in zip(axes, ("return per robot", "SR")):
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize=8)

@@ -118,7 +118,12 @@ def train_ppo(cfg: PPOConfig) -> PPOResult:
     import torch
 
     from navformer_rl.baselines.online import OnlinePolicy, build_net, checkpoint_model_config
-    from navformer_rl.online.curve import CURVE_FILENAME, ProgressLog, fixed_episode_eval, plot_learning_curve
+    from navformer_rl.online.curve import (
+        CURVE_FILENAME,
+        ProgressLog,
+        fixed_episode_eval,
+        plot_learning_curves,
+    )
     from navformer_rl.online.envs import EPISODE_RETURN_KEY
     from navformer_rl.online.ppo import (
         finished_episode_stats,
@@ -235,7 +240,7 @@ def train_ppo(cfg: PPOConfig) -> PPOResult:
             log.append(metrics)
             if iteration % cfg.checkpoint.interval == 0 or last:
                 last_checkpoint = save()
-                plot_learning_curve(log.path, run_dir / CURVE_FILENAME, f"{cfg.method} + PPO")
+                plot_learning_curves({"": log.path}, run_dir / CURVE_FILENAME, f"{cfg.method} + PPO")
             if last:
                 break
             started = time.perf_counter()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import re
 
 import pytest
@@ -11,6 +12,7 @@ import torch
 
 from navformer_rl.cli import main
 from navformer_rl.online.config import PPOConfig, load_ppo_config, validate_ppo_config
+from navformer_rl.online.curve import ProgressLog, running_mean
 from navformer_rl.online.train import train_ppo
 from navformer_rl.training import checkpoint as ckpt
 
@@ -100,3 +102,46 @@ def test_print_config_is_a_valid_config_file(tmp_path, capsys):
     path.write_text(text)
     cfg = load_ppo_config(path=path)
     assert cfg.method == "matdn" and cfg.model == {"memory_size": 8}
+
+
+def test_running_mean_skips_batches_without_finished_episodes():
+    nan = float("nan")
+    out = running_mean([nan, 1.0, 3.0, nan, 5.0, 7.0], window=2)
+    assert math.isnan(out[0])
+    assert out[1:] == [1.0, 2.0, 2.0, 4.0, 6.0]
+
+
+def _fake_run(folder, method, returns):
+    folder.mkdir()
+    (folder / "ppo_config.json").write_text(json.dumps({"method": method}))
+    log = ProgressLog(folder)
+    for i, value in enumerate(returns, start=1):
+        log.append({"iteration": i, "frames": 100 * i, "train_return": value, "train_success_rate": value / 10,
+                    "eval_return": value if i % 2 == 0 else math.nan})  # fmt: skip
+
+
+def test_compare_plots_several_runs_into_one_png(tmp_path, capsys):
+    _fake_run(tmp_path / "a", "dsac", [1.0, 2.0, 3.0])
+    _fake_run(tmp_path / "b", "matdn", [0.5, 0.5, 1.0])
+    out = tmp_path / "curves.png"
+    assert main(["train-ppo", "--compare", str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert capsys.readouterr().out.strip() == f"wrote {out}"
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--out", "{png}", "method=dsac"], "takes no overrides; got method=dsac"),
+        ([], "--compare needs --out PNG"),
+        (["{missing}", "--out", "{png}"], "no progress.csv and ppo_config.json there"),
+    ],
+)
+def test_compare_refuses_bad_input_in_one_line(tmp_path, capsys, extra, message):
+    _fake_run(tmp_path / "a", "dsac", [1.0])
+    extra = [e.format(missing=tmp_path / "missing", png=tmp_path / "x.png") for e in extra]
+    assert main(["train-ppo", "--compare", str(tmp_path / "a"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("navformer train-ppo: error:") and len(err.strip().splitlines()) == 1
+    assert message in err
+    assert not (tmp_path / "x.png").exists()
