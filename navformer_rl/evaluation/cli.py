@@ -94,7 +94,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.set_defaults(run=_run_evaluate)
 
     commands = parser.add_subparsers(
-        dest="evaluate_command", metavar="{make-episodes,report,seeds,compare,diagnose,strip}"
+        dest="evaluate_command", metavar="{make-episodes,report,seeds,compare,unseen,diagnose,strip}"
     )
     make = commands.add_parser(
         "make-episodes",
@@ -184,6 +184,21 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     _add_cluster_option(compare, "trial")
     compare.set_defaults(run=_run_compare)
+
+    unseen = commands.add_parser(
+        "unseen",
+        help="Table III's drop: each robot with unseen obstacle robots - the same robot with seen ones",
+        description="For table3 evaluation folders (one per method): every robot measured among unseen "
+        "obstacle robots against the same robot, maze, start and target among seen ones, with a trial-"
+        "bootstrap interval (docs/evaluation.md, 'Paired comparisons').",
+    )
+    unseen.add_argument(
+        "unseen_folders", type=Path, nargs="+", metavar="DIR", help="table3 evaluation folders"
+    )
+    unseen.add_argument(
+        "--out", dest="unseen_out", type=Path, metavar="FILE", help="also write the table here"
+    )
+    unseen.set_defaults(run=_run_unseen)
     _register_diagnose(commands, METHODS)
     return parser
 
@@ -393,6 +408,19 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
             )
     path = save_episode_set(episode_set, out)
     print(f"wrote {len(episode_set)} episodes ({', '.join(episode_set.setups)}) to {path}")
+    return 0
+
+
+def _run_unseen(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.paired import paired_markdown, unseen_obstacle_differences
+    from navformer_rl.utils.durable import atomic_write_text
+
+    out = _output_file(args.unseen_out, "--out") if args.unseen_out is not None else None
+    rows = [unseen_obstacle_differences(folder)[1] for folder in args.unseen_folders]
+    table = paired_markdown(("unseen", "seen"), rows, row_header="Method")
+    if out is not None:
+        atomic_write_text(out, table)
+    print(table, end="")
     return 0
 
 

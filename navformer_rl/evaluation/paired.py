@@ -11,6 +11,10 @@ seeded). An interval that excludes zero says the difference holds on these episo
 noise; it does not cover the spread between training seeds (``navformer evaluate seeds``).
 
 Only robots measured in both folders count (Table III's unseen obstacle robots are not measured).
+
+:func:`unseen_obstacle_differences` pairs within one folder instead: Table III's ``-unseen`` setup replays
+the ``-seen`` setup's mazes, starts and targets with other obstacle robots, so each measured robot of an
+unseen trial is matched with the same robot of the same seen trial (unseen - seen: the drop in §VII.C).
 """
 
 from __future__ import annotations
@@ -155,6 +159,66 @@ def paired_differences(
     return labels, out
 
 
+SEEN_SUFFIX = "-seen"
+UNSEEN_SUFFIX = "-unseen"
+"""Table III's setup names end in these (``evaluation.episodes.table3_setups``)."""
+
+
+def _seen_partner(record: RobotTrial) -> tuple[str, int]:
+    """``(episode_id, robot)`` of the seen trial an unseen robot-trial replays."""
+    setup, trial = record.episode_id.split("/", 1)
+    return f"{setup.removesuffix(UNSEEN_SUFFIX)}{SEEN_SUFFIX}/{trial}", record.robot
+
+
+def unseen_obstacle_differences(
+    folder: str | os.PathLike,
+    confidence: float = 0.95,
+    seed: int = 0,
+    n_resamples: int = 10_000,
+) -> tuple[str, PairedDifference]:
+    """Unseen - seen obstacle robots (Table III) for one evaluation folder: every robot measured in a
+    ``*-unseen`` trial against the same robot, maze, start and target in the ``*-seen`` trial it replays.
+
+    Returns:
+        ``(label, PairedDifference)`` with ``a`` = unseen, ``b`` = seen and whole trials resampled; its
+        ``setup`` is the folder's label.
+
+    Raises:
+        FileNotFoundError: not a finished evaluation.
+        ValueError: no unseen robot-trials, a missing seen partner, or a partner in another maze or with
+            another shortest path (not the same episode set layout).
+    """
+    folder = Path(folder)
+    label = str(read_run(folder).get("label"))
+    records = read_records(folder / "episodes.jsonl")
+    by_key = {(r.episode_id, r.robot): r for r in records}
+    pairs = []
+    for record in records:
+        if not (record.measured and record.setup.endswith(UNSEEN_SUFFIX)):
+            continue
+        partner = by_key.get(_seen_partner(record))
+        if partner is None:
+            episode, robot = _seen_partner(record)
+            raise ValueError(
+                f"{folder}: robot {robot} of {record.episode_id!r} has no seen partner {episode!r}; evaluate the "
+                "whole table3 episode set (make-episodes --protocol table3)"
+            )
+        if (
+            partner.world_seed != record.world_seed
+            or abs(partner.shortest_path - record.shortest_path) > 1e-3
+        ):
+            raise ValueError(
+                f"{folder}: {record.episode_id!r} and {partner.episode_id!r} are not the same maze, start and "
+                "target; the seen and unseen setups must come from one make-episodes --protocol table3 call"
+            )
+        pairs.append((record, partner))
+    if not pairs:
+        raise ValueError(
+            f"{folder}: no measured robot-trials in a '*{UNSEEN_SUFFIX}' setup (Table III's episodes)"
+        )
+    return label, _difference(label, pairs, "trial", confidence, seed, n_resamples)
+
+
 def _signed(value: float, percent: bool) -> str:
     return f"{100 * value:+.1f}" if percent else f"{value:+.3f}"
 
@@ -174,12 +238,14 @@ def paired_markdown(
     rows: Sequence[PairedDifference],
     cluster: str = "trial",
     confidence: float = 0.95,
+    row_header: str = "Setup",
 ) -> str:
-    """Markdown table of :func:`paired_differences`: per setup the paired counts, both SRs and the
-    differences with intervals (``*``: the interval excludes zero), then a line saying how they are computed."""
+    """Markdown table of :func:`paired_differences`: per setup (its name under ``row_header``) the paired
+    counts, both SRs and the differences with intervals (``*``: the interval excludes zero), then a line
+    saying how they are computed."""
     a, b = labels
     lines = [
-        f"| Setup | trials | robot-trials | {a} SR | {b} SR | SR {a} - {b} (points) | SPL difference | "
+        f"| {row_header} | trials | robot-trials | {a} SR | {b} SR | SR {a} - {b} (points) | SPL difference | "
         "CR difference |",
         "|---|---|---|---|---|---|---|---|",
     ]

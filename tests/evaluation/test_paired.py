@@ -10,7 +10,7 @@ import pytest
 
 from navformer_rl.cli.main import main
 from navformer_rl.evaluation.measures import RobotTrial
-from navformer_rl.evaluation.paired import paired_differences, paired_markdown
+from navformer_rl.evaluation.paired import paired_differences, paired_markdown, unseen_obstacle_differences
 from navformer_rl.evaluation.tables import records_to_jsonl
 
 BASE = RobotTrial(
@@ -118,3 +118,52 @@ def test_cli_prints_and_writes_the_table(tmp_path, capsys):
     assert printed == out.read_text() and "SR navformer - dt (points)" in printed
     assert main(["evaluate", "compare", str(a), str(tmp_path / "missing")]) == 2
     assert "navformer evaluate: error:" in capsys.readouterr().err
+
+
+def table3_records(seen: list[bool], unseen: list[bool]) -> list[RobotTrial]:
+    """Table III's two setups over the same trials: 2 Jackals measured in seen, only robot 0 in unseen;
+    robot 0's outcome per trial from ``seen`` / ``unseen``, robot 1 of seen always succeeds."""
+    records = []
+    for setup, outcomes in (("12.5m-4r-seen", seen), ("12.5m-4r-unseen", unseen)):
+        for t, ok in enumerate(outcomes):
+            for robot in (0, 1):
+                records.append(
+                    dataclasses.replace(
+                        BASE, episode_id=f"{setup}/w{t // 2:02d}t{t % 2:02d}", setup=setup, size=12.5,
+                        world_seed=t // 2, trial=t, robot=robot, measured=robot == 0 or setup.endswith("-seen"),
+                        success=ok if robot == 0 else True, success_step=50 if (ok or robot) else None,
+                    )
+                )  # fmt: skip
+    return records
+
+
+def test_unseen_robots_are_paired_with_the_same_robot_among_seen_obstacles(tmp_path, capsys):
+    seen = [True] * 12 + [False] * 8
+    unseen = [True] * 6 + [False] * 14  # six successes are lost, nothing gained
+    folder = write(tmp_path / "nf", "navformer", table3_records(seen, unseen))
+    label, row = unseen_obstacle_differences(folder)
+    assert label == row.setup == "navformer"
+    # robot 1 of the seen trials (always succeeding) plays no part
+    assert (row.n_trials, row.n_robot_trials) == (20, 20)
+    assert row.a["sr"] == pytest.approx(0.3) and row.b["sr"] == pytest.approx(0.6)
+    assert row.difference["sr"] == pytest.approx(-0.3) and row.excludes_zero("sr")
+    assert main(["evaluate", "unseen", str(folder)]) == 0
+    assert "| navformer | 20 | 20 | 30.0 % | 60.0 % | -30.0 [" in capsys.readouterr().out
+
+
+def test_unseen_trials_without_their_seen_trial_are_refused(tmp_path, capsys):
+    records = table3_records([True] * 6, [False] * 6)
+    partial = write(
+        tmp_path / "partial", "dt", [r for r in records if r.episode_id != "12.5m-4r-seen/w02t01"]
+    )
+    with pytest.raises(ValueError, match="has no seen partner '12.5m-4r-seen/w02t01'"):
+        unseen_obstacle_differences(partial)
+    moved = write(tmp_path / "moved", "dt", [
+        dataclasses.replace(r, shortest_path=9.0) if r.setup.endswith("-seen") else r for r in records
+    ])  # fmt: skip
+    with pytest.raises(ValueError, match="are not the same maze, start and target"):
+        unseen_obstacle_differences(moved)
+    table1 = write(tmp_path / "table1", "dt", trials([[True, False]] * 6))
+    assert main(["evaluate", "unseen", str(table1)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no measured robot-trials in a '*-unseen' setup" in err[0]
