@@ -17,7 +17,10 @@ answer to the observation at ``pose[t]``; ``contact[t]`` is what happened on tha
 - **sightings**: robot-steps whose target is visible (camera fov and line of sight) within a range
   (:data:`SIGHTING_RANGES`); the fraction followed by arrival within :data:`ARRIVAL_WINDOW` steps, the mean
   change of the distance to the target over the next :data:`APPROACH_WINDOW` steps (negative = closer;
-  cut at the trial's end), and the same for each robot-trial's first sighting.
+  cut at the trial's end), and the same for each robot-trial's first sighting; whether the target is
+  recognised: on sightings with the target more than :data:`OFF_CENTRE` off the heading, the share of turn
+  commands towards it (the experts turn towards a target they see; a policy that does not recognise the
+  target turns either way about equally).
 - **progress**: geodesic progress ``geodesic[t] - geodesic[t+1]`` (positive = closer along the shortest
   path): per active step, per metre driven (efficiency: 1 = every metre brings the robot a metre closer,
   ~0 = wandering), split by whether the target was visible, and the net fraction of ℓ covered.
@@ -50,6 +53,8 @@ ARRIVAL_WINDOW = 30
 APPROACH_WINDOW = 10
 PROGRESS_EPS = 0.01
 """Metres of geodesic change per step below which a step counts as neither closer nor farther."""
+OFF_CENTRE = math.radians(10.0)
+"""Bearing (radians) beyond which a target in view calls for a turn towards it."""
 LARGE_TURN = 0.5
 """``|angular action|`` (normalised) above which a command counts as a large turn."""
 HISTOGRAM_BINS = 20
@@ -157,6 +162,16 @@ def sightings(robot: RobotSteps, max_range: float) -> np.ndarray:
     return np.flatnonzero(seen)
 
 
+def bearing(robot: RobotSteps) -> np.ndarray:
+    """float ``[n+1]``: the angle from the robot's heading to its target's centre at each pose, in
+    ``[-pi, pi]`` (positive: to the left, where a positive turn command goes); NaN without ``robot.target``."""
+    if robot.target is None:
+        return np.full(robot.pose.shape[0], np.nan)
+    offset = np.asarray(robot.target, dtype=np.float64)[:2] - robot.pose[:, :2]
+    angle = np.arctan2(offset[:, 1], offset[:, 0]) - robot.pose[:, 2]
+    return np.arctan2(np.sin(angle), np.cos(angle))
+
+
 def sighting_measures(
     robots: Sequence[RobotSteps],
     ranges: Sequence[float] = SIGHTING_RANGES,
@@ -166,7 +181,7 @@ def sighting_measures(
     """The ``sightings`` block of the summary: one entry per range (module docstring)."""
     blocks = []
     for max_range in ranges:
-        arrived, change, first_arrived = [], [], []
+        arrived, change, first_arrived, toward = [], [], [], []
         for r in robots:
             steps = sightings(r, max_range)
             if steps.size == 0:
@@ -175,8 +190,14 @@ def sighting_measures(
             arrived.append(arrives)
             change.append(r.distance[np.minimum(steps + approach, r.n)] - r.distance[steps])
             first_arrived.append(bool(arrives[0]))
+            if r.target is not None:
+                acting = steps[steps < r.n]  # a sighting at the last pose has no command
+                off = bearing(r)[acting]
+                off_centre = np.abs(off) > OFF_CENTRE
+                toward.append(r.action[acting[off_centre], 1] * off[off_centre] > 0)
         arrived = np.concatenate(arrived) if arrived else np.zeros(0, dtype=bool)
         change = np.concatenate(change) if change else np.zeros(0)
+        toward = np.concatenate(toward) if toward else np.zeros(0, dtype=bool)
         blocks.append(
             {
                 "range_m": float(max_range),
@@ -186,6 +207,8 @@ def sighting_measures(
                 "robot_trials_with_sighting": len(first_arrived),
                 "robot_trials_with_sighting_fraction": _ratio(len(first_arrived), len(robots)),
                 "first_sighting_arrive_fraction": _mean(first_arrived),
+                "off_centre_sightings": int(toward.size),
+                "turn_toward_fraction": _mean(toward),
             }
         )
     return blocks

@@ -7,10 +7,17 @@ measured them.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from navformer_rl.evaluation.diagnose_measures import APPROACH_WINDOW, ARRIVAL_WINDOW, LARGE_TURN, OUTCOMES
+from navformer_rl.evaluation.diagnose_measures import (
+    APPROACH_WINDOW,
+    ARRIVAL_WINDOW,
+    LARGE_TURN,
+    OFF_CENTRE,
+    OUTCOMES,
+)
 
 Render = Callable[[dict[str, Any]], str]
 """Renders one cell from a summary's ``all`` block."""
@@ -85,6 +92,10 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, Render]]:
             (
                 f"distance change over the next {APPROACH_WINDOW} steps (m)",
                 _sighting(k, "mean_distance_change", _num(2)),
+            ),
+            (
+                f"turn command towards it when more than {math.degrees(OFF_CENTRE):g}° off the heading",
+                _sighting(k, "turn_toward_fraction", _pct),
             ),
         ]
     rows += [

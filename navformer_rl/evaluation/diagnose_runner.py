@@ -96,6 +96,7 @@ class TraceRunner:
             distance=distance.astype(np.float32),
             geodesic=geodesic.astype(np.float32),
             visible=visible,
+            target=geometry.targets[:, :2].astype(np.float32),
             success_step=success_step,
             measured=np.array(episode.measured, dtype=bool),
             shortest_path=np.array(episode.shortest_paths, dtype=np.float64),

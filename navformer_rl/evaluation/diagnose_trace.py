@@ -17,9 +17,10 @@ visible    bool [T+1, R]     the target's centre is in the camera's field of vie
                              the line of sight from the camera (as the experts test it)
 ========== ================= ============================================================================
 
-Per robot: ``success_step`` int64 ``[R]`` (steps taken when it arrived, -1 if never: it was *active* on
-steps ``t < success_step``, as in :class:`~navformer_rl.evaluation.measures.TrialTracker`), ``measured``,
-``shortest_path`` (ℓ of the episode), ``v_max`` / ``w_max``. Traces are saved as one compressed ``.npz``
+Per robot: ``target`` float32 ``[R, 2]`` (its target's centre), ``success_step`` int64 ``[R]`` (steps
+taken when it arrived, -1 if never: it was *active* on steps ``t < success_step``, as in
+:class:`~navformer_rl.evaluation.measures.TrialTracker`), ``measured``, ``shortest_path`` (ℓ of the
+episode), ``v_max`` / ``w_max``. Traces are saved as one compressed ``.npz``
 per episode (:func:`save_trace`, atomic) with a resume ``key``.
 
 :class:`EpisodeGeometry` answers the geometric questions per world: one Dijkstra per robot from its
@@ -40,11 +41,11 @@ import numpy as np
 
 from navformer_rl.utils.durable import atomic_path
 
-TRACE_VERSION = 1
+TRACE_VERSION = 2
 """Bump when the fields of :class:`EpisodeTrace` change (stored traces of another version are recomputed)."""
 
 ARRAY_FIELDS = ("pose", "action", "velocity", "contact", "distance", "geodesic", "visible")
-ROBOT_FIELDS = ("success_step", "measured", "shortest_path", "v_max", "w_max")
+ROBOT_FIELDS = ("target", "success_step", "measured", "shortest_path", "v_max", "w_max")
 
 
 @dataclass
@@ -62,6 +63,7 @@ class EpisodeTrace:
     distance: np.ndarray
     geodesic: np.ndarray
     visible: np.ndarray
+    target: np.ndarray
     success_step: np.ndarray
     measured: np.ndarray
     shortest_path: np.ndarray
@@ -96,6 +98,7 @@ class EpisodeTrace:
             success=bool(self.success_step[i] >= 0),
             dt=self.dt,
             robot_contact=self.contact[:n, i] == 2,
+            target=self.target[i].astype(np.float64),
         )
 
 
@@ -107,7 +110,8 @@ class RobotSteps:
     (executed, m/s and rad/s), ``contact`` bool ``[n]`` (any contact on the step), ``distance`` /
     ``geodesic`` ``[n+1]`` (metres to the target), ``visible`` bool ``[n+1]``, ``success`` (it arrived on its
     last step), ``dt`` (seconds per step), ``robot_contact`` bool ``[n]`` (the contact was with a robot;
-    default: none was).
+    default: none was), ``target`` float ``[2]`` (its target's centre; default: unknown, and the measures
+    that need it report None).
     """
 
     pose: np.ndarray
@@ -120,6 +124,7 @@ class RobotSteps:
     success: bool
     dt: float
     robot_contact: np.ndarray | None = None
+    target: np.ndarray | None = None
 
     @property
     def n(self) -> int:

@@ -3,6 +3,7 @@ view of the target, and small end-to-end runs (VRW, an untrained NavFormer) agai
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -11,6 +12,7 @@ import pytest
 
 from navformer_rl.evaluation.diagnose_actions import turn_agreement
 from navformer_rl.evaluation.diagnose_measures import (
+    bearing,
     command_statistics,
     is_circling,
     is_stuck,
@@ -169,6 +171,35 @@ def test_arrival_later_than_30_steps_after_a_sighting_does_not_count():
     slow = robot(straight(45), success=True, target=target, visible=visible)
     (block,) = sighting_measures([slow], ranges=(6.0,))
     assert block["sightings"] == 1 and block["arrive_fraction"] == 0.0
+
+
+def test_bearing_is_the_signed_angle_from_the_heading_to_the_target():
+    # driving along +x (heading 0): a target ahead-left at 45 degrees, then one behind-right
+    ahead_left = dataclasses.replace(robot(straight(2)), target=np.array([1.0, 1.0]))
+    assert bearing(ahead_left)[0] == pytest.approx(math.pi / 4)
+    behind_right = dataclasses.replace(robot(straight(2)), target=np.array([-1.0, -1.0]))
+    assert bearing(behind_right)[0] == pytest.approx(-3 * math.pi / 4)
+    assert np.isnan(bearing(robot(straight(2)))).all()  # no target known
+
+
+def test_turning_towards_a_target_in_view_is_counted_only_when_it_is_off_centre():
+    # a target 2 m away at 45 degrees to the left, in view for 10 steps while the robot stands still
+    xy = np.zeros((11, 2))
+    visible = np.ones(11, bool)
+    left = np.column_stack([np.zeros(10), np.r_[np.full(7, 0.5), np.full(3, -0.5)]])  # 7 left, 3 right
+    seen = dataclasses.replace(
+        robot(xy, action=left, visible=visible, target=(math.sqrt(2), math.sqrt(2))),
+        target=np.array([math.sqrt(2), math.sqrt(2)]),
+    )
+    (block,) = sighting_measures([seen], ranges=(3.0,))
+    assert block["off_centre_sightings"] == 10 and block["turn_toward_fraction"] == pytest.approx(0.7)
+    # dead ahead: no turn is called for
+    ahead = dataclasses.replace(seen, target=np.array([2.0, 0.0]), distance=np.full(11, 2.0))
+    (block,) = sighting_measures([ahead], ranges=(3.0,))
+    assert block["off_centre_sightings"] == 0 and block["turn_toward_fraction"] is None
+    # without the target's position the measure is unknown, the others stay
+    (block,) = sighting_measures([dataclasses.replace(seen, target=None)], ranges=(3.0,))
+    assert block["turn_toward_fraction"] is None and block["sightings"] == 10
 
 
 # ------------------------------------------------------------------------------------------ progress
