@@ -19,8 +19,8 @@ answer to the observation at ``pose[t]``; ``contact[t]`` is what happened on tha
   change of the distance to the target over the next :data:`APPROACH_WINDOW` steps (negative = closer;
   cut at the trial's end), and the same for each robot-trial's first sighting; whether the target is
   recognised: on sightings with the target more than :data:`OFF_CENTRE` off the heading, the share of turn
-  commands towards it (the experts turn towards a target they see; a policy that does not recognise the
-  target turns either way about equally).
+  commands towards it (a policy that steers at the target it sees turns towards it; one that does not
+  react to it turns either way about equally).
 - **progress**: geodesic progress ``geodesic[t] - geodesic[t+1]`` (positive = closer along the shortest
   path): per active step, per metre driven (efficiency: 1 = every metre brings the robot a metre closer,
   ~0 = wandering), split by whether the target was visible, and the net fraction of ℓ covered.
@@ -53,8 +53,10 @@ ARRIVAL_WINDOW = 30
 APPROACH_WINDOW = 10
 PROGRESS_EPS = 0.01
 """Metres of geodesic change per step below which a step counts as neither closer nor farther."""
-OFF_CENTRE = math.radians(10.0)
-"""Bearing (radians) beyond which a target in view calls for a turn towards it."""
+OFF_CENTRE = math.radians(30.0)
+"""Bearing (radians) beyond which a target in view calls for a turn towards it: the outer third of the 90°
+camera's half-field; nearer the centre even the privileged FCA, following its planned path, turns towards
+the target little more often than away (56 % at 10°, 76 % beyond 30° on the 40 medium trials)."""
 LARGE_TURN = 0.5
 """``|angular action|`` (normalised) above which a command counts as a large turn."""
 HISTOGRAM_BINS = 20
