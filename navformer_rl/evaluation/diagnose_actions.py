@@ -11,7 +11,13 @@ a smaller, centred turn. Two signatures are measured here:
   :class:`~navformer_rl.training.validation.FixedTrajectoryBatches`), the model's predicted angular action at the
   steps where the expert turns hard (``|a_angular| >`` :data:`~navformer_rl.evaluation.diagnose_measures.LARGE_TURN`):
   ``magnitude_ratio`` = mean ``|predicted|`` / mean ``|expert|`` (1 = as hard as the expert, near 0 = the
-  turn averaged away) and ``sign_agreement`` (the fraction turning the expert's way).
+  turn averaged away) and ``sign_agreement`` (the fraction turning the expert's way); and, with
+  :func:`edge_of_view_turns`, the same steps' turns towards the target where it lies in the camera's cone
+  near its edge (whether the model has learned to steer at a target at the side of its image, where the
+  closed-loop diagnosis finds it does not); and, with :func:`turn_changes`, the steps where the expert
+  changes its turn: a model that copies the previous action in its context (the "copycat" shortcut of
+  behaviour cloning with action history) keeps the old turn there, while one that reads the image follows
+  the expert.
 """
 
 from __future__ import annotations
@@ -22,7 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from navformer_rl.evaluation.diagnose_measures import LARGE_TURN, command_statistics
+from navformer_rl.evaluation.diagnose_measures import (
+    LARGE_TURN,
+    OFF_CENTRE,
+    SIGHTING_RANGES,
+    command_statistics,
+)
+
+HALF_FIELD_OF_VIEW = np.radians(45.0)
+"""Half the 90° camera field of view of the dataset robots (``envs.robots.JACKAL``)."""
 
 DATASET_KINDS = ("e", "ca")
 
@@ -87,6 +101,80 @@ def turn_agreement(
     return out
 
 
+def edge_of_view_turns(
+    predicted: np.ndarray,
+    expert: np.ndarray,
+    pose: np.ndarray,
+    target: np.ndarray,
+    max_range: float = SIGHTING_RANGES[-1],
+) -> dict[str, Any]:
+    """Turns towards the target at the steps whose target lies in the camera's cone between
+    :data:`~navformer_rl.evaluation.diagnose_measures.OFF_CENTRE` and :data:`HALF_FIELD_OF_VIEW` off the
+    heading, within ``max_range`` metres (walls are not checked: some of these targets are hidden).
+
+    Args:
+        predicted, expert: angular actions float ``[N]``; pose: ``(x, y, yaw)`` float ``[N, 3]``; target:
+            the target's centre float ``[N, 2]``.
+
+    Returns:
+        ``steps``, and at those steps ``expert_toward`` / ``predicted_toward`` (the share of angular actions
+        with the bearing's sign) and ``sign_agreement`` (predicted and expert turn the same way); None
+        without such steps.
+    """
+    predicted, expert = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (predicted, expert))
+    pose, target = np.asarray(pose, dtype=np.float64), np.asarray(target, dtype=np.float64)
+    offset = target[:, :2] - pose[:, :2]
+    angle = np.arctan2(offset[:, 1], offset[:, 0]) - pose[:, 2]
+    bearing = np.arctan2(np.sin(angle), np.cos(angle))
+    edge = (
+        (np.abs(bearing) > OFF_CENTRE)
+        & (np.abs(bearing) <= HALF_FIELD_OF_VIEW)
+        & (np.hypot(offset[:, 0], offset[:, 1]) <= max_range)
+    )
+    if not edge.any():
+        return {"steps": 0, "expert_toward": None, "predicted_toward": None, "sign_agreement": None}
+    return {
+        "steps": int(edge.sum()),
+        "expert_toward": float(np.mean(expert[edge] * bearing[edge] > 0)),
+        "predicted_toward": float(np.mean(predicted[edge] * bearing[edge] > 0)),
+        "sign_agreement": float(np.mean(np.sign(predicted[edge]) == np.sign(expert[edge]))),
+    }
+
+
+TURN_CHANGE = 0.3
+"""Change of the expert's angular action from one step to the next above which a step counts as a turn change."""
+
+
+def turn_changes(
+    predicted: np.ndarray, expert: np.ndarray, previous: np.ndarray, threshold: float = TURN_CHANGE
+) -> dict[str, Any]:
+    """Predicted turns where the expert changes its turn: steps whose expert angular action differs from the
+    step before's by more than ``threshold`` (float ``[N]`` each; ``previous`` is NaN where the step has no
+    valid predecessor in its window).
+
+    A model that copies the previous action in its context predicts the old turn there (``captured`` near 0,
+    ``moves_expert_way`` near half); one that reads the change from the image follows the expert (both near 1).
+
+    Returns:
+        ``steps``; ``captured``: the median of ``(predicted - previous) / (expert - previous)``, the part of
+        the expert's change the prediction makes; ``moves_expert_way``: the share of predictions that move
+        from the previous action in the expert's direction; None without such steps.
+    """
+    predicted, expert, previous = (
+        np.asarray(a, dtype=np.float64).reshape(-1) for a in (predicted, expert, previous)
+    )
+    change = expert - previous
+    changed = np.abs(change) > threshold  # False where previous is NaN
+    if not changed.any():
+        return {"steps": 0, "captured": None, "moves_expert_way": None}
+    moved = predicted[changed] - previous[changed]
+    return {
+        "steps": int(changed.sum()),
+        "captured": float(np.median(moved / change[changed])),
+        "moves_expert_way": float(np.mean(moved * change[changed] > 0)),
+    }
+
+
 def teacher_forced_turns(
     checkpoint: str | os.PathLike,
     datasets: Mapping[str, str | os.PathLike],
@@ -109,6 +197,8 @@ def teacher_forced_turns(
         datasets: ``{kind: folder}`` of held-out D_e (``e``) / D_ca (``ca``).
     """
 
+    import torch
+
     from navformer_rl.data.fit import check_model_reads
     from navformer_rl.modules import make_navformer_actor
     from navformer_rl.training import checkpoint as ckpt
@@ -129,16 +219,25 @@ def teacher_forced_turns(
             batches = FixedTrajectoryBatches(
                 dataset, batch_trajs, config.window_steps, seed, max_trajectories=max_trajectories
             )
-            predicted, expert = [], []
+            predicted, expert, previous, pose, target = [], [], [], [], []
             for batch in batches:
                 batch = batch.to(torch_device)
                 mask = batch["mask"]
                 prediction = actor(batch.copy())["action_pred"]
                 predicted.append(prediction[mask].float().cpu().numpy())
                 expert.append(batch["action"][mask].float().cpu().numpy())
+                before = torch.full_like(batch["action"][..., 1], float("nan"))
+                before[:, 1:] = torch.where(mask[:, :-1], batch["action"][:, :-1, 1], float("nan"))
+                previous.append(before[mask].float().cpu().numpy())
+                pose.append(batch["privileged", "pose"][mask].cpu().numpy())
+                target.append(batch["privileged", "target_position"][mask].cpu().numpy())
             predicted, expert = np.concatenate(predicted), np.concatenate(expert)
             out[kind] = {
                 **turn_agreement(predicted[:, 1], expert[:, 1], threshold),
                 "loss_dt": float(np.mean(np.sum((predicted - expert) ** 2, axis=1))),
+                "edge_of_view": edge_of_view_turns(
+                    predicted[:, 1], expert[:, 1], np.concatenate(pose), np.concatenate(target)
+                ),
+                "turn_changes": turn_changes(predicted[:, 1], expert[:, 1], np.concatenate(previous)),
             }
     return out

@@ -11,12 +11,14 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from navformer_rl.evaluation.diagnose_actions import HALF_FIELD_OF_VIEW, TURN_CHANGE
 from navformer_rl.evaluation.diagnose_measures import (
     APPROACH_WINDOW,
     ARRIVAL_WINDOW,
     LARGE_TURN,
     OFF_CENTRE,
     OUTCOMES,
+    SIGHTING_RANGES,
 )
 
 Render = Callable[[dict[str, Any]], str]
@@ -181,4 +183,40 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
         header = ["model, data", "steps", "mean \\|expert\\|", "mean \\|predicted\\|", "ratio", "same sign",
                   "angular MSE", "eq. 10 loss"]  # fmt: skip
         lines += _table(header, rows)
+        lines += [
+            "",
+            f"Teacher-forced, the target in the camera's cone {math.degrees(OFF_CENTRE):g}-"
+            f"{math.degrees(HALF_FIELD_OF_VIEW):g}° off the heading within {SIGHTING_RANGES[-1]:g} m (walls not "
+            "checked): turn towards it",
+            "",
+        ]
+        rows = [
+            [
+                f"{label}, D_{kind}",
+                str(entry["edge_of_view"]["steps"]),
+                _pct(entry["edge_of_view"]["expert_toward"]),
+                _pct(entry["edge_of_view"]["predicted_toward"]),
+                _pct(entry["edge_of_view"]["sign_agreement"]),
+            ]
+            for label, result in forced
+            for kind, entry in result.items()
+        ]
+        lines += _table(["model, data", "steps", "expert", "predicted", "same sign"], rows)
+        lines += [
+            "",
+            f"Teacher-forced where the expert's angular action changes by more than {TURN_CHANGE:g} from the step "
+            "before (a model copying its previous action captures none of the change)",
+            "",
+        ]
+        rows = [
+            [
+                f"{label}, D_{kind}",
+                str(entry["turn_changes"]["steps"]),
+                _num(2)(entry["turn_changes"]["captured"]),
+                _pct(entry["turn_changes"]["moves_expert_way"]),
+            ]
+            for label, result in forced
+            for kind, entry in result.items()
+        ]
+        lines += _table(["model, data", "steps", "change captured (median)", "moves the expert's way"], rows)
     return "\n".join(lines) + "\n"

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from navformer_rl.evaluation.diagnose_actions import turn_agreement
+from navformer_rl.evaluation.diagnose_actions import edge_of_view_turns, turn_agreement, turn_changes
 from navformer_rl.evaluation.diagnose_measures import (
     bearing,
     command_statistics,
@@ -200,6 +200,37 @@ def test_turning_towards_a_target_in_view_is_counted_only_when_it_is_off_centre(
     # without the target's position the measure is unknown, the others stay
     (block,) = sighting_measures([dataclasses.replace(seen, target=None)], ranges=(3.0,))
     assert block["turn_toward_fraction"] is None and block["sightings"] == 10
+
+
+def test_teacher_forced_turns_at_the_edge_of_view_count_only_targets_in_the_cone_near_its_edge():
+    # heading +x from the origin; targets at 40° left (in the edge band), 5° (centre), 60° (outside the
+    # 90° view), and 40° left but 8 m away (beyond 6 m)
+    def at(degrees, metres):
+        return [metres * math.cos(math.radians(degrees)), metres * math.sin(math.radians(degrees))]
+
+    target = np.array([at(40, 2), at(40, 2), at(40, 2), at(40, 2), at(5, 2), at(60, 2), at(40, 8)])
+    pose = np.zeros((7, 3))
+    expert = np.array([0.8, 0.8, 0.8, -0.8, 0.8, 0.8, 0.8])  # turns left (towards) on 3 of the 4 edge steps
+    predicted = np.array([0.5, -0.5, -0.5, -0.5, 0.5, 0.5, 0.5])  # towards on 1 of 4
+    result = edge_of_view_turns(predicted, expert, pose, target)
+    assert result["steps"] == 4
+    assert result["expert_toward"] == pytest.approx(0.75) and result["predicted_toward"] == pytest.approx(
+        0.25
+    )
+    assert result["sign_agreement"] == pytest.approx(0.5)  # steps 0 and 3
+    assert edge_of_view_turns(predicted[4:], expert[4:], pose[4:], target[4:])["steps"] == 0
+
+
+def test_turn_changes_tell_following_the_expert_from_copying_the_previous_action():
+    nan = float("nan")
+    previous = np.array([0.0, 0.0, 0.5, 0.5, 0.2, nan])
+    expert = np.array([0.6, -0.6, -0.5, 0.0, 0.3, 0.9])  # changes of 0.6, -0.6, -1.0, -0.5; then 0.1, none
+    predicted = np.array([0.6, 0.0, 0.0, 0.6, 0.3, 0.9])  # all, none, half, the wrong way
+    result = turn_changes(predicted, expert, previous)
+    assert result["steps"] == 4
+    assert result["captured"] == pytest.approx(0.25)  # median of 1, 0, 0.5, -0.2
+    assert result["moves_expert_way"] == pytest.approx(0.5)
+    assert turn_changes(predicted[4:], expert[4:], previous[4:])["steps"] == 0
 
 
 # ------------------------------------------------------------------------------------------ progress
