@@ -27,7 +27,15 @@ if TYPE_CHECKING:
     from navformer_rl.training.trainer import Trainer
 
 MAY_DIFFER = frozenset(
-    {"dropout", "detach_encoders", "encoder_micro_batch", "autocast_dtype", "channels_last", "space_to_depth"}
+    {
+        "dropout",
+        "action_dropout",
+        "detach_encoders",
+        "encoder_micro_batch",
+        "autocast_dtype",
+        "channels_last",
+        "space_to_depth",
+    }
 )
 """``NavFormerConfig`` fields a fine-tuning run may set otherwise than its source: regularisation and the
 training levers (``docs/model.md``); the weights fit the model either way."""

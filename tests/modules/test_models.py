@@ -35,6 +35,7 @@ def eval_model(seed=0, **config):
         ({"use_static_encoder": False, "use_general_encoder": False}, "at least one"),
         ({"encoder": "vit"}, "encoder='vit'"),
         ({"dropout": 1.0}, "dropout"),
+        ({"action_dropout": 1.5}, "action_dropout=1.5"),
         ({"autocast_dtype": "int8"}, "autocast_dtype"),
         ({"encoder_micro_batch": 0}, "encoder_micro_batch"),
         ({"context_tokens": 5}, "context_tokens"),
@@ -258,6 +259,39 @@ def test_action_t_never_influences_its_own_prediction(batch_factory):
     out = run(model, changed)
     torch.testing.assert_close(out[:, : t + 1], base[:, : t + 1], rtol=0, atol=1e-6)
     assert (out[:, t + 1 :] - base[:, t + 1 :]).abs().max() > 1e-4  # later steps do read a_t
+
+
+def test_action_dropout_hides_actions_in_training_only(batch_factory):
+    batch = batch_factory(2, 5)
+    changed = dict(batch, action=-batch["action"])
+    # every action hidden, dropout off: training outputs do not depend on the actions at all
+    model = eval_model(dropout=0.0, action_dropout=1.0).train()
+    torch.testing.assert_close(run(model, changed), run(model, batch), rtol=0, atol=1e-6)
+    # inference reads every action, whatever action_dropout says
+    model.eval()
+    assert (run(model, changed) - run(model, batch))[:, 1:].abs().max() > 1e-4
+    # the default draws nothing: the paper's training, bit for bit and with the same random stream
+    paper, opt_out = eval_model(dropout=0.0).train(), eval_model(dropout=0.0, action_dropout=0.0).train()
+    torch.manual_seed(3)
+    out = run(paper, batch)
+    after = torch.rand(1)
+    torch.manual_seed(3)
+    torch.testing.assert_close(run(opt_out, batch), out, rtol=0, atol=0)
+    assert torch.equal(torch.rand(1), after)
+
+
+def test_action_dropout_hides_about_its_share_of_action_tokens(batch_factory):
+    model = eval_model(dropout=0.0, action_dropout=0.5).train()
+    tokens = model.transformer.tokens
+    action = torch.ones(64, 50, 2)
+    torch.manual_seed(0)
+    with_dropout = tokens.step_tokens(
+        [], torch.zeros(64, 50, 1), action, torch.zeros(64, 50, dtype=torch.long)
+    )
+    tokens.action_dropout = 0.0
+    without = tokens.step_tokens([], torch.zeros(64, 50, 1), action, torch.zeros(64, 50, dtype=torch.long))
+    hidden = ~torch.isclose(with_dropout[..., -1, :], without[..., -1, :]).all(-1)
+    assert 0.45 < hidden.float().mean().item() < 0.55
 
 
 # --------------------------------------------------------------------------------------------- THSC

@@ -47,6 +47,12 @@ class NavFormerConfig:
         channels_last: feed the convolutions channels_last tensors (free from uint8 HWC).
         space_to_depth: run the paper CNN's 8 x 8 / 4 first convolution on 4 x 4 pixel blocks as 48 channels
             (``ConvEncoder``; same maths, ~2x faster conv1 training on CPU in bf16). Ignored by ResNet18.
+
+    Beyond the paper (opt-in, ``docs/deviations.md``):
+        action_dropout: in training, each step's action token loses its action content with this
+            probability (the token keeps its modality and timestep embeddings), so the model cannot lean on
+            copying the previous action (behaviour cloning's "copycat" shortcut); inference always sees every
+            action. 0 (default): the paper's training.
     """
 
     d_embed: int = 128
@@ -68,6 +74,7 @@ class NavFormerConfig:
     autocast_dtype: str | None = None
     channels_last: bool = True
     space_to_depth: bool = True
+    action_dropout: float = 0.0
 
     def __post_init__(self) -> None:
         positive = ("d_embed", "n_blocks", "n_heads", "d_head", "mlp_ratio", "max_timestep", "action_dim")
@@ -82,6 +89,10 @@ class NavFormerConfig:
             )
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"NavFormerConfig.dropout={self.dropout!r}: expected a float in [0, 1)")
+        if not 0.0 <= self.action_dropout <= 1.0:
+            raise ValueError(
+                f"NavFormerConfig.action_dropout={self.action_dropout!r}: expected a float in [0, 1]"
+            )
         if self.encoder not in ENCODER_KINDS:
             raise ValueError(f"NavFormerConfig.encoder={self.encoder!r}: expected one of {ENCODER_KINDS}")
         if not (self.use_static_encoder or self.use_general_encoder):

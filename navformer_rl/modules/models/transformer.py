@@ -27,6 +27,8 @@ class TokenEmbedding(nn.Module):
 
     Args:
         observation_names: the observation tokens of a step, in order (``("static", "general")``, or one).
+        action_dropout: in training mode, the probability that a step's action token carries no action
+            (``action_embed`` left out; modality and timestep kept). 0: never.
     """
 
     def __init__(
@@ -36,6 +38,7 @@ class TokenEmbedding(nn.Module):
         max_timestep: int,
         observation_names: Sequence[str] = ENCODER_NAMES,
         dropout: float = 0.1,
+        action_dropout: float = 0.0,
     ) -> None:
         super().__init__()
         unknown = [name for name in observation_names if name not in ENCODER_NAMES]
@@ -50,6 +53,7 @@ class TokenEmbedding(nn.Module):
         self.modality_embed = nn.Embedding(len(MODALITIES), d_embed)
         self.embed_ln = nn.LayerNorm(d_embed)
         self.embed_dropout = Dropout(dropout)
+        self.action_dropout = float(action_dropout)
         step_types = ["return_to_go", *self.observation_names, "action"]
         self.register_buffer(
             "step_modalities", torch.tensor([MODALITIES.index(t) for t in step_types]), persistent=False
@@ -61,7 +65,14 @@ class TokenEmbedding(nn.Module):
         ``nn.Embedding``'s init until ``reset_tables``."""
         used = (config.use_static_encoder, config.use_general_encoder)
         names = [name for name, use in zip(ENCODER_NAMES, used, strict=True) if use]
-        return cls(config.d_embed, config.action_dim, config.max_timestep, names, config.dropout)
+        return cls(
+            config.d_embed,
+            config.action_dim,
+            config.max_timestep,
+            names,
+            config.dropout,
+            config.action_dropout,
+        )
 
     def reset_tables(self) -> None:
         """GPT-2's init of the timestep and modality tables: N(0, 0.02)."""
@@ -80,7 +91,8 @@ class TokenEmbedding(nn.Module):
     def step_tokens(
         self, observations: Sequence[Tensor], return_to_go: Tensor, action: Tensor, step: Tensor
     ) -> Tensor:
-        """Per-step tokens ``[B, T, tps, d]`` = (R-hat, observation embeddings.., a) + modality + timestep.
+        """Per-step tokens ``[B, T, tps, d]`` = (R-hat, observation embeddings.., a) + modality + timestep
+        (in training, each step's ``a`` embedding dropped with probability ``action_dropout``).
 
         observations: one ``[B, T, d]`` per name of ``observation_names``; return_to_go ``[B, T, 1]``,
         action ``[B, T, A]`` (a_t, at its own timestep), step long ``[B, T]``.
@@ -89,7 +101,11 @@ class TokenEmbedding(nn.Module):
         modality = self.modality_embed(self.step_modalities)
         tokens = [self.return_embed(return_to_go) + modality[0] + timestep]
         tokens += [embedding + modality[i] + timestep for i, embedding in enumerate(observations, 1)]
-        tokens.append(self.action_embed(action) + modality[-1] + timestep)
+        action_embedding = self.action_embed(action)
+        if self.training and self.action_dropout > 0.0:
+            kept = torch.rand(action.shape[:-1], device=action.device) >= self.action_dropout
+            action_embedding = action_embedding * kept.unsqueeze(-1).to(action_embedding.dtype)
+        tokens.append(action_embedding + modality[-1] + timestep)
         return torch.stack(tokens, dim=-2)
 
     def prepare(self, tokens: Tensor) -> Tensor:
