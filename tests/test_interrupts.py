@@ -89,3 +89,31 @@ def test_ctrl_c_while_evaluation_workers_start_prints_one_line(tmp_path):
     assert err.strip().splitlines() == [
         "navformer evaluate: interrupted (finished work is kept; rerun to resume)"
     ]
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="watches the process's memory maps through /proc")
+def test_sigterm_takes_the_ctrl_c_path_with_status_143(tmp_path):
+    """SIGTERM (a scheduler's or a session's stop) runs the same clean-up as Ctrl-C and says so in one line."""
+    command = [sys.executable, "-m", "navformer_rl.cli", "evaluate", "--method", "vrw", "--protocol", "smoke"]
+    command += ["--trials-per-setup", "2", "--trials-per-world", "1", "--workers", "1"]
+    command += ["--out", str(tmp_path / "vrw"), "--no-progress"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    process = subprocess.Popen(
+        command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        maps = Path(f"/proc/{process.pid}/maps")
+        # torch is imported when the subcommand runs, after the handler is installed
+        while process.poll() is None and "libtorch" not in maps.read_text():
+            assert time.monotonic() < deadline, "the command did not start"
+            time.sleep(0.05)
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 143, err
+    assert err.strip().splitlines() == [
+        "navformer evaluate: terminated (finished work is kept; rerun to resume)"
+    ]

@@ -8,7 +8,9 @@ Each subcommand is a thin layer over a library function; its parser lives next t
 happen only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
-set ``NAVFORMER_DEBUG=1`` to see the traceback.
+set ``NAVFORMER_DEBUG=1`` to see the traceback. Ctrl-C and SIGTERM stop a command the same way (its
+clean-up runs: process pools and collectors shut down, finished work stays) with one line and status 130
+or 143.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from navformer_rl.utils.durable import FolderLockedError
@@ -60,10 +64,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C's ``KeyboardInterrupt`` so that the same clean-up runs (collector and
+    process-pool shutdown, the one-line report); the exit status is 143."""
+
+
+def _raise_terminated(signum: int, frame) -> None:
+    raise Terminated()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``navformer`` console script; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    handle_sigterm = (
+        threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+    )
+    if handle_sigterm:
+        signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        return _run(args)
+    finally:
+        if handle_sigterm:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """``args.run(args)``, with the user's errors and interrupts as one line and an exit status."""
     try:
         result = args.run(args)
     except USER_ERRORS as error:
@@ -73,26 +101,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"navformer {args.command}: error: {message}", file=sys.stderr)
         return 2
     except Exception as error:
-        if not _interrupted(error):
+        interrupt = _interrupted(error)
+        if interrupt is None:
             raise
-        return _report_interrupt(args.command)
-    except KeyboardInterrupt:
-        return _report_interrupt(args.command)
+        return _report_interrupt(args.command, interrupt)
+    except KeyboardInterrupt as interrupt:
+        return _report_interrupt(args.command, interrupt)
     return int(result or 0)
 
 
-def _interrupted(error: BaseException) -> bool:
-    """Whether ``error`` was raised while handling a Ctrl-C (a context manager's exit may replace the
-    ``KeyboardInterrupt`` with its own error, e.g. tensordict's ``to_module``)."""
+def _interrupted(error: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C (or SIGTERM) ``error`` was raised while handling, if any (a context manager's exit may
+    replace the ``KeyboardInterrupt`` with its own error, e.g. tensordict's ``to_module``)."""
     seen = set()
     while error is not None and id(error) not in seen:
         if isinstance(error, KeyboardInterrupt):
-            return True
+            return error
         seen.add(id(error))
         error = error.__cause__ or error.__context__
-    return False
+    return None
 
 
-def _report_interrupt(command: str) -> int:
-    print(f"navformer {command}: interrupted (finished work is kept; rerun to resume)", file=sys.stderr)
-    return 130
+def _report_interrupt(command: str, interrupt: KeyboardInterrupt) -> int:
+    """One line on stderr; 143 after SIGTERM, 130 after Ctrl-C."""
+    what = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+    print(f"navformer {command}: {what} (finished work is kept; rerun to resume)", file=sys.stderr)
+    return 143 if isinstance(interrupt, Terminated) else 130
