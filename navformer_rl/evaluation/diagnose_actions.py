@@ -32,6 +32,7 @@ from navformer_rl.evaluation.diagnose_measures import (
     LARGE_TURN,
     OFF_CENTRE,
     SIGHTING_RANGES,
+    TURN_CHANGE,
     command_statistics,
 )
 
@@ -61,9 +62,12 @@ def _open(datasets: Mapping[str, str | os.PathLike]) -> dict[str, Any]:
 def expert_command_statistics(datasets: Mapping[str, str | os.PathLike]) -> dict[str, Any]:
     """``{kind: command_statistics(every row's action)}`` of the datasets ``{kind: folder}`` (kinds ``e``,
     ``ca``)."""
-    return {
-        kind: command_statistics(dataset.rows["action"].numpy()) for kind, dataset in _open(datasets).items()
-    }
+    out = {}
+    for kind, dataset in _open(datasets).items():
+        episode = dataset.rows["episode"].numpy()
+        starts = np.r_[True, episode[1:] != episode[:-1]]
+        out[kind] = command_statistics(dataset.rows["action"].numpy(), starts=starts)
+    return out
 
 
 def turn_agreement(
@@ -139,10 +143,6 @@ def edge_of_view_turns(
         "predicted_toward": float(np.mean(predicted[edge] * bearing[edge] > 0)),
         "sign_agreement": float(np.mean(np.sign(predicted[edge]) == np.sign(expert[edge]))),
     }
-
-
-TURN_CHANGE = 0.3
-"""Change of the expert's angular action from one step to the next above which a step counts as a turn change."""
 
 
 def turn_changes(

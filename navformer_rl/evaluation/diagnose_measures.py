@@ -60,6 +60,8 @@ the target little more often than away (56 % at 10°, 76 % beyond 30° on the 40
 LARGE_TURN = 0.5
 """``|angular action|`` (normalised) above which a command counts as a large turn."""
 HISTOGRAM_BINS = 20
+TURN_CHANGE = 0.3
+"""Change of the angular action from one step to the next above which a step counts as a turn change."""
 
 
 def _ratio(numerator: float, denominator: float) -> float | None:
@@ -242,11 +244,18 @@ def progress_measures(robots: Sequence[RobotSteps], eps: float = PROGRESS_EPS) -
     }
 
 
-def command_statistics(actions: np.ndarray, bins: int = HISTOGRAM_BINS) -> dict[str, Any]:
+def command_statistics(
+    actions: np.ndarray, bins: int = HISTOGRAM_BINS, starts: np.ndarray | None = None
+) -> dict[str, Any]:
     """Distribution of normalised actions ``[N, 2]`` (linear, angular), per component: ``mean``, ``std``,
     ``mean_abs``, ``abs_quantiles`` (25 / 50 / 75 / 90 %), ``large_fraction`` (``|a| >`` :data:`LARGE_TURN`)
-    and ``histogram`` (fractions of the ``N`` actions in ``bins`` equal bins over [-1, 1])."""
+    and ``histogram`` (fractions of the ``N`` actions in ``bins`` equal bins over [-1, 1]); and
+    ``change_fraction``: the share of consecutive actions of one sequence whose component changes by more
+    than :data:`TURN_CHANGE` (``starts`` bool ``[N]`` marks each sequence's first action; None: one
+    sequence). A policy that keeps repeating its last command changes it rarely."""
     actions = np.asarray(actions, dtype=np.float64).reshape(-1, 2)
+    follows = np.ones(actions.shape[0], dtype=bool) if starts is None else ~np.asarray(starts, dtype=bool)
+    follows[:1] = False
     out: dict[str, Any] = {"n": int(actions.shape[0])}
     for k, name in enumerate(("linear", "angular")):
         values = np.clip(actions[:, k], -1.0, 1.0)
@@ -262,6 +271,7 @@ def command_statistics(actions: np.ndarray, bins: int = HISTOGRAM_BINS) -> dict[
                 else None
             ),
             "large_fraction": _mean(np.abs(values) > LARGE_TURN),
+            "change_fraction": _mean((np.abs(np.diff(values, prepend=0.0)) > TURN_CHANGE)[follows]),
             "histogram": [round(float(c) / size, 6) for c in counts],
         }
     return out
@@ -300,6 +310,8 @@ def robot_row(robot: RobotSteps) -> dict[str, Any]:
 def summarize_robots(robots: Sequence[RobotSteps]) -> dict[str, Any]:
     """Every block of the diagnosis summary over measured robot-trials ``robots``."""
     actions = np.concatenate([r.action for r in robots]) if robots else np.zeros((0, 2))
+    starts = np.zeros(actions.shape[0], dtype=bool)
+    starts[np.cumsum([0] + [r.n for r in robots[:-1]])[: len(robots)]] = True
     return {
         "robot_trials": len(robots),
         "active_steps": int(sum(r.n for r in robots)),
@@ -309,5 +321,5 @@ def summarize_robots(robots: Sequence[RobotSteps]) -> dict[str, Any]:
         "circling": circling_measures(robots),
         "sightings": sighting_measures(robots),
         "progress": progress_measures(robots),
-        "commands": command_statistics(actions),
+        "commands": command_statistics(actions, starts=starts),
     }

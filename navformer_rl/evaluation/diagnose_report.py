@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from navformer_rl.evaluation.diagnose_actions import HALF_FIELD_OF_VIEW, TURN_CHANGE
+from navformer_rl.evaluation.diagnose_actions import HALF_FIELD_OF_VIEW
 from navformer_rl.evaluation.diagnose_measures import (
     APPROACH_WINDOW,
     ARRIVAL_WINDOW,
@@ -19,6 +19,7 @@ from navformer_rl.evaluation.diagnose_measures import (
     OFF_CENTRE,
     OUTCOMES,
     SIGHTING_RANGES,
+    TURN_CHANGE,
 )
 
 Render = Callable[[dict[str, Any]], str]
@@ -117,6 +118,10 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, Render]]:
             lambda block: _pct(block["commands"]["angular"]["large_fraction"]),
         ),
         ("mean linear", lambda block: _num(3)(block["commands"]["linear"]["mean"])),
+        (
+            f"angular command changes by > {TURN_CHANGE:g} from the step before",
+            lambda block: _pct(block["commands"]["angular"].get("change_fraction")),  # n/a in older diagnoses
+        ),
     ]
     return rows
 
@@ -154,6 +159,10 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
             [
                 "\\|angular\\| quartiles / 90 %",
                 *(" / ".join(_num(2)(q) for q in c["angular"]["abs_quantiles"] or []) for _, c in columns),
+            ],
+            [
+                f"changes by > {TURN_CHANGE:g} from the step before",
+                *(_pct(c["angular"].get("change_fraction")) for _, c in columns),
             ],
             ["actions", *(str(c["n"]) for _, c in columns)],
         ]

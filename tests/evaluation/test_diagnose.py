@@ -262,6 +262,11 @@ def test_command_statistics_known_answers():
     assert stats["angular"]["std"] == pytest.approx(np.std([-1.0, 1.0, 0.0, 0.2]))
     assert stats["angular"]["histogram"] == [0.25, 0.0, 0.5, 0.25]
     assert stats["linear"]["mean"] == pytest.approx(0.75)
+    # angular changes -1 -> 1 -> 0 -> 0.2: two of the three steps change by more than 0.3
+    assert stats["angular"]["change_fraction"] == pytest.approx(2 / 3)
+    # a second sequence starting at the third action: the 1 -> 0 pair is not a step of either
+    split = command_statistics(actions, bins=4, starts=np.array([True, False, True, False]))
+    assert split["angular"]["change_fraction"] == pytest.approx(1 / 2)
 
 
 def test_turn_agreement_reports_the_averaged_turns():
