@@ -93,7 +93,7 @@ def test_ctrl_c_while_evaluation_workers_start_prints_one_line(tmp_path):
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="watches the process's memory maps through /proc")
 def test_sigterm_takes_the_ctrl_c_path_with_status_143(tmp_path):
-    """SIGTERM (a scheduler's or a session's stop) runs the same clean-up as Ctrl-C and says so in one line."""
+    """SIGTERM (a job scheduler's stop) runs the same clean-up as Ctrl-C and says so in one line."""
     command = [sys.executable, "-m", "navformer_rl.cli", "evaluate", "--method", "vrw", "--protocol", "smoke"]
     command += ["--trials-per-setup", "2", "--trials-per-world", "1", "--workers", "1"]
     command += ["--out", str(tmp_path / "vrw"), "--no-progress"]

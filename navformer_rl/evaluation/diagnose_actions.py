@@ -28,16 +28,18 @@ from typing import Any
 
 import numpy as np
 
+from navformer_rl.envs.robots import JACKAL
 from navformer_rl.evaluation.diagnose_measures import (
     LARGE_TURN,
     OFF_CENTRE,
     SIGHTING_RANGES,
     TURN_CHANGE,
+    bearing_to,
     command_statistics,
 )
 
-HALF_FIELD_OF_VIEW = np.radians(45.0)
-"""Half the 90° camera field of view of the dataset robots (``envs.robots.JACKAL``)."""
+HALF_FIELD_OF_VIEW = np.radians(JACKAL.camera_fov_deg / 2)
+"""Half the camera field of view of the dataset robots (the Jackal's 90°)."""
 
 DATASET_KINDS = ("e", "ca")
 
@@ -127,14 +129,9 @@ def edge_of_view_turns(
     """
     predicted, expert = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (predicted, expert))
     pose, target = np.asarray(pose, dtype=np.float64), np.asarray(target, dtype=np.float64)
-    offset = target[:, :2] - pose[:, :2]
-    angle = np.arctan2(offset[:, 1], offset[:, 0]) - pose[:, 2]
-    bearing = np.arctan2(np.sin(angle), np.cos(angle))
-    edge = (
-        (np.abs(bearing) > OFF_CENTRE)
-        & (np.abs(bearing) <= HALF_FIELD_OF_VIEW)
-        & (np.hypot(offset[:, 0], offset[:, 1]) <= max_range)
-    )
+    bearing = bearing_to(pose, target)
+    distance = np.hypot(*(target[:, :2] - pose[:, :2]).T)
+    edge = (np.abs(bearing) > OFF_CENTRE) & (np.abs(bearing) <= HALF_FIELD_OF_VIEW) & (distance <= max_range)
     if not edge.any():
         return {"steps": 0, "expert_toward": None, "predicted_toward": None, "sign_agreement": None}
     return {

@@ -166,14 +166,20 @@ def sightings(robot: RobotSteps, max_range: float) -> np.ndarray:
     return np.flatnonzero(seen)
 
 
+def bearing_to(pose: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """float ``[N]``: the angle from the heading of ``pose`` ``(x, y, yaw)`` ``[N, 3]`` to ``target``
+    (``[2]`` or ``[N, 2]``), in ``[-pi, pi]`` (positive: to the left, where a positive turn command goes)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    offset = np.asarray(target, dtype=np.float64)[..., :2] - pose[:, :2]
+    angle = np.arctan2(offset[:, 1], offset[:, 0]) - pose[:, 2]
+    return np.arctan2(np.sin(angle), np.cos(angle))
+
+
 def bearing(robot: RobotSteps) -> np.ndarray:
-    """float ``[n+1]``: the angle from the robot's heading to its target's centre at each pose, in
-    ``[-pi, pi]`` (positive: to the left, where a positive turn command goes); NaN without ``robot.target``."""
+    """float ``[n+1]``: :func:`bearing_to` the robot's target at each pose; NaN without ``robot.target``."""
     if robot.target is None:
         return np.full(robot.pose.shape[0], np.nan)
-    offset = np.asarray(robot.target, dtype=np.float64)[:2] - robot.pose[:, :2]
-    angle = np.arctan2(offset[:, 1], offset[:, 0]) - robot.pose[:, 2]
-    return np.arctan2(np.sin(angle), np.cos(angle))
+    return bearing_to(robot.pose, robot.target)
 
 
 def sighting_measures(

@@ -104,13 +104,20 @@ def table2_setups() -> list[Setup]:
     ]  # fmt: skip
 
 
+SEEN_SUFFIX = "-seen"
+UNSEEN_SUFFIX = "-unseen"
+"""Table III's setup names end in these; an unseen setup replays its seen setup's mazes, starts and targets."""
+
+
 def table3_setups() -> list[Setup]:
     """Table III (12.5 m, 4 robots): one Jackal plus three Jackal ("seen") or TurtleBot3 ("unseen")
     dynamic obstacles. Seen: all four Jackals are measured (the paper's seen row equals its Table I
     12.5 m / 4 robots row); unseen: only the Jackal (robot 0) is measured."""
     return [
-        Setup("12.5m-4r-seen", 12.5, ("jackal",) * 4, (True,) * 4),
-        Setup("12.5m-4r-unseen", 12.5, ("jackal",) + ("turtlebot3",) * 3, (True, False, False, False)),
+        Setup(f"12.5m-4r{SEEN_SUFFIX}", 12.5, ("jackal",) * 4, (True,) * 4),
+        Setup(
+            f"12.5m-4r{UNSEEN_SUFFIX}", 12.5, ("jackal",) + ("turtlebot3",) * 3, (True, False, False, False)
+        ),
     ]
 
 

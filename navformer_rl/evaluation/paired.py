@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from navformer_rl.evaluation.episodes import SEEN_SUFFIX, UNSEEN_SUFFIX
 from navformer_rl.evaluation.measures import (
     RobotTrial,
     bootstrap_mean_interval,
@@ -157,11 +158,6 @@ def paired_differences(
     ]
     out.append(_difference(ALL_SETUPS, pairs, cluster, confidence, seed, n_resamples))
     return labels, out
-
-
-SEEN_SUFFIX = "-seen"
-UNSEEN_SUFFIX = "-unseen"
-"""Table III's setup names end in these (``evaluation.episodes.table3_setups``)."""
 
 
 def _seen_partner(record: RobotTrial) -> tuple[str, int]:

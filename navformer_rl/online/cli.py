@@ -104,7 +104,12 @@ def compare(run_dirs: list[str], out: str | None, overrides: list[str]) -> int:
                 f"--compare {run_dir}: no {PROGRESS_FILENAME} and {CONFIG_FILENAME} there; expected a "
                 "`navformer train-ppo` run folder"
             )
-        methods.append(json.loads((folder / CONFIG_FILENAME).read_text())["method"])
+        try:
+            methods.append(json.loads((folder / CONFIG_FILENAME).read_text())["method"])
+        except (ValueError, KeyError, TypeError):
+            raise ValueError(
+                f"--compare {run_dir}: {CONFIG_FILENAME} is not a train-ppo configuration (no method)"
+            ) from None
     runs = {}
     for run_dir, method in zip(run_dirs, methods):
         label = method if methods.count(method) == 1 else f"{method} ({run_dir})"
