@@ -20,6 +20,7 @@ from torchrl.objectives import ClipPPOLoss, ValueEstimators
 from navformer_rl.baselines.actor_critic import (
     ACTION_KEY,
     AGENTS,
+    FEATURES_KEY,
     LOG_PROB_KEY,
     VALUE_KEY,
     ActorCriticNet,
@@ -35,11 +36,11 @@ LOSS_TERMS = ("loss_objective", "loss_critic", "loss_entropy")
 
 
 def make_loss(net: ActorCriticNet, cfg: LossConfig) -> ClipPPOLoss:
-    """``ClipPPOLoss`` on the net's actor and critic (shared trunk) with a ``GAE`` value estimator, keys set to
-    the ``"agents"`` group."""
+    """``ClipPPOLoss`` on the net's actor and critic (shared trunk, run once per minibatch: the critic reuses
+    the actor's features) with a ``GAE`` value estimator, keys set to the ``"agents"`` group."""
     loss = ClipPPOLoss(
         net.actor(),
-        net.critic(),
+        net.critic(reuse_features=True),
         clip_epsilon=cfg.clip_epsilon,
         entropy_coeff=cfg.entropy_coeff,
         critic_coeff=cfg.critic_coeff,
@@ -124,7 +125,9 @@ def robot_steps(loss: ClipPPOLoss, data: TensorDictBase) -> TensorDictBase:
     """
     parts = []
     for batch in worker_batches(data):
-        batch = batch.clone(False)
+        batch = batch.clone(False).exclude(
+            FEATURES_KEY
+        )  # values from the trunk, not collection-time features
         loss.value_estimator(
             batch, params=loss.critic_network_params, target_params=loss.target_critic_network_params
         )

@@ -52,6 +52,33 @@ def test_actor_and_critic_keys_shapes_and_action_bounds(method, small_net):
 
 
 @pytest.mark.parametrize("method", ["dsac", "matdn"])
+def test_the_loss_runs_the_trunk_once_with_the_gradients_of_running_it_twice(method, small_net):
+    net = small_net(method)
+    loss = make_loss(net, LossConfig())
+    steps = robot_steps(loss, sampled_rollout(net, method))
+    calls = []
+    hook = net.trunk.register_forward_hook(lambda *_: calls.append(1))
+    torch.manual_seed(0)  # TanhNormal's entropy is a sampled estimate
+    out = loss(steps.clone())
+    hook.remove()
+    assert len(calls) == 1  # the critic read the features the actor wrote
+    total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+    reused = torch.autograd.grad(total, list(net.parameters()))
+    # reference: the critic runs the trunk again on its own copy of the minibatch
+    torch.manual_seed(0)
+    actor_out = loss(steps.clone())
+    value = net.critic()(steps.clone())[VALUE_KEY]
+    critic_loss = LossConfig().critic_coeff * torch.nn.functional.smooth_l1_loss(
+        value, steps["agents", "value_target"]
+    )
+    assert torch.allclose(actor_out["loss_critic"], critic_loss, atol=1e-6)
+    separate = actor_out["loss_objective"] + actor_out["loss_entropy"] + critic_loss
+    assert torch.allclose(separate, total)
+    for mine, reference in zip(reused, torch.autograd.grad(separate, list(net.parameters()))):
+        assert torch.allclose(mine, reference, atol=1e-6, rtol=1e-5)
+
+
+@pytest.mark.parametrize("method", ["dsac", "matdn"])
 def test_clip_ppo_loss_reaches_every_parameter(method, small_net):
     net = small_net(method)
     loss = make_loss(net, LossConfig())
