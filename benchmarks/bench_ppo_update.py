@@ -1,11 +1,13 @@
-"""One PPO minibatch update of DSAC and MA-TDN: the trunk run once per minibatch against running it twice.
+"""One PPO minibatch update of DSAC and MA-TDN: the trunk run once per minibatch against running it twice,
+and the opt-in bfloat16 autocast of the trunk (``optim.autocast_dtype``).
 
 ``make_loss`` gives ``ClipPPOLoss`` a critic that reads the features the actor has just written
 (``ActorCriticNet.critic(reuse_features=True)``); the reference is the same loss with the plain critic, which
 runs the shared trunk (the Siamese CNN on two images, MA-TDN's attention) a second time. One update =
 ``ClipPPOLoss`` forward on ``--batch`` robot-steps (random 84x84 images, the default network sizes), the three
-loss terms' backward, gradient clipping and an Adam step, as in ``ppo_update``. The two variants alternate
-over ``--rounds`` rounds (after one warm-up each); the script prints the median milliseconds and the ratio.
+loss terms' backward, gradient clipping and an Adam step, as in ``ppo_update``. The three variants alternate
+over ``--rounds`` rounds (after one warm-up each); the script prints the median milliseconds and the ratios
+to the reference.
 
 Usage: ``OMP_NUM_THREADS=1 python benchmarks/bench_ppo_update.py [--rounds 7] [--batch 256]``
 """
@@ -44,7 +46,7 @@ def robot_steps(batch: int, method: str) -> TensorDict:
     return TensorDict({"agents": TensorDict(agents, [batch])}, [batch])
 
 
-def updater(method: str, reuse: bool):
+def updater(method: str, reuse: bool, autocast_dtype: str | None = None):
     """A function running one minibatch update of a fresh network; ``reuse=False``: the critic reruns the trunk."""
     torch.manual_seed(0)
     net = make_dsac() if method == "dsac" else make_matdn()
@@ -53,7 +55,7 @@ def updater(method: str, reuse: bool):
         net.critic = lambda reuse_features=False: plain_critic()  # make_loss gets the trunk-running critic
     loss = make_loss(net, LossConfig())
     optimizer = make_optimizer(loss, OptimConfig())
-    cfg = OptimConfig(epochs=1)
+    cfg = OptimConfig(epochs=1, autocast_dtype=autocast_dtype)
     return lambda steps: ppo_update(loss, optimizer, steps, cfg)
 
 
@@ -63,11 +65,17 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=256)
     args = parser.parse_args()
     print(f"torch threads: {torch.get_num_threads()}, batch {args.batch}, {args.rounds} rounds\n")
-    print("| network | trunk once (make_loss) | trunk twice (reference) | ratio |")
-    print("|---|---|---|---|")
+    print(
+        "| network | trunk once (make_loss) | trunk twice (reference) | ratio | once, bfloat16 autocast | ratio |"
+    )
+    print("|---|---|---|---|---|---|")
     for method in ("dsac", "matdn"):
         steps = robot_steps(args.batch, method)
-        variants = {"once": updater(method, True), "twice": updater(method, False)}
+        variants = {
+            "once": updater(method, True),
+            "twice": updater(method, False),
+            "bf16": updater(method, True, "bfloat16"),
+        }
         times: dict[str, list[float]] = {name: [] for name in variants}
         for update in variants.values():
             update(steps)  # warm-up
@@ -76,8 +84,10 @@ def main() -> None:
                 start = time.perf_counter()
                 update(steps)
                 times[name].append(1e3 * (time.perf_counter() - start))
-        once, twice = statistics.median(times["once"]), statistics.median(times["twice"])
-        print(f"| {method} | {once:.0f} ms | {twice:.0f} ms | {once / twice:.2f}x |")
+        once, twice, bf16 = (statistics.median(times[name]) for name in ("once", "twice", "bf16"))
+        print(
+            f"| {method} | {once:.0f} ms | {twice:.0f} ms | {once / twice:.2f}x | {bf16:.0f} ms | {bf16 / twice:.2f}x |"
+        )
 
 
 if __name__ == "__main__":

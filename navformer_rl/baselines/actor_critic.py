@@ -73,7 +73,9 @@ class ActorCriticNet(nn.Module):
         under ``set_exploration_type(DETERMINISTIC)``).
         """
         if "actor" not in self._views:
-            head = TensorDictModule(self.policy_head, in_keys=[FEATURES_KEY], out_keys=[LOC_KEY, SCALE_KEY])
+            head = TensorDictModule(
+                Float32Head(self.policy_head), in_keys=[FEATURES_KEY], out_keys=[LOC_KEY, SCALE_KEY]
+            )
             self._views["actor"] = ProbabilisticActor(
                 TensorDictSequential(self.trunk, head),
                 in_keys={"loc": LOC_KEY, "scale": SCALE_KEY},
@@ -95,12 +97,25 @@ class ActorCriticNet(nn.Module):
         name = "critic_reusing_features" if reuse_features else "critic"
         if name not in self._views:
             trunk = FeaturesOnce(self.trunk) if reuse_features else self.trunk
-            value = ValueOperator(self.value_head, in_keys=[FEATURES_KEY], out_keys=[VALUE_KEY])
+            value = ValueOperator(Float32Head(self.value_head), in_keys=[FEATURES_KEY], out_keys=[VALUE_KEY])
             self._views[name] = TensorDictSequential(trunk, value, selected_out_keys=[VALUE_KEY])
         return self._views[name]  # type: ignore[return-value]
 
     def forward(self, *args, **kwargs):  # pragma: no cover - use actor() / critic()
         raise RuntimeError("ActorCriticNet is a container: call net.actor() or net.critic()")
+
+
+class Float32Head(nn.Module):
+    """``head`` on float32 features with autocast off: under an autocast update (``optim.autocast_dtype``)
+    only the trunk runs in low precision; the action distribution, its log-probs and the values stay float32."""
+
+    def __init__(self, head: nn.Module) -> None:
+        super().__init__()
+        self.head = head
+
+    def forward(self, features: torch.Tensor):
+        with torch.autocast(features.device.type, enabled=False):
+            return self.head(features.float())
 
 
 class FeaturesOnce(TensorDictModuleBase):

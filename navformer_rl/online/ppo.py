@@ -148,8 +148,9 @@ def ppo_update(
     generator: torch.Generator | None = None,
 ) -> dict[str, float]:
     """``cfg.epochs`` passes of ``ClipPPOLoss`` over ``steps`` (:func:`robot_steps`) in shuffled minibatches
-    of ``cfg.minibatch_size`` robot-steps; each minibatch: loss_objective + loss_critic + loss_entropy ->
-    backward -> clip the gradient norm to ``cfg.max_grad_norm`` -> Adam step.
+    of ``cfg.minibatch_size`` robot-steps; each minibatch: loss_objective + loss_critic + loss_entropy (the
+    forward under autocast when ``cfg.autocast_dtype`` is set) -> backward -> clip the gradient norm to
+    ``cfg.max_grad_norm`` -> Adam step.
 
     Returns the mean of each loss term and of ``entropy``, ``kl_approx``, ``clip_fraction`` and
     ``grad_norm`` over the minibatches.
@@ -157,6 +158,8 @@ def ppo_update(
     n = steps.shape[0]
     if n == 0:
         return {}
+    dtype = None if cfg.autocast_dtype is None else getattr(torch, cfg.autocast_dtype)
+    device_type = next(loss.parameters()).device.type
     size = min(cfg.minibatch_size, n)
     per_epoch = max(n // size, 1)
     totals: dict[str, float] = {}
@@ -165,7 +168,8 @@ def ppo_update(
         order = torch.randperm(n, generator=generator)
         for start in range(0, per_epoch * size, size):
             minibatch = steps[order[start : start + size]]
-            out = loss(minibatch)
+            with torch.autocast(device_type, dtype=dtype, enabled=dtype is not None):
+                out = loss(minibatch)
             terms = [term for term in LOSS_TERMS if term in out.keys()]  # no critic with critic_coeff 0
             total = sum(out.get(term) for term in terms)
             optimizer.zero_grad(set_to_none=True)

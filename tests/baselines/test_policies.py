@@ -79,6 +79,21 @@ def test_the_loss_runs_the_trunk_once_with_the_gradients_of_running_it_twice(met
 
 
 @pytest.mark.parametrize("method", ["dsac", "matdn"])
+def test_under_autocast_only_the_trunk_runs_in_bfloat16(method, small_net):
+    net = small_net(method)
+    steps = robot_steps(make_loss(net, LossConfig()), sampled_rollout(net, method))
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = net.actor()(steps.clone())
+        value = net.critic()(steps.clone())[VALUE_KEY]
+    assert out[FEATURES_KEY].dtype == torch.bfloat16
+    assert out["agents", "loc"].dtype == out[LOG_PROB_KEY].dtype == value.dtype == torch.float32
+    # float32 features: the heads are unchanged outside autocast
+    reference = net.actor()(steps.clone())
+    assert reference[FEATURES_KEY].dtype == torch.float32
+    assert torch.allclose(out["agents", "loc"], reference["agents", "loc"], atol=0.05)
+
+
+@pytest.mark.parametrize("method", ["dsac", "matdn"])
 def test_clip_ppo_loss_reaches_every_parameter(method, small_net):
     net = small_net(method)
     loss = make_loss(net, LossConfig())

@@ -37,7 +37,8 @@ def test_gae_per_robot_and_parked_robots_dropped(small_net):
     assert torch.allclose(last["advantage"], reward - last["state_value"], atol=1e-5)
 
 
-def test_one_update_makes_positive_advantage_actions_likelier(small_net):
+@pytest.mark.parametrize("autocast_dtype", [None, "bfloat16"])
+def test_one_update_makes_positive_advantage_actions_likelier(autocast_dtype, small_net):
     net = small_net("dsac")
     loss = make_loss(net, LossConfig(normalize_advantage=False, entropy_coeff=0.0, critic_coeff=0.0))
     steps = robot_steps(loss, sampled_rollout(net, "dsac", steps=8))
@@ -46,7 +47,8 @@ def test_one_update_makes_positive_advantage_actions_likelier(small_net):
     actor = net.actor()
     before = actor.log_prob(steps.clone()).detach()
     optimizer = make_optimizer(loss, OptimConfig(lr=1e-3))
-    stats = ppo_update(loss, optimizer, steps, OptimConfig(epochs=1, minibatch_size=16))
+    cfg = OptimConfig(epochs=1, minibatch_size=16, autocast_dtype=autocast_dtype)
+    stats = ppo_update(loss, optimizer, steps, cfg)
     after = actor.log_prob(steps.clone()).detach()
     change = (after - before).reshape(-1)
     assert change[sign.reshape(-1) > 0].mean() > 0 > change[sign.reshape(-1) < 0].mean()

@@ -86,6 +86,7 @@ def test_the_packaged_config_is_the_dataclass_defaults():
         ("env.sizes=[30.0]", r"env.sizes\[...\] must be a finite number >= 5 and <= 17.5"),
         ("optim.lrr=0.1", "bad PPO config override 'optim.lrr'"),
         ("loss.loss_critic_type=huber", "loss.loss_critic_type='huber'"),
+        ("optim.autocast_dtype=int8", r"optim.autocast_dtype='int8': expected null or one of"),
     ],
 )
 def test_bad_settings_are_one_line_errors(override, message, capsys):
