@@ -18,8 +18,10 @@ from typing import Any
 
 from navformer_rl.baselines.online import ONLINE_METHODS
 from navformer_rl.constants import MAX_EPISODE_STEPS, MAX_WORLD_SIZE, MIN_WORLD_SIZE
-from navformer_rl.modules.models.config import AUTOCAST_DTYPES
 from navformer_rl.utils.checks import check_int, check_number, check_seed
+
+PPO_AUTOCAST_DTYPES = ("bfloat16",)
+"""``optim.autocast_dtype`` values: bfloat16 only (float16 would need loss scaling, which the update lacks)."""
 
 
 @dataclass
@@ -87,8 +89,8 @@ class LossConfig:
 class OptimConfig:
     """Adam on every parameter; ``epochs`` passes over each batch in minibatches of ``minibatch_size``
     robot-steps; gradients clipped to ``max_grad_norm``; ``anneal_lr``: linear decay to 0 over the run;
-    ``autocast_dtype``: ``"bfloat16"`` / ``"float16"`` runs the update's trunk in that precision under autocast
-    (the heads, log-probs and values stay float32), None: float32 throughout."""
+    ``autocast_dtype``: ``"bfloat16"`` runs the update's trunk in that precision under autocast (the heads,
+    log-probs and values stay float32), None: float32 throughout."""
 
     lr: float = 3e-4
     epochs: int = 4
@@ -228,9 +230,10 @@ def validate_ppo_config(cfg: PPOConfig) -> None:
     check_int(cfg.optim.epochs, "optim.epochs")
     check_int(cfg.optim.minibatch_size, "optim.minibatch_size")
     check_number(cfg.optim.max_grad_norm, "optim.max_grad_norm", greater_than=0.0)
-    if cfg.optim.autocast_dtype is not None and cfg.optim.autocast_dtype not in AUTOCAST_DTYPES:
+    if cfg.optim.autocast_dtype is not None and cfg.optim.autocast_dtype not in PPO_AUTOCAST_DTYPES:
         raise ValueError(
-            f"optim.autocast_dtype={cfg.optim.autocast_dtype!r}: expected null or one of {AUTOCAST_DTYPES}"
+            f"optim.autocast_dtype={cfg.optim.autocast_dtype!r}: expected null or one of {PPO_AUTOCAST_DTYPES} "
+            "(float16 would need loss scaling)"
         )
     check_int(cfg.eval.interval, "eval.interval", minimum=0)
     check_int(cfg.eval.episodes, "eval.episodes")

@@ -125,9 +125,8 @@ def robot_steps(loss: ClipPPOLoss, data: TensorDictBase) -> TensorDictBase:
     """
     parts = []
     for batch in worker_batches(data):
-        batch = batch.clone(False).exclude(
-            FEATURES_KEY
-        )  # values from the trunk, not collection-time features
+        # the values come from the trunk, never from features the collector's policy wrote
+        batch = batch.clone(False).exclude(FEATURES_KEY)
         loss.value_estimator(
             batch, params=loss.critic_network_params, target_params=loss.target_critic_network_params
         )
