@@ -1,0 +1,37 @@
+"""The evaluation records kept in ``docs/results/`` stay readable by the evaluation tools and still give the
+numbers docs/results.md quotes from them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from navformer_rl.evaluation.seeds import summarize_seed_groups
+
+DATA_SCALING = Path(__file__).resolve().parents[2] / "docs" / "results" / "data_scaling"
+
+
+@pytest.mark.parametrize(
+    ("group", "expected_sr"),
+    [
+        ("navformer_e350", (0.200, 0.250)),
+        ("dt_e350", (0.3417, 0.2917)),
+    ],
+)
+def test_data_scaling_records_give_the_quoted_success_rates(
+    group: str, expected_sr: tuple[float, float]
+) -> None:
+    folders = [DATA_SCALING / f"{group}_s{seed}" for seed in (0, 1)]
+    (summary,) = summarize_seed_groups({group: folders})
+    assert [run.metrics.sr for run in summary.runs] == pytest.approx(expected_sr, abs=5e-5)
+    assert summary.mean["sr"] == pytest.approx(sum(expected_sr) / 2, abs=5e-5)
+    assert all(run.metrics.n_trials == 40 for run in summary.runs)
+
+
+def test_data_scaling_records_share_one_episode_set() -> None:
+    # summarize_seed_groups refuses folders of different episode sets, across groups too
+    folders = sorted(p for p in DATA_SCALING.iterdir() if p.is_dir())
+    assert len(folders) >= 4
+    summaries = summarize_seed_groups({folder.name: [folder] for folder in folders})
+    assert {s.runs[0].metrics.n_trials for s in summaries} == {40}
