@@ -19,6 +19,7 @@ import torch
 from tensordict import TensorDict
 
 from navformer_rl.data.prefetch import Prefetcher
+from navformer_rl.data.samplers import split_by_length
 from navformer_rl.tasks import DATASETS, TRAJECTORY_KINDS
 from navformer_rl.training import checkpoint as ckpt
 from navformer_rl.training.config import TrainConfig, model_config
@@ -391,7 +392,10 @@ class Trainer:
                 loss_byol = loss_byol * self._pair_share(pairs)
         valid_total = valid_total.clamp_min(1)
         n = batch.shape[0]
-        parts = [batch[shard_rows(n, i, min(chunks, n))] for i in range(min(chunks, n))]
+        if self.cfg.optim.chunks_by_length:
+            parts = split_by_length(batch, chunks)
+        else:
+            parts = [batch[shard_rows(n, i, min(chunks, n))] for i in range(min(chunks, n))]
         if loss_byol is not None and len(parts) > 1:
             self.scaler.scale(loss_byol).backward()
         loss_dt = torch.zeros((), device=self.device)

@@ -4,9 +4,10 @@ import io
 
 import pytest
 import torch
+from tensordict import TensorDict
 
 from navformer_rl.data import CrossTaskSampler, open_dataset
-from navformer_rl.data.samplers import EpochPermutation
+from navformer_rl.data.samplers import EpochPermutation, split_by_length
 
 
 def _drain(batcher, n):
@@ -259,3 +260,34 @@ def test_sampler_follows_a_growing_buffer_and_dumps_its_state(e_dataset, tmp_pat
     assert seen == set(range(int(episode.max()) + 1))
     rb.dumps(tmp_path / "rb")  # the sampler's folder is created
     assert (tmp_path / "rb" / "sampler" / "trajectory_sampler.pt").is_file()
+
+
+def test_split_by_length_groups_similar_lengths_and_crops_only_padding():
+    lengths = torch.tensor([5, 2, 7, 2, 4])
+    steps = 7
+    mask = torch.arange(steps) < lengths[:, None]
+    batch = TensorDict(
+        {
+            "pixels": torch.arange(5 * steps * 2, dtype=torch.uint8).reshape(5, steps, 1, 2),
+            "action": torch.randn(5, steps, 2, generator=torch.Generator().manual_seed(0)),
+            "mask": mask,
+            "target_pixels": torch.arange(5 * steps, dtype=torch.uint8).reshape(5, steps),  # [N, 7]: like T
+            "trajectory": torch.arange(5),
+        },
+        batch_size=[5],
+    )
+    parts = split_by_length(batch, 2)
+    # stable order by length: rows 1, 3 (2 steps), 4 (4), 0 (5), 2 (7); the first group one larger
+    assert [p["trajectory"].tolist() for p in parts] == [[1, 3, 4], [0, 2]]
+    assert [p["mask"].shape[1] for p in parts] == [4, 7]
+    for part in parts:
+        rows = part["trajectory"]
+        t = part["mask"].shape[1]
+        assert torch.equal(part["pixels"], batch["pixels"][rows, :t])
+        assert torch.equal(part["action"], batch["action"][rows, :t])
+        assert torch.equal(part["mask"], mask[rows, :t])
+        assert torch.equal(part["target_pixels"], batch["target_pixels"][rows])  # per trajectory: uncropped
+    assert sum(int(p["mask"].sum()) for p in parts) == int(mask.sum())  # every valid step once
+    assert len(split_by_length(batch, 9)) == 5  # at most one group per trajectory
+    with pytest.raises(ValueError, match="parts must be >= 1, got 0"):
+        split_by_length(batch, 0)

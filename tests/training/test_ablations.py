@@ -101,6 +101,43 @@ def test_trajectory_chunks_give_the_whole_batch_gradient(tiny_config, tmp_path):
         torch.testing.assert_close(results[2][1][key], value, rtol=1e-5, atol=1e-6)
 
 
+def test_chunks_by_length_give_the_whole_batch_gradient_without_the_padding(tiny_config, tmp_path):
+    """Known answer: with dropout off, a batch of trajectories of four lengths gives the same loss and
+    gradients in one padded forward as in length-sorted chunks cropped to their own longest window."""
+    _, batch = build_trainer(
+        tiny_config("optim.iterations=1", f"output_dir={tmp_path / 'draw'}")
+    ).cross_task.sample()
+    batch = batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels").clone()
+    steps = batch["mask"].shape[1]
+    keep = [steps, max(steps // 2, 1), max(steps // 4, 1), 1][: batch.shape[0]]
+    batch["mask"] = batch["mask"] & (torch.arange(steps) < torch.tensor(keep)[:, None])
+    assert batch["mask"].sum(1).unique().numel() > 1  # the lengths differ, so cropping drops padding
+    grads, losses = {}, {}
+    for name, overrides in {
+        "padded": ["optim.trajectory_chunks=1"],
+        "by_length": ["optim.trajectory_chunks=2", "optim.chunks_by_length=true"],
+    }.items():
+        trainer = build_trainer(
+            tiny_config(
+                "model.dropout=0.0",
+                "ablation=no_ssl",
+                "optim.iterations=1",
+                "data.exploration_batch_trajs=4",
+                f"output_dir={tmp_path / name}",
+                *overrides,
+            )
+        )
+        loss_dt, _, _ = trainer._forward_backward(batch.clone(), None)
+        losses[name] = float(loss_dt)
+        grads[name] = {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
+        trainer.close()
+    assert losses["by_length"] == pytest.approx(losses["padded"], rel=1e-6)
+    assert grads["by_length"].keys() == grads["padded"].keys()
+    for name, grad in grads["padded"].items():  # float32 sums in another order: relative to the tensor's norm
+        error = (grads["by_length"][name] - grad).norm() / grad.norm().clamp_min(1e-12)
+        assert error < 1e-5, name
+
+
 def test_byol_loss_weight_scales_byols_share_of_the_gradient(tiny_config, tmp_path):
     """Known answer: L = L_DT + w L_BYOL, so every gradient is g_DT + w g_BYOL. Over the same batches and
     dropout masks, g_BYOL = (g(1) - g(0.5)) / 0.5, and then g(0.1) must equal g(1) - 0.9 g_BYOL."""

@@ -131,6 +131,11 @@ BAD_CONFIGS = [
     ),
     (["data.ssl_batch_pairs=-4"], ValueError, "data.ssl_batch_pairs must be an integer >= 1, got -4"),
     (["optim.trajectory_chunks=3"], ValueError, "not divisible by optim.trajectory_chunks=3"),
+    (
+        ["optim.chunks_by_length=true"],
+        ValueError,
+        "optim.chunks_by_length=true needs optim.trajectory_chunks > 1",
+    ),
     (["data.collision_path=null"], ValueError, "data.collision_path is not set"),
     (["ablation=no_de", "data.collision_path=null"], ValueError, "data.collision_path is not set"),
     (
