@@ -23,6 +23,7 @@ _EXPORTS = {
     "dve_module": "navformer_rl.modules.actors",
     "head_module": "navformer_rl.modules.actors",
     "make_navformer_actor": "navformer_rl.modules.actors",
+    "LengthGroups": "navformer_rl.modules.actors",
     "transformer_module": "navformer_rl.modules.actors",
 }
 

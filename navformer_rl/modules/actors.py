@@ -18,7 +18,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from tensordict.nn import TensorDictModule, TensorDictSequential
+import torch
+import torch.nn.functional as F
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from tensordict.utils import NestedKey
 
 from navformer_rl.modules.models.dve import DualVisualEncoder
@@ -112,12 +115,78 @@ def head_module(
     )
 
 
+class LengthGroups(TensorDictModuleBase):
+    """Run a per-step module on groups of trajectories of similar length, each cropped to its longest one.
+
+    ``LengthGroups(module, groups, mask_key="mask", per_trajectory_keys=())`` reads a tensordict of batch size
+    ``[N]`` whose per-step keys are ``[N, T, ...]`` with a right-padded bool mask ``[N, T]``, orders the
+    trajectories by valid length, runs ``module`` on ``min(groups, N)`` consecutive groups ``[n_i, T_i, ...]``
+    (``T_i`` the group's longest trajectory) and writes every out key back as ``[N, T, ...]``, zeros past
+    ``T_i``. For a causal module that ignores padded steps (the transformer and the head) the valid outputs
+    are the ones of one padded pass, with the attention and the token work of the padding left out.
+    ``per_trajectory_keys``: in keys without a time axis when their value has ``[N, d]`` (the target
+    embedding; an ``[N, T, d]`` value is cropped like the rest). Tensordicts of another batch size, a
+    missing mask or ``groups=1`` go through ``module`` unchanged.
+    """
+
+    def __init__(
+        self,
+        module: TensorDictModuleBase,
+        groups: int,
+        mask_key: NestedKey = "mask",
+        per_trajectory_keys: Sequence[NestedKey] = (),
+    ) -> None:
+        super().__init__()
+        if not isinstance(groups, int) or groups < 1:
+            raise ValueError(f"groups={groups!r}: expected an integer >= 1")
+        self.module = module
+        self.groups = groups
+        self.mask_key = mask_key
+        self.per_trajectory_keys = list(per_trajectory_keys)
+        self.in_keys = list(module.in_keys)
+        self.out_keys = list(module.out_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        mask = tensordict.get(self.mask_key, None)
+        if self.groups == 1 or mask is None or tensordict.batch_dims != 1 or tensordict.shape[0] < 2:
+            return self.module(tensordict)
+        n, steps = mask.shape
+        lengths = mask.sum(dim=1)
+        order = torch.sort(lengths, stable=True).indices
+        outputs: dict[NestedKey, torch.Tensor] = {}
+        for rows in torch.tensor_split(order, min(self.groups, n)):
+            t = max(int(lengths[rows].max()), 1)
+            part = TensorDict(batch_size=[rows.numel()], device=tensordict.device)
+            for key in self.in_keys:
+                value = tensordict.get(key, None)
+                if value is None:
+                    continue
+                value = value[rows]
+                flat = key in self.per_trajectory_keys and value.dim() == 2
+                part.set(key, value if flat else value[:, :t])
+            part = self.module(part)
+            for key in self.out_keys:
+                value = part.get(key)
+                if key not in outputs:
+                    outputs[key] = value.new_zeros((n, steps, *value.shape[2:]))
+                padded = F.pad(value, (0, 0) * (value.dim() - 2) + (0, steps - t))
+                outputs[key] = outputs[key].index_copy(0, rows, padded)
+        for key, value in outputs.items():
+            tensordict.set(key, value)
+        return tensordict
+
+
 def make_navformer_actor(
     model: NavFormerModel,
     in_keys: Sequence[NestedKey] = NAVFORMER_IN_KEYS,
     out_keys: Sequence[NestedKey] = NAVFORMER_OUT_KEYS,
+    length_groups: int = 1,
 ) -> TensorDictSequential:
     """``model``'s parts as ``TensorDictSequential(dve_module, transformer_module, head_module)``.
+
+    ``length_groups > 1`` runs the transformer and the head in that many groups of similar trajectory length
+    (:class:`LengthGroups`; the encoders still see every valid frame in one pass): the same predictions
+    without the padding's attention and token work (training lever, ``optim.length_groups``).
 
     Reads a trajectory batch and writes predicted actions, plus the parts' ``("embed", ..)`` and
     ``("hidden", ..)`` keys. Keys (defaults; pass ``in_keys`` in the same order to rename):
@@ -152,12 +221,17 @@ def make_navformer_actor(
         step,
         mask,
     ]
-    return TensorDictSequential(
-        dve_module(model.dve, in_keys=[pixels, target_pixels, mask]),
+    per_step = [
         transformer_module(transformer, in_keys=transformer_in),
         head_module(
             model.head,
             in_keys=[*((HIDDEN_KEY, name) for name in model.head.reads), mask],
             out_keys=[action_pred],
         ),
-    )
+    ]
+    if length_groups != 1:
+        grouped = LengthGroups(
+            TensorDictSequential(*per_step), length_groups, mask, per_trajectory_keys=[(EMBED_KEY, "target")]
+        )
+        per_step = [grouped]
+    return TensorDictSequential(dve_module(model.dve, in_keys=[pixels, target_pixels, mask]), *per_step)

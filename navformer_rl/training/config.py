@@ -178,6 +178,10 @@ class OptimConfig:
             longest trajectory is ~4.5x its valid steps). Makes the chunking memory lever 1.3-1.8x faster
             there (benchmarks/model.md); dropout draws differ from the unsorted chunks', so training is not
             bit-identical to them.
+        length_groups: run the transformer and the head of each trajectory batch in this many groups of
+            similar trajectory length, each cropped to its longest (speed lever, opt-in; the encoders still
+            see every valid frame in one pass, and the loss and gradient are the padded batch's:
+            ``LengthGroups``). Dropout draws differ from the padded batch's, so not bit-identical to it.
     """
 
     iterations: int = 10_000
@@ -188,6 +192,7 @@ class OptimConfig:
     clip_grad_norm: float | None = None
     trajectory_chunks: int = 1
     chunks_by_length: bool = False
+    length_groups: int = 1
 
 
 @dataclass
@@ -323,7 +328,7 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
         )
     if cfg.data.context_steps is not None:
         check_int(cfg.data.context_steps, "data.context_steps")
-    for name in ("iterations", "trajectory_chunks"):
+    for name in ("iterations", "trajectory_chunks", "length_groups"):
         check_int(getattr(cfg.optim, name), f"optim.{name}")
     if not isinstance(cfg.optim.chunks_by_length, bool):
         raise ValueError(f"optim.chunks_by_length={cfg.optim.chunks_by_length!r}: expected true or false")

@@ -179,7 +179,7 @@ class Trainer:
 
         self.model = NavFormerModel(self.model_config).to(self.device)
         self.model.train()
-        self.actor = make_navformer_actor(self.model)
+        self.actor = make_navformer_actor(self.model, length_groups=self.cfg.optim.length_groups)
         self.dt_loss = ActionMSELoss(self.actor)
         self.byol_loss = None
         self.updater = None

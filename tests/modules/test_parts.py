@@ -168,6 +168,37 @@ def test_the_actor_is_the_parts_in_sequence_and_equals_the_model(batch_factory):
     assert (out["action_pred"][1, 3:] == 0).all()
 
 
+def test_length_groups_give_the_padded_batchs_predictions_and_gradients(batch_factory):
+    """Known answer: trajectories of lengths 7, 2, 5, 1 in one padded pass and in 3 groups of similar length
+    (dropout off) give the same predictions, zeros on padding, the same hidden states and gradients."""
+    model = small_model(image_size=84, dropout=0.0)
+    batch = batch_factory(4, 7)
+    batch["mask"] = torch.arange(7) < torch.tensor([7, 2, 5, 1])[:, None]
+    results = {}
+    for groups in (1, 3):
+        model.zero_grad()
+        out = make_navformer_actor(model, length_groups=groups)(TensorDict(dict(batch), [4]))
+        loss = (out["action_pred"] ** 2).sum() + out["hidden", "observation"][batch["mask"]].sum()
+        loss.backward()
+        results[groups] = (
+            out,
+            {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None},
+        )
+    (padded, padded_grads), (grouped, grouped_grads) = results[1], results[3]
+    assert grouped["action_pred"].shape == padded["action_pred"].shape == (4, 7, 2)
+    torch.testing.assert_close(grouped["action_pred"], padded["action_pred"], rtol=1e-5, atol=1e-6)
+    assert (grouped["action_pred"][~batch["mask"]] == 0).all()
+    mask = batch["mask"]
+    torch.testing.assert_close(
+        grouped["hidden", "tokens"][mask], padded["hidden", "tokens"][mask], rtol=1e-5, atol=1e-5
+    )
+    assert grouped_grads.keys() == padded_grads.keys()
+    for name, grad in padded_grads.items():  # float32 sums in another order: relative to the norm
+        assert (grouped_grads[name] - grad).norm() <= 1e-5 * grad.norm() + 1e-8, name
+    with pytest.raises(ValueError, match="groups=0: expected an integer >= 1"):
+        make_navformer_actor(model, length_groups=0)
+
+
 def test_renamed_keys_reach_every_part(batch_factory):
     model = small_model(image_size=84)
     names = ("goal", ("obs", "rgb"), "rtg", "act", "t", "valid")

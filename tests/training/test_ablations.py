@@ -101,9 +101,10 @@ def test_trajectory_chunks_give_the_whole_batch_gradient(tiny_config, tmp_path):
         torch.testing.assert_close(results[2][1][key], value, rtol=1e-5, atol=1e-6)
 
 
-def test_chunks_by_length_give_the_whole_batch_gradient_without_the_padding(tiny_config, tmp_path):
+def test_length_levers_give_the_whole_batch_gradient_without_the_padding(tiny_config, tmp_path):
     """Known answer: with dropout off, a batch of trajectories of four lengths gives the same loss and
-    gradients in one padded forward as in length-sorted chunks cropped to their own longest window."""
+    gradients in one padded forward, in length-sorted chunks cropped to their own longest window
+    (``optim.chunks_by_length``) and with the transformer run in length groups (``optim.length_groups``)."""
     _, batch = build_trainer(
         tiny_config("optim.iterations=1", f"output_dir={tmp_path / 'draw'}")
     ).cross_task.sample()
@@ -116,6 +117,7 @@ def test_chunks_by_length_give_the_whole_batch_gradient_without_the_padding(tiny
     for name, overrides in {
         "padded": ["optim.trajectory_chunks=1"],
         "by_length": ["optim.trajectory_chunks=2", "optim.chunks_by_length=true"],
+        "length_groups": ["optim.length_groups=3"],
     }.items():
         trainer = build_trainer(
             tiny_config(
@@ -131,11 +133,12 @@ def test_chunks_by_length_give_the_whole_batch_gradient_without_the_padding(tiny
         losses[name] = float(loss_dt)
         grads[name] = {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
         trainer.close()
-    assert losses["by_length"] == pytest.approx(losses["padded"], rel=1e-6)
-    assert grads["by_length"].keys() == grads["padded"].keys()
-    for name, grad in grads["padded"].items():  # float32 sums in another order: relative to the tensor's norm
-        error = (grads["by_length"][name] - grad).norm() / grad.norm().clamp_min(1e-12)
-        assert error < 1e-5, name
+    for lever in ("by_length", "length_groups"):
+        assert losses[lever] == pytest.approx(losses["padded"], rel=1e-6)
+        assert grads[lever].keys() == grads["padded"].keys()
+        for name, grad in grads["padded"].items():  # float32 sums in another order: relative to the norm
+            error = (grads[lever][name] - grad).norm() / grad.norm().clamp_min(1e-12)
+            assert error < 1e-5, (lever, name)
 
 
 def test_byol_loss_weight_scales_byols_share_of_the_gradient(tiny_config, tmp_path):

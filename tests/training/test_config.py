@@ -131,6 +131,7 @@ BAD_CONFIGS = [
     ),
     (["data.ssl_batch_pairs=-4"], ValueError, "data.ssl_batch_pairs must be an integer >= 1, got -4"),
     (["optim.trajectory_chunks=3"], ValueError, "not divisible by optim.trajectory_chunks=3"),
+    (["optim.length_groups=0"], ValueError, "optim.length_groups must be an integer >= 1, got 0"),
     (
         ["optim.chunks_by_length=true"],
         ValueError,
