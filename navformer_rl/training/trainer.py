@@ -48,6 +48,7 @@ RESUME_MAY_CHANGE = frozenset(
         "logger",
         "checkpoint",
         "optim.iterations",
+        "optim.length_groups",  # the same loss and gradient; only the dropout draws change
         "data.exploration_path",
         "data.collision_path",
         "data.ssl_path",

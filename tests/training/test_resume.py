@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import pytest
@@ -220,3 +221,14 @@ def test_resume_may_change_the_allocator_setting(tiny_config, tmp_path):
         tiny_config("optim.iterations=3", f"output_dir={run}", "resume=true", "keep_freed_memory=false")
     )
     assert resumed.iterations == 3
+
+
+def test_resume_may_change_the_length_groups(tiny_config, tmp_path):
+    """``optim.length_groups`` computes the same loss and gradient, so a run may switch it on when resuming."""
+    run = tmp_path / "run"
+    train(tiny_config("optim.iterations=2", f"output_dir={run}"))
+    resumed = train(
+        tiny_config("optim.iterations=3", f"output_dir={run}", "resume=true", "optim.length_groups=2")
+    )
+    assert resumed.iterations == 3
+    assert json.loads((run / "train_config.json").read_text())["optim"]["length_groups"] == 2
