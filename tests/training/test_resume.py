@@ -214,21 +214,20 @@ def test_a_checkpoint_from_before_a_new_key_resumes_with_that_keys_default(tiny_
         train(tiny_config("optim.iterations=3", f"output_dir={other}", "resume=true"))
 
 
-def test_resume_may_change_the_allocator_setting(tiny_config, tmp_path):
+@pytest.mark.parametrize(
+    ("override", "section", "key", "value"),
+    [
+        ("keep_freed_memory=false", None, "keep_freed_memory", False),
+        ("optim.length_groups=2", "optim", "length_groups", 2),
+    ],
+)
+def test_resume_may_change_a_setting_that_keeps_the_objective(
+    tiny_config, tmp_path, override, section, key, value
+):
+    """The allocator setting and ``optim.length_groups`` (the same loss and gradient) may change on resume."""
     run = tmp_path / "run"
     train(tiny_config("optim.iterations=2", f"output_dir={run}"))
-    resumed = train(
-        tiny_config("optim.iterations=3", f"output_dir={run}", "resume=true", "keep_freed_memory=false")
-    )
+    resumed = train(tiny_config("optim.iterations=3", f"output_dir={run}", "resume=true", override))
     assert resumed.iterations == 3
-
-
-def test_resume_may_change_the_length_groups(tiny_config, tmp_path):
-    """``optim.length_groups`` computes the same loss and gradient, so a run may switch it on when resuming."""
-    run = tmp_path / "run"
-    train(tiny_config("optim.iterations=2", f"output_dir={run}"))
-    resumed = train(
-        tiny_config("optim.iterations=3", f"output_dir={run}", "resume=true", "optim.length_groups=2")
-    )
-    assert resumed.iterations == 3
-    assert json.loads((run / "train_config.json").read_text())["optim"]["length_groups"] == 2
+    recorded = json.loads((run / "train_config.json").read_text())
+    assert (recorded[section] if section else recorded)[key] == value
