@@ -27,6 +27,7 @@ from tensordict import TensorDict
 from torchrl.data.replay_buffers import Sampler
 
 from navformer_rl.data.schema import TRAJECTORY_FIELDS, FieldSpec
+from navformer_rl.utils.length_groups import length_sorted_groups
 
 DEFAULT_CONTEXT_STEPS = 256
 """The target token + 4 tokens per step, the last step's action dropped: 1 + 4 * 256 - 1 = 1024 tokens (§IV.C)."""
@@ -387,7 +388,7 @@ class TrajectoryBatcher:
         self.sampler.load_state_dict(state)
 
 
-TRAJECTORY_KEYS = ("target_pixels", "trajectory")
+PER_TRAJECTORY_KEYS = ("target_pixels", "trajectory")
 """The keys of a :class:`TrajectoryBatcher` batch with one value per trajectory (``[N, ...]``, no time axis)."""
 
 
@@ -396,27 +397,21 @@ def split_by_length(batch: TensorDict, parts: int) -> list[TensorDict]:
     own longest window.
 
     ``batch``: a :class:`TrajectoryBatcher` batch (``[N]``; per-step keys ``[N, T, ...]``, ``mask`` bool
-    ``[N, T]`` with the padding on the right; per-trajectory keys :data:`TRAJECTORY_KEYS`). The trajectories
-    are ordered by valid length (stable, so ties keep the batch's order) and cut into ``min(parts, N)``
-    consecutive groups of near-equal size (the first ``N % parts`` one larger); group ``i`` keeps
-    ``[n_i, T_i, ...]`` with ``T_i`` its longest valid window. Every valid step appears exactly once, with
-    the steps before it in its trajectory, so a causal model right-padded to ``T_i`` sees the same context
-    as in the whole batch: only padding is dropped.
+    ``[N, T]`` with the padding on the right; per-trajectory keys :data:`PER_TRAJECTORY_KEYS`). The groups are
+    :func:`~navformer_rl.utils.length_groups.length_sorted_groups`; group ``i`` keeps ``[n_i, T_i, ...]`` with
+    ``T_i`` its longest valid window. Every valid step appears exactly once, with the steps before it in its
+    trajectory, so a causal model right-padded to ``T_i`` sees the same context as in the whole batch: only
+    padding is dropped.
     """
     if parts < 1:
         raise ValueError(f"parts must be >= 1, got {parts}")
-    lengths = batch["mask"].sum(dim=1)
-    order = torch.sort(lengths, stable=True).indices
-    n = batch.shape[0]
-    groups = torch.tensor_split(order, min(parts, n))
     out = []
-    for rows in groups:
+    for rows, steps in length_sorted_groups(batch["mask"], parts):
         part = batch[rows]
-        steps = max(int(lengths[rows].max()), 1)
         cropped = TensorDict(batch_size=part.batch_size, device=part.device)
         for key, value in part.items(include_nested=True, leaves_only=True):
             name = key if isinstance(key, str) else key[-1]
-            cropped.set(key, value if name in TRAJECTORY_KEYS else value[:, :steps])
+            cropped.set(key, value if name in PER_TRAJECTORY_KEYS else value[:, :steps])
         out.append(cropped)
     return out
 

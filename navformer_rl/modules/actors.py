@@ -28,6 +28,7 @@ from navformer_rl.modules.models.dve import DualVisualEncoder
 from navformer_rl.modules.models.navformer import NavFormerModel
 from navformer_rl.modules.models.thsc import ActionHead
 from navformer_rl.modules.models.transformer import HIDDEN_NAMES, CausalTransformer
+from navformer_rl.utils.length_groups import length_sorted_groups
 
 NAVFORMER_IN_KEYS: tuple[str, ...] = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
 """Default in_keys of ``make_navformer_actor``, in the order of ``NavFormerModel.forward``'s arguments."""
@@ -150,12 +151,10 @@ class LengthGroups(TensorDictModuleBase):
         mask = tensordict.get(self.mask_key, None)
         if self.groups == 1 or mask is None or tensordict.batch_dims != 1 or tensordict.shape[0] < 2:
             return self.module(tensordict)
-        n, steps = mask.shape
-        lengths = mask.sum(dim=1)
-        order = torch.sort(lengths, stable=True).indices
-        outputs: dict[NestedKey, torch.Tensor] = {}
-        for rows in torch.tensor_split(order, min(self.groups, n)):
-            t = max(int(lengths[rows].max()), 1)
+        steps = mask.shape[1]
+        groups = length_sorted_groups(mask, self.groups)
+        outputs: dict[NestedKey, list[torch.Tensor]] = {key: [] for key in self.out_keys}
+        for rows, t in groups:
             part = TensorDict(batch_size=[rows.numel()], device=tensordict.device)
             for key in self.in_keys:
                 value = tensordict.get(key, None)
@@ -167,12 +166,11 @@ class LengthGroups(TensorDictModuleBase):
             part = self.module(part)
             for key in self.out_keys:
                 value = part.get(key)
-                if key not in outputs:
-                    outputs[key] = value.new_zeros((n, steps, *value.shape[2:]))
-                padded = F.pad(value, (0, 0) * (value.dim() - 2) + (0, steps - t))
-                outputs[key] = outputs[key].index_copy(0, rows, padded)
-        for key, value in outputs.items():
-            tensordict.set(key, value)
+                outputs[key].append(F.pad(value, (0, 0) * (value.dim() - 2) + (0, steps - t)))
+        # the groups hold the rows in length order: one gather puts them back in the batch's order
+        back = torch.argsort(torch.cat([rows for rows, _ in groups]))
+        for key, values in outputs.items():
+            tensordict.set(key, torch.cat(values)[back])
         return tensordict
 
 
