@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from navformer_rl.evaluation.paired import paired_differences
 from navformer_rl.evaluation.seeds import summarize_seed_groups
 
 DATA_SCALING = Path(__file__).resolve().parents[2] / "docs" / "results" / "data_scaling"
@@ -39,3 +40,39 @@ def test_data_scaling_records_share_one_episode_set() -> None:
     assert len(folders) >= 4
     summaries = summarize_seed_groups({folder.name: [folder] for folder in folders})
     assert {s.runs[0].metrics.n_trials for s in summaries} == {40}
+
+
+PAPER10K = DATA_SCALING.parent / "paper10k"
+
+
+@pytest.mark.parametrize(
+    ("record", "expected"),
+    [
+        ("navformer_10k_s0_it01000", {"sr": 0.1667, "cr": 0.7549}),
+        ("navformer_10k_s0_it02000", {"sr": 0.3083, "cr": 0.4215}),
+        ("navformer_10k_s0_it02500", {"sr": 0.3333, "cr": 0.4834}),
+        ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
+        ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
+    ],
+)
+def test_paper_training_records_give_the_quoted_metrics(record: str, expected: dict[str, float]) -> None:
+    (summary,) = summarize_seed_groups({record: [PAPER10K / record]})
+    (run,) = summary.runs
+    assert run.metrics.n_trials == 40
+    assert run.metrics.sr == pytest.approx(expected["sr"], abs=5e-5)
+    assert run.metrics.cr == pytest.approx(expected["cr"], abs=5e-5)
+
+
+def test_paper_training_records_share_the_data_scaling_episodes() -> None:
+    folders = [DATA_SCALING / "navformer_e350_s0", *sorted(p for p in PAPER10K.iterdir() if p.is_dir())]
+    summarize_seed_groups({folder.name: [folder] for folder in folders})  # refuses mixed episode sets
+
+
+def test_paired_difference_of_all_the_data_against_a_tenth_at_2500_iterations() -> None:
+    _, rows = paired_differences(
+        PAPER10K / "navformer_10k_s0_it02500", PAPER10K / "navformer_tenth_it02500", n_resamples=200
+    )
+    pooled = rows[-1]
+    assert pooled.setup == "all" and pooled.n_robot_trials == 120
+    assert pooled.difference["sr"] == pytest.approx(-0.050, abs=5e-5)
+    assert pooled.difference["cr"] == pytest.approx(0.149, abs=5e-4)
