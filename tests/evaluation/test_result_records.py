@@ -51,6 +51,7 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_it01000", {"sr": 0.1667, "cr": 0.7549}),
         ("navformer_10k_s0_it02000", {"sr": 0.3083, "cr": 0.4215}),
         ("navformer_10k_s0_it02500", {"sr": 0.3333, "cr": 0.4834}),
+        ("navformer_10k_s0_it03000", {"sr": 0.3000, "cr": 0.3646}),
         ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
         ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
     ],
