@@ -7,6 +7,8 @@ from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "ActionHead": "navformer_rl.modules.models",
+    "ACTION_LOGITS_KEY": "navformer_rl.modules.actors",
+    "BinnedActionHead": "navformer_rl.modules.models",
     "CausalTransformer": "navformer_rl.modules.models",
     "ConvEncoder": "navformer_rl.modules.models",
     "DualVisualEncoder": "navformer_rl.modules.models",

@@ -9,6 +9,7 @@ keys are renamed through ``in_keys`` / ``out_keys``. The defaults chain into ``m
                         action, step, mask -> ("hidden", "target"), ("hidden", "observation"),
                                               ("hidden", "tokens")
     head_module         ("hidden", "target"), ("hidden", "observation"), mask -> action_pred
+                        (and action_logits with the opt-in ``BinnedActionHead``)
 
 (an ablation with one encoder has one ``("embed", name)`` key; ``ObservationHead`` reads no
 ``("hidden", "target")``).
@@ -26,13 +27,16 @@ from tensordict.utils import NestedKey
 
 from navformer_rl.modules.models.dve import DualVisualEncoder
 from navformer_rl.modules.models.navformer import NavFormerModel
-from navformer_rl.modules.models.thsc import ActionHead
+from navformer_rl.modules.models.thsc import ActionHead, BinnedActionHead
 from navformer_rl.modules.models.transformer import HIDDEN_NAMES, CausalTransformer
 from navformer_rl.utils.length_groups import length_sorted_groups
 
 NAVFORMER_IN_KEYS: tuple[str, ...] = ("target_pixels", "pixels", "return_to_go", "action", "step", "mask")
 """Default in_keys of ``make_navformer_actor``, in the order of ``NavFormerModel.forward``'s arguments."""
 NAVFORMER_OUT_KEYS: tuple[str, ...] = ("action_pred",)
+ACTION_LOGITS_KEY = "action_logits"
+"""What a ``BinnedActionHead`` writes beside ``action_pred``: float32 logits ``[N, T, A, K]``
+(``ActionBinLoss`` reads them)."""
 EMBED_KEY = "embed"
 """Parent key of the DVE's outputs: ``("embed", "static")``, ``("embed", "general")``, ``("embed", "target")``."""
 HIDDEN_KEY = "hidden"
@@ -99,20 +103,24 @@ def transformer_module(
 
 
 def head_module(
-    head: ActionHead,
+    head: ActionHead | BinnedActionHead,
     in_keys: Sequence[NestedKey] | None = None,
     out_keys: Sequence[NestedKey] | None = None,
 ) -> TensorDictModule:
     """``head`` as a ``TensorDictModule``.
 
     in_keys (default ``[("hidden", name) for name in head.reads] + ["mask"]``); out_keys (default
-    ``["action_pred"]``): float32 actions ``[B, T, A]`` in [-1, 1], 0 on padded steps.
+    ``["action_pred"]``, and ``"action_logits"`` after it for a ``BinnedActionHead``): float32 actions
+    ``[B, T, A]`` in [-1, 1] (logits ``[B, T, A, K]``), 0 on padded steps.
     """
     default_in: list[NestedKey] = [*((HIDDEN_KEY, name) for name in head.reads), "mask"]
+    default_out: list[NestedKey] = list(NAVFORMER_OUT_KEYS)
+    if isinstance(head, BinnedActionHead):
+        default_out.append(ACTION_LOGITS_KEY)
     return TensorDictModule(
         head,
         in_keys=_checked(in_keys, default_in, "in_keys"),
-        out_keys=_checked(out_keys, list(NAVFORMER_OUT_KEYS), "out_keys"),
+        out_keys=_checked(out_keys, default_out, "out_keys"),
     )
 
 
@@ -199,12 +207,14 @@ def make_navformer_actor(
     step           int64 ``[N, T]``                          absolute timestep, < ``max_timestep``
     mask           bool ``[N, T]``                           valid steps (padding on the right)
     action_pred    float32 ``[N, T, 2]`` (written)           a-hat_t in [-1, 1]; 0 on padded steps
+    action_logits  float32 ``[N, T, 2, K]`` (written)        with ``BinnedActionHead`` only (``action_bins``)
     ============== ========================================= ==========================================
 
     The tensordict may have batch size ``[N]`` (per-step keys ``[N, T, ...]``, as the data package's
     ``TrajectoryBatcher`` yields) or ``[N, T]`` with ``target_pixels`` expanded over T. Swap a part by
     composing ``dve_module`` / ``transformer_module`` / ``head_module`` (or your own module on the same
-    keys) in a ``TensorDictSequential``; the result works with ``ActionMSELoss``.
+    keys) in a ``TensorDictSequential``; the result works with ``ActionMSELoss`` (and, with a
+    ``BinnedActionHead``, ``ActionBinLoss``).
     """
     target_pixels, pixels, return_to_go, action, step, mask = _checked(
         in_keys, list(NAVFORMER_IN_KEYS), "in_keys"
@@ -224,7 +234,9 @@ def make_navformer_actor(
         head_module(
             model.head,
             in_keys=[*((HIDDEN_KEY, name) for name in model.head.reads), mask],
-            out_keys=[action_pred],
+            out_keys=[action_pred, ACTION_LOGITS_KEY]
+            if isinstance(model.head, BinnedActionHead)
+            else [action_pred],
         ),
     ]
     if length_groups != 1:

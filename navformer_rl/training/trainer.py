@@ -105,7 +105,8 @@ class Trainer:
     Attributes:
         cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
         model: ``NavFormerModel`` (the parameters).  actor: its parts composed as TensorDict modules
-            (``make_navformer_actor``), what the DT loss runs.  dt_loss: ``ActionMSELoss``.
+            (``make_navformer_actor``), what the DT loss runs.  dt_loss: ``ActionMSELoss`` (``ActionBinLoss``
+            with ``model.action_bins``).
         byol_loss: ``BYOLLoss`` or None (no SSL).
         cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
@@ -136,7 +137,7 @@ class Trainer:
 
         from navformer_rl.data import CrossTaskSampler
         from navformer_rl.modules import NavFormerModel, make_navformer_actor
-        from navformer_rl.objectives import ActionMSELoss, BYOLLoss, BYOLTauSchedule
+        from navformer_rl.objectives import ActionBinLoss, ActionMSELoss, BYOLLoss, BYOLTauSchedule
 
         self.cfg = cfg
         self.distributed = distributed if distributed is not None else Distributed()
@@ -181,7 +182,7 @@ class Trainer:
         self.model = NavFormerModel(self.model_config).to(self.device)
         self.model.train()
         self.actor = make_navformer_actor(self.model, length_groups=self.cfg.optim.length_groups)
-        self.dt_loss = ActionMSELoss(self.actor)
+        self.dt_loss = (ActionBinLoss if self.model.config.action_bins else ActionMSELoss)(self.actor)
         self.byol_loss = None
         self.updater = None
         self.tau_schedule = None
@@ -417,10 +418,14 @@ class Trainer:
         """The teacher-forced action loss on every validation set: ``{"validation/loss_dt_<task>": float,
         "validation/train_loss_dt_<task>": float}`` (eval mode; the training's RNG states are left as they
         were). Empty without validation sets. With several processes each scores its share of the batches
-        and every process gets the totals."""
+        and every process gets the totals. The loss is eq. 10's squared error whatever the training loss
+        (a ``model.action_bins`` run is scored on its decoded actions, comparable with the paper's head)."""
         if self.validator is None:
             return {}
-        return self.validator(self.dt_loss, self.model, self.device, distributed=self.distributed)
+        from navformer_rl.objectives import ActionMSELoss
+
+        loss = self.dt_loss if isinstance(self.dt_loss, ActionMSELoss) else ActionMSELoss(self.actor)
+        return self.validator(loss, self.model, self.device, distributed=self.distributed)
 
     # -- logging --------------------------------------------------------------------------------------
     def make_logger(self) -> Logger | None:

@@ -171,3 +171,36 @@ def test_byol_loss_weight_scales_byols_share_of_the_gradient(tiny_config, tmp_pa
 def test_byol_loss_weight_must_be_positive(tiny_config):
     with pytest.raises(ValueError, match="ssl.loss_weight"):
         build_trainer(tiny_config("ssl.loss_weight=0"))
+
+
+def test_the_binned_head_trains_chunked_like_whole_and_loads_back(tiny_config, tmp_path):
+    """``model.action_bins``: the cross-entropy L_DT, the same update in trajectory chunks (known answer, as
+    for the paper's head), and a checkpoint that loads back with its head."""
+    results = {}
+    for chunks in (1, 2):
+        trainer = build_trainer(
+            tiny_config(
+                "model.dropout=0.0",
+                "model.action_bins=5",
+                "ablation=no_ssl",
+                f"optim.trajectory_chunks={chunks}",
+                f"output_dir={tmp_path / str(chunks)}",
+                "optim.iterations=1",
+                "data.collision_batch_trajs=4",
+            )
+        )
+        assert type(trainer.dt_loss).__name__ == "ActionBinLoss"
+        metrics = trainer.step()
+        results[chunks] = (metrics["loss_dt"], {k: v.clone() for k, v in trainer.model.state_dict().items()})
+        trainer.close()
+    assert (
+        0 < results[1][0] <= 2 * math.log(5) + 1
+    )  # cross-entropy of 2 action dims over 5 bins, near ln 5 each
+    assert results[2][0] == pytest.approx(results[1][0], rel=1e-6)
+    for key, value in results[1][1].items():
+        torch.testing.assert_close(results[2][1][key], value, rtol=1e-5, atol=1e-6)
+    result = train(
+        tiny_config("model.action_bins=5", "optim.iterations=2", f"output_dir={tmp_path / 'saved'}")
+    )
+    config, model = load_policy_model(result.run_dir)
+    assert config.action_bins == 5 and type(model.head).__name__ == "BinnedActionHead"

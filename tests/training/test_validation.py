@@ -205,7 +205,11 @@ def test_a_held_out_dataset_of_the_wrong_kind_is_refused(tiny_config, held_out):
         build_trainer(tiny_config(f"validation.exploration_path={held_out['ca']}"))
 
 
-def test_scoring_a_checkpoint_offline_gives_the_logged_validation(tiny_config, held_out, tmp_path, capsys):
+@pytest.mark.parametrize("head", [[], ["model.action_bins=5"]], ids=["paper_head", "action_bins"])
+def test_scoring_a_checkpoint_offline_gives_the_logged_validation(
+    tiny_config, held_out, tmp_path, capsys, head
+):
+    """The offline score is eq. 10's squared error; so is the logged validation, a binned head's too."""
     from navformer_rl.cli import main
     from navformer_rl.training.validation import score_checkpoints
 
@@ -216,6 +220,7 @@ def test_scoring_a_checkpoint_offline_gives_the_logged_validation(tiny_config, h
             "checkpoint.keep_last=0",
             *validation_overrides(held_out, "validation.interval=2"),
             f"output_dir={tmp_path / 'run'}",
+            *head,
         )
     )
     folders = sorted((run.run_dir / "checkpoints").glob("iter_*"))

@@ -139,7 +139,7 @@ class StepLayers:
         tables = self.tables()
         if tables.head_obs is None:
             hidden = {"target": target_hidden[:, None], "observation": obs_hidden[:, None]}
-            return self.head(*(hidden[name] for name in self.head.reads))[:, 0].float()
+            return self.head.actions(*(hidden[name] for name in self.head.reads))[:, 0].float()
         out = torch.addmm(tables.head_bias, obs_hidden, tables.head_obs)
         if tables.head_target is not None:
             out.addmm_(target_hidden, tables.head_target)

@@ -10,6 +10,7 @@ from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
     "ActionHead": "navformer_rl.modules.models.thsc",
+    "BinnedActionHead": "navformer_rl.modules.models.thsc",
     "CausalTransformer": "navformer_rl.modules.models.transformer",
     "ConvEncoder": "navformer_rl.modules.models.cnn",
     "DualVisualEncoder": "navformer_rl.modules.models.dve",

@@ -53,6 +53,11 @@ class NavFormerConfig:
             probability (the token keeps its modality and timestep embeddings), so the model cannot lean on
             copying the previous action (behaviour cloning's "copycat" shortcut); inference always sees every
             action. 0 (default): the paper's training.
+        action_bins: 0 (default) is the paper's head, ``tanh`` of a linear map trained with eq. 10's squared
+            error. K >= 2: each action dimension as K logits over bins centred on ``linspace(-1, 1, K)``,
+            trained with cross-entropy, the action read from the most probable bin
+            (:class:`~navformer_rl.modules.models.thsc.BinnedActionHead`): a state with two good turns gives
+            one of them, where the squared error's mean of the two may be no turn.
     """
 
     d_embed: int = 128
@@ -75,6 +80,7 @@ class NavFormerConfig:
     channels_last: bool = True
     space_to_depth: bool = True
     action_dropout: float = 0.0
+    action_bins: int = 0
 
     def __post_init__(self) -> None:
         positive = ("d_embed", "n_blocks", "n_heads", "d_head", "mlp_ratio", "max_timestep", "action_dim")
@@ -92,6 +98,11 @@ class NavFormerConfig:
         if not 0.0 <= self.action_dropout <= 1.0:
             raise ValueError(
                 f"NavFormerConfig.action_dropout={self.action_dropout!r}: expected a float in [0, 1]"
+            )
+        if not isinstance(self.action_bins, int) or self.action_bins < 0 or self.action_bins == 1:
+            raise ValueError(
+                f"NavFormerConfig.action_bins={self.action_bins!r}: expected 0 (the paper's regression head) "
+                "or an int >= 2"
             )
         if self.encoder not in ENCODER_KINDS:
             raise ValueError(f"NavFormerConfig.encoder={self.encoder!r}: expected one of {ENCODER_KINDS}")

@@ -10,7 +10,7 @@ from navformer_rl.modules.models.cnn import ImageEncoder
 from navformer_rl.modules.models.config import NavFormerConfig
 from navformer_rl.modules.models.dve import DualVisualEncoder
 from navformer_rl.modules.models.gpt import GPT2Blocks
-from navformer_rl.modules.models.thsc import ActionHead, make_head
+from navformer_rl.modules.models.thsc import ActionHead, BinnedActionHead, make_head
 from navformer_rl.modules.models.transformer import HIDDEN_NAMES, CausalTransformer, TokenEmbedding
 
 RENAMED_PREFIXES = {
@@ -46,7 +46,8 @@ class NavFormerModel(nn.Module):
 
     - ``dve``: ``DualVisualEncoder`` (f_s, f_g; one encoder for the ablations and the DT baseline);
     - ``transformer``: ``CausalTransformer`` (token embeddings + GPT-2 blocks);
-    - ``head``: ``THSCHead`` (``config.thsc``) or ``ObservationHead``.
+    - ``head``: ``THSCHead`` (``config.thsc``) or ``ObservationHead``; ``BinnedActionHead`` with
+      ``config.action_bins``.
 
     ``forward(target_pixels, pixels, return_to_go, action, step, mask=None, window_steps=None)`` runs
     ``head(transformer(dve(...)))`` -> ``action_pred`` float32 ``[B, T, A]`` in [-1, 1], 0 on padded
@@ -65,7 +66,7 @@ class NavFormerModel(nn.Module):
             config.context_tokens,
             autocast_dtype=config.torch_autocast_dtype,
         )
-        self.head: ActionHead = make_head(config)
+        self.head: ActionHead | BinnedActionHead = make_head(config)
         tokens.reset_tables()  # drawn last: a seed gives the weights of the RENAMED_PREFIXES layout
 
     @property
@@ -119,4 +120,4 @@ class NavFormerModel(nn.Module):
             **dict(zip(self.dve.names, observations, strict=True)),
         )
         named = dict(zip(HIDDEN_NAMES, hidden, strict=True))
-        return self.head(*(named[name] for name in self.head.reads), mask)
+        return self.head.actions(*(named[name] for name in self.head.reads), mask)
