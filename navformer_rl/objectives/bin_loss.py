@@ -5,13 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule, TensorDictParams, dispatch
 from tensordict.utils import NestedKey
-from torchrl.objectives import LossModule
+
+from navformer_rl.objectives.dt_loss import TeacherForcedActionLoss
 
 
-class ActionBinLoss(LossModule):
+class ActionBinLoss(TeacherForcedActionLoss):
     """Cross-entropy of the expert action under a ``BinnedActionHead``'s bins, over the valid steps.
 
     Each action dimension's target is "two-hot": the expert value x in [-1, 1] splits its mass between the two
@@ -46,59 +45,19 @@ class ActionBinLoss(LossModule):
 
     tensor_keys: _AcceptedKeys
     default_keys = _AcceptedKeys
-    actor_network: TensorDictModule
-    actor_network_params: TensorDictParams
-    target_actor_network_params: TensorDictParams
+    prediction_key = "action_logits"
 
-    def __init__(self, actor_network: TensorDictModule) -> None:
-        super().__init__()
-        self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
-        self._out_keys = ["loss_dt"]
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
-
-    @property
-    def in_keys(self) -> list[NestedKey]:
-        keys = set(self.actor_network.in_keys) | {self.tensor_keys.action_target, self.tensor_keys.mask}
-        return sorted(keys, key=str)
-
-    @property
-    def out_keys(self) -> list[str]:
-        return self._out_keys
-
-    @out_keys.setter
-    def out_keys(self, values: list[str]) -> None:
-        self._out_keys = list(values)
-
-    @dispatch
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Run the actor on (a shallow copy of) ``tensordict`` and return ``loss_dt``."""
-        tensordict = tensordict.copy()
-        keys = self.tensor_keys
-        present = set(tensordict.keys(include_nested=True))
-        if keys.action_target not in present:
-            raise KeyError(f"ActionBinLoss: the batch has no {keys.action_target!r} (action_target key)")
-        if keys.mask not in present and ("collector", "mask") in present:
-            raise KeyError(
-                f"ActionBinLoss: the batch has ('collector', 'mask') but no {keys.mask!r}; padded steps would "
-                "count as valid. Use loss.set_keys(mask=('collector', 'mask')) or copy the mask to that key"
-            )
-        target = tensordict.get(keys.action_target).detach()
-        with self.actor_network_params.to_module(self.actor_network):
-            logits = self.actor_network(tensordict).get(keys.action_logits, None)
-        if logits is None:
-            raise KeyError(
-                f"ActionBinLoss: the actor did not write {keys.action_logits!r} (action_logits key; a model "
-                f"with model.action_bins >= 2 writes it); its out_keys are {self.actor_network.out_keys}"
-            )
-        if logits.shape[:-1] != target.shape:
+    def check_prediction(self, prediction: torch.Tensor, target: torch.Tensor) -> None:
+        if prediction.shape[:-1] != target.shape:
             raise ValueError(
-                f"{keys.action_logits}: shape {tuple(logits.shape)} does not match "
-                f"{keys.action_target}: {tuple(target.shape)} plus a bins axis"
+                f"{self.tensor_keys.action_logits}: shape {tuple(prediction.shape)} does not match "
+                f"{self.tensor_keys.action_target}: {tuple(target.shape)} plus a bins axis"
             )
-        loss = masked_bin_cross_entropy(logits, target, tensordict.get(keys.mask, None))
-        return TensorDict({"loss_dt": loss}, batch_size=[])
+
+    def action_loss(
+        self, prediction: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None
+    ) -> torch.Tensor:
+        return masked_bin_cross_entropy(prediction, target, mask)
 
 
 def two_hot(target: torch.Tensor, bins: int) -> torch.Tensor:

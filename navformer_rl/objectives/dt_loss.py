@@ -1,4 +1,5 @@
-"""``ActionMSELoss``: L_DT, the masked action MSE that trains NavFormer (paper eq. 10)."""
+"""``ActionMSELoss``: L_DT, the masked action MSE that trains NavFormer (paper eq. 10), on the shared
+``TeacherForcedActionLoss`` base."""
 
 from __future__ import annotations
 
@@ -11,7 +12,81 @@ from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
 
-class ActionMSELoss(LossModule):
+class TeacherForcedActionLoss(LossModule):
+    """Base of the L_DT losses: run the actor on (a shallow copy of) a trajectory batch, read its prediction
+    (the key named by ``prediction_key``, a field of ``tensor_keys``) and the expert actions, return
+    ``loss_dt`` from :meth:`action_loss`. The mask checks and the error messages are shared; a subclass
+    names its keys (``_AcceptedKeys``), the prediction's expected shape and the loss."""
+
+    prediction_key: str = "action_pred"
+    """The ``tensor_keys`` field naming the actor output the loss reads."""
+    actor_network: TensorDictModule
+    actor_network_params: TensorDictParams
+    target_actor_network_params: TensorDictParams
+
+    def __init__(self, actor_network: TensorDictModule) -> None:
+        super().__init__()
+        self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
+        self._out_keys = ["loss_dt"]
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        keys = set(self.actor_network.in_keys) | {self.tensor_keys.action_target, self.tensor_keys.mask}
+        return sorted(keys, key=str)
+
+    @property
+    def out_keys(self) -> list[str]:
+        return self._out_keys
+
+    @out_keys.setter
+    def out_keys(self, values: list[str]) -> None:
+        self._out_keys = list(values)
+
+    def check_prediction(self, prediction: torch.Tensor, target: torch.Tensor) -> None:
+        """Raise ``ValueError`` when the prediction's shape does not fit the targets ``[N, T, A]``."""
+        if prediction.shape != target.shape:
+            raise ValueError(
+                f"{getattr(self.tensor_keys, self.prediction_key)}: shape {tuple(prediction.shape)} does not "
+                f"match {self.tensor_keys.action_target}: {tuple(target.shape)}"
+            )
+
+    def action_loss(
+        self, prediction: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None
+    ) -> torch.Tensor:
+        """The scalar loss over the valid steps."""
+        raise NotImplementedError
+
+    @dispatch
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Run the actor on (a shallow copy of) ``tensordict`` and return ``loss_dt``."""
+        tensordict = tensordict.copy()
+        keys, name = self.tensor_keys, type(self).__name__
+        prediction_key = getattr(keys, self.prediction_key)
+        present = set(tensordict.keys(include_nested=True))
+        if keys.action_target not in present:
+            raise KeyError(f"{name}: the batch has no {keys.action_target!r} (action_target key)")
+        if keys.mask not in present and ("collector", "mask") in present:
+            raise KeyError(
+                f"{name}: the batch has ('collector', 'mask') but no {keys.mask!r}; padded steps would "
+                "count as valid. Use loss.set_keys(mask=('collector', 'mask')) or copy the mask to that key"
+            )
+        target = tensordict.get(keys.action_target).detach()
+        with self.actor_network_params.to_module(self.actor_network):
+            prediction = self.actor_network(tensordict).get(prediction_key, None)
+        if prediction is None:
+            raise KeyError(
+                f"{name}: the actor did not write {prediction_key!r} ({self.prediction_key} key); its out_keys "
+                f"are {self.actor_network.out_keys}"
+            )
+        self.check_prediction(prediction, target)
+        loss = self.action_loss(prediction, target, tensordict.get(keys.mask, None))
+        return TensorDict({"loss_dt": loss}, batch_size=[])
+
+
+class ActionMSELoss(TeacherForcedActionLoss):
     """L_DT (eq. 10): masked action MSE over the valid steps of a trajectory batch.
 
     ``loss_dt = sum_{n,t valid} || a_{n,t} - a-hat_{n,t} ||^2 / #valid`` - the squared error is summed over
@@ -47,59 +122,12 @@ class ActionMSELoss(LossModule):
 
     tensor_keys: _AcceptedKeys
     default_keys = _AcceptedKeys
-    actor_network: TensorDictModule
-    actor_network_params: TensorDictParams
-    target_actor_network_params: TensorDictParams
+    prediction_key = "action_pred"
 
-    def __init__(self, actor_network: TensorDictModule) -> None:
-        super().__init__()
-        self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
-        self._out_keys = ["loss_dt"]
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
-
-    @property
-    def in_keys(self) -> list[NestedKey]:
-        keys = set(self.actor_network.in_keys) | {self.tensor_keys.action_target, self.tensor_keys.mask}
-        return sorted(keys, key=str)
-
-    @property
-    def out_keys(self) -> list[str]:
-        return self._out_keys
-
-    @out_keys.setter
-    def out_keys(self, values: list[str]) -> None:
-        self._out_keys = list(values)
-
-    @dispatch
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Run the actor on (a shallow copy of) ``tensordict`` and return ``loss_dt``."""
-        tensordict = tensordict.copy()
-        keys = self.tensor_keys
-        present = set(tensordict.keys(include_nested=True))
-        if keys.action_target not in present:
-            raise KeyError(f"ActionMSELoss: the batch has no {keys.action_target!r} (action_target key)")
-        if keys.mask not in present and ("collector", "mask") in present:
-            raise KeyError(
-                f"ActionMSELoss: the batch has ('collector', 'mask') but no {keys.mask!r}; padded steps would "
-                "count as valid. Use loss.set_keys(mask=('collector', 'mask')) or copy the mask to that key"
-            )
-        target = tensordict.get(keys.action_target).detach()
-        with self.actor_network_params.to_module(self.actor_network):
-            prediction = self.actor_network(tensordict).get(keys.action_pred, None)
-        if prediction is None:
-            raise KeyError(
-                f"ActionMSELoss: the actor did not write {keys.action_pred!r} (action_pred key); its out_keys "
-                f"are {self.actor_network.out_keys}"
-            )
-        if prediction.shape != target.shape:
-            raise ValueError(
-                f"{self.tensor_keys.action_pred}: shape {tuple(prediction.shape)} does not match "
-                f"{self.tensor_keys.action_target}: {tuple(target.shape)}"
-            )
-        loss = masked_action_mse(prediction, target, tensordict.get(self.tensor_keys.mask, None))
-        return TensorDict({"loss_dt": loss}, batch_size=[])
+    def action_loss(
+        self, prediction: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None
+    ) -> torch.Tensor:
+        return masked_action_mse(prediction, target, mask)
 
 
 def masked_action_mse(
