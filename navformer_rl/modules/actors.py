@@ -114,14 +114,16 @@ def head_module(
     ``[B, T, A]`` in [-1, 1] (logits ``[B, T, A, K]``), 0 on padded steps.
     """
     default_in: list[NestedKey] = [*((HIDDEN_KEY, name) for name in head.reads), "mask"]
-    default_out: list[NestedKey] = list(NAVFORMER_OUT_KEYS)
-    if isinstance(head, BinnedActionHead):
-        default_out.append(ACTION_LOGITS_KEY)
     return TensorDictModule(
         head,
         in_keys=_checked(in_keys, default_in, "in_keys"),
-        out_keys=_checked(out_keys, default_out, "out_keys"),
+        out_keys=_checked(out_keys, _head_out_keys(head, NAVFORMER_OUT_KEYS[0]), "out_keys"),
     )
+
+
+def _head_out_keys(head: ActionHead | BinnedActionHead, action_pred: NestedKey) -> list[NestedKey]:
+    """What ``head`` writes: ``[action_pred]``, and ``ACTION_LOGITS_KEY`` after it for a ``BinnedActionHead``."""
+    return [action_pred, ACTION_LOGITS_KEY] if isinstance(head, BinnedActionHead) else [action_pred]
 
 
 class LengthGroups(TensorDictModuleBase):
@@ -234,9 +236,7 @@ def make_navformer_actor(
         head_module(
             model.head,
             in_keys=[*((HIDDEN_KEY, name) for name in model.head.reads), mask],
-            out_keys=[action_pred, ACTION_LOGITS_KEY]
-            if isinstance(model.head, BinnedActionHead)
-            else [action_pred],
+            out_keys=_head_out_keys(model.head, action_pred),
         ),
     ]
     if length_groups != 1:

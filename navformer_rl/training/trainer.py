@@ -106,7 +106,7 @@ class Trainer:
         cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
         model: ``NavFormerModel`` (the parameters).  actor: its parts composed as TensorDict modules
             (``make_navformer_actor``), what the DT loss runs.  dt_loss: ``ActionMSELoss`` (``ActionBinLoss``
-            with ``model.action_bins``).
+            with ``model.action_bins``).  validation_loss: ``ActionMSELoss`` on the same actor (the validation rows).
         byol_loss: ``BYOLLoss`` or None (no SSL).
         cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
@@ -183,6 +183,10 @@ class Trainer:
         self.model.train()
         self.actor = make_navformer_actor(self.model, length_groups=self.cfg.optim.length_groups)
         self.dt_loss = (ActionBinLoss if self.model.config.action_bins else ActionMSELoss)(self.actor)
+        # validation scores eq. 10's squared error whatever the training loss (comparable rows)
+        self.validation_loss = (
+            self.dt_loss if isinstance(self.dt_loss, ActionMSELoss) else ActionMSELoss(self.actor)
+        )
         self.byol_loss = None
         self.updater = None
         self.tau_schedule = None
@@ -422,10 +426,7 @@ class Trainer:
         (a ``model.action_bins`` run is scored on its decoded actions, comparable with the paper's head)."""
         if self.validator is None:
             return {}
-        from navformer_rl.objectives import ActionMSELoss
-
-        loss = self.dt_loss if isinstance(self.dt_loss, ActionMSELoss) else ActionMSELoss(self.actor)
-        return self.validator(loss, self.model, self.device, distributed=self.distributed)
+        return self.validator(self.validation_loss, self.model, self.device, distributed=self.distributed)
 
     # -- logging --------------------------------------------------------------------------------------
     def make_logger(self) -> Logger | None:
