@@ -87,6 +87,13 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="where navformer / dt run their model: cpu (default), cuda, cuda:N or auto; the simulation "
         "always runs on the CPU",
     )
+    parser.add_argument(
+        "--context-steps",
+        type=cli_args.int_at_least(1),
+        default=None,
+        help="navformer, dt: the timesteps the policy attends to, from 1 to the model's window (default: "
+        "the whole context, 256 steps; a shorter one is an inference option, not the paper's)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
         "--fresh", action="store_true", help="recompute every episode (default: reuse finished ones in --out)"
@@ -222,6 +229,10 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
     diagnose.add_argument("--seed", dest="diag_seed", type=cli_args.seed, default=0, help="as for `evaluate`")
     diagnose.add_argument("--device", dest="diag_device", default="cpu", help="as for `evaluate`")
     diagnose.add_argument(
+        "--context-steps", dest="diag_context_steps", type=cli_args.int_at_least(1), default=None,
+        help="as for `evaluate`",
+    )  # fmt: skip
+    diagnose.add_argument(
         "--expert-data", dest="diag_expert_data", nargs=2, type=Path, metavar=("DIR_E", "DIR_CA"),
         help="D_e and D_ca folders whose actions are set beside the policy's commands",
     )  # fmt: skip
@@ -340,7 +351,9 @@ def _run_evaluate(args: argparse.Namespace) -> int:
             "give the episodes: --episodes FILE or --protocol {table1,table2,table3,table4,smoke}"
         )
     # Refuse a bad method / checkpoint / label / backend before spending time on episode generation.
-    PolicySpec(args.method, args.checkpoint, args.seed, device=args.device).validate(args.label)
+    PolicySpec(
+        args.method, args.checkpoint, args.seed, device=args.device, context_steps=args.context_steps
+    ).validate(args.label)
     problem = backend_problem(args)
     if problem is not None:
         raise ValueError(problem)
@@ -376,6 +389,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         resume=not args.fresh,
         backend=args.backend,
         ray_address=args.ray_address,
+        context_steps=args.context_steps,
     )
     print((result.out_dir / "summary.md").read_text(), end="")
     print(f"results in {result.out_dir}")
@@ -497,6 +511,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         label=args.diag_label,
         seed=args.diag_seed,
         device=args.diag_device,
+        context_steps=args.diag_context_steps,
         expert_data=kinds(args.diag_expert_data),
         held_out=kinds(args.diag_held_out),
         compare=args.diag_compare,

@@ -63,6 +63,7 @@ def diagnose(
     compare: Sequence[str | os.PathLike] = (),
     progress: bool = True,
     resume: bool = True,
+    context_steps: int | None = None,
 ) -> dict[str, Any]:
     """Record ``method`` on every episode of ``episode_set`` and write the diagnosis (module docstring).
 
@@ -84,6 +85,8 @@ def diagnose(
             ``diagnosis.md`` (ValueError when one ran other episodes).
         progress: show a progress bar.
         resume: reuse stored traces of the same work; False recomputes every episode.
+        context_steps: ``navformer`` / ``dt`` only: the timesteps the policy attends to (as in ``evaluate``;
+            None: the model's whole context). Teacher-forced measures use the training windows regardless.
 
     Returns:
         The content of ``diagnosis.json``.
@@ -109,7 +112,13 @@ def diagnose(
         from navformer_rl.training.checkpoint import resolve_checkpoint
 
         checkpoint = resolve_checkpoint(checkpoint)
-    spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), device=device)
+    spec = PolicySpec(
+        method,
+        None if checkpoint is None else str(checkpoint),
+        int(seed),
+        device=device,
+        context_steps=context_steps,
+    )
     label = label or method
     description = spec.validate(label)
     identity: dict[str, Any] = {
@@ -126,6 +135,8 @@ def diagnose(
         native = description.get("transformer_step") == "native"
         identity["transformer_step"] = description.get("transformer_step")
         spec = dataclasses.replace(spec, native=native)
+        if context_steps is not None:
+            identity["context_steps"] = context_steps
 
     out_dir = Path(out_dir)
     started = time.perf_counter()
@@ -151,6 +162,7 @@ def diagnose(
             "label": label,
             "checkpoint": spec.checkpoint,
             "checkpoint_sha256": description.get("checkpoint_sha256"),
+            "context_steps": context_steps,
             "seed": int(seed),
             "episode_set": {
                 "name": episode_set.name,

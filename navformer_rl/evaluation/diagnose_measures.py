@@ -25,6 +25,9 @@ answer to the observation at ``pose[t]``; ``contact[t]`` is what happened on tha
   path): per active step, per metre driven (efficiency: 1 = every metre brings the robot a metre closer,
   ~0 = wandering), split by whether the target was visible, and the net fraction of ℓ covered.
 - **commands**: the distribution of the commanded actions (:func:`command_statistics`).
+- **phases**: the same per span of episode steps (:data:`EPISODE_PHASES`): active robot-steps, the fraction
+  in contact, and the median ``|turn|`` commanded free and while touching (as in **walls**) and the share of
+  large free turns. A policy whose turns fade as its context fills shows it here, apart from the walls.
 - **outcomes**: the share of robot-trials that succeeded, ended stuck, ended circling, or failed otherwise
   (:func:`outcome`).
 """
@@ -62,6 +65,8 @@ LARGE_TURN = 0.5
 HISTOGRAM_BINS = 20
 TURN_CHANGE = 0.3
 """Change of the angular action from one step to the next above which a step counts as a turn change."""
+EPISODE_PHASES = (0, 25, 50, 100, 150, 200, 250, 300, 400)
+"""First step of each span of :func:`phase_measures`; the last span runs to the end of the trial."""
 
 
 def _ratio(numerator: float, denominator: float) -> float | None:
@@ -283,6 +288,40 @@ def command_statistics(
     return out
 
 
+def phase_measures(
+    robots: Sequence[RobotSteps], starts: Sequence[int] = EPISODE_PHASES
+) -> list[dict[str, Any]]:
+    """The ``phases`` block: per span ``[starts[k], starts[k + 1])`` of active steps (the last one open),
+    ``first_step``, ``last_step`` (None: open), ``robot_steps``, ``contact_fraction``, ``free_median_abs_turn``,
+    ``free_large_fraction`` (``|turn| >`` :data:`LARGE_TURN`) and ``touching_median_abs_turn`` (steps taken
+    while the previous step ended in contact, as in :func:`wall_measures`); None where a span has no such step."""
+    step = np.concatenate([np.arange(r.n) for r in robots]) if robots else np.zeros(0, dtype=int)
+    contact = np.concatenate([r.contact for r in robots]) if robots else np.zeros(0, dtype=bool)
+    touching = (
+        np.concatenate([np.concatenate([[False], r.contact[:-1]]) for r in robots])
+        if robots
+        else np.zeros(0, dtype=bool)
+    )
+    turn = np.abs(np.concatenate([r.action[:, 1] for r in robots])) if robots else np.zeros(0)
+    out = []
+    for k, first in enumerate(starts):
+        last = starts[k + 1] - 1 if k + 1 < len(starts) else None
+        inside = (step >= first) & (step <= (last if last is not None else np.inf))
+        free, held = turn[inside & ~touching], turn[inside & touching]
+        out.append(
+            {
+                "first_step": int(first),
+                "last_step": last,
+                "robot_steps": int(inside.sum()),
+                "contact_fraction": _mean(contact[inside]),
+                "free_median_abs_turn": float(np.median(free)) if free.size else None,
+                "free_large_fraction": _mean(free > LARGE_TURN),
+                "touching_median_abs_turn": float(np.median(held)) if held.size else None,
+            }
+        )
+    return out
+
+
 OUTCOMES = ("success", "stuck", "circling", "other failure")
 
 
@@ -328,4 +367,5 @@ def summarize_robots(robots: Sequence[RobotSteps]) -> dict[str, Any]:
         "sightings": sighting_measures(robots),
         "progress": progress_measures(robots),
         "commands": command_statistics(actions, starts=starts),
+        "phases": phase_measures(robots),
     }

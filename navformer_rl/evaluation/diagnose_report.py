@@ -132,6 +132,41 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     return lines
 
 
+def _phase_table(summaries: Sequence[dict[str, Any]]) -> list[str]:
+    """The ``phases`` block as a table: one row per span of episode steps, one column per diagnosis
+    (n/a for diagnoses written before the block existed)."""
+    phased = next((s["all"]["phases"] for s in summaries if s["all"].get("phases")), None)
+    if phased is None:
+        return []
+
+    def cell(summary: dict[str, Any], k: int) -> str:
+        phases = summary["all"].get("phases")
+        if not phases or k >= len(phases):
+            return "n/a"
+        p = phases[k]
+        return (
+            f"{_pct(p['contact_fraction'])}; {_num(2)(p['free_median_abs_turn'])} / "
+            f"{_num(2)(p['touching_median_abs_turn'])}; {_pct(p['free_large_fraction'])}"
+        )
+
+    rows = [
+        [
+            f"{p['first_step']}-{p['last_step']}" if p["last_step"] is not None else f"{p['first_step']}-",
+            *(cell(s, k) for s in summaries),
+        ]
+        for k, p in enumerate(phased)
+    ]
+    return [
+        "",
+        "## Commands by time in the episode",
+        "",
+        "Per span of active steps: in contact; median \\|turn\\| command free / touching (the previous step "
+        f"ended in contact); free \\|turn\\| > {LARGE_TURN:g}",
+        "",
+        *_table(["steps", *(s["label"] for s in summaries)], rows),
+    ]
+
+
 def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
     """Markdown of ``summaries`` (``diagnosis.json`` contents of the same episode set), one column each."""
     first = summaries[0]
@@ -146,6 +181,8 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
     for title, render in _rows(first):
         body.append([title, *(render(s["all"]) for s in summaries)])
     lines += _table(["measure", *(s["label"] for s in summaries)], body)
+
+    lines += _phase_table(summaries)
 
     experts = next((s["expert_commands"] for s in summaries if s.get("expert_commands")), None)
     if experts:

@@ -129,6 +129,7 @@ def evaluate(
     resume: bool = True,
     backend: str = "local",
     ray_address: str | None = None,
+    context_steps: int | None = None,
 ) -> EvaluationResult:
     """Run ``method`` on every episode of ``episode_set`` and write the outputs (module docstring).
 
@@ -171,6 +172,9 @@ def evaluate(
             ``$RAY_ADDRESS``, else a local Ray instance with ``workers`` CPUs, shut down at the end). Every
             node needs navformer_rl installed and, for ``navformer`` / ``dt``, the checkpoint at the same
             path.
+        context_steps: ``navformer`` / ``dt`` only: the timesteps the policy attends to (an inference
+            option, not the paper's, ``NavFormerPolicy(context_steps=)``); None (default): the model's whole
+            context. Recorded in ``run.json``; results of another context are never reused.
     """
     invoked = time.perf_counter()
     episode_set = _checked_episode_set(episode_set)
@@ -181,7 +185,14 @@ def evaluate(
     else:
         factory = None
     checkpoint = _resolved_checkpoint(method, factory, checkpoint)
-    spec = PolicySpec(method, None if checkpoint is None else str(checkpoint), int(seed), factory, device)
+    spec = PolicySpec(
+        method,
+        None if checkpoint is None else str(checkpoint),
+        int(seed),
+        factory,
+        device,
+        context_steps=context_steps,
+    )
     label = label or method
     description = spec.validate(label)
     model_device = _model_device(method, factory, device)
@@ -329,6 +340,8 @@ def _resume_identity(
         identity["device"] = model_device
     if description.get("transformer_step") == "native":
         identity["transformer_step"] = "native"
+    if description.get("context_steps") is not None:
+        identity["context_steps"] = description["context_steps"]
     return identity
 
 

@@ -44,6 +44,9 @@ class PolicySpec:
         seed: base seed of stochastic policies (VRW, FCA's noise); each episode adds its own seed.
         device: where ``navformer`` / ``dt`` run their model (``cpu``, ``cuda``, ``cuda:N``, ``auto``); the
             other methods ignore it (``dsac`` / ``matdn`` run their small networks on the CPU).
+        context_steps: ``navformer`` / ``dt`` only: the timesteps the policy attends to
+            (``NavFormerPolicy(context_steps=)``, 1 to the model's window); None, the default and the paper's,
+            is the model's whole context.
     """
 
     method: str
@@ -56,6 +59,7 @@ class PolicySpec:
     native: bool | None = None
     """``NavFormerPolicy(native=)`` of ``navformer`` / ``dt``: the harness fixes it to what ``validate`` found
     (``transformer_step``), so that every worker runs the same transformer path or fails saying why."""
+    context_steps: int | None = None
 
     def validate(self, label: str | None = None) -> dict[str, Any]:
         """Check the method, (by loading it) the checkpoint, and that ``label`` (default: the method) names no
@@ -77,6 +81,11 @@ class PolicySpec:
             }
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+        if self.context_steps is not None and self.method not in CHECKPOINT_METHODS:
+            raise ValueError(
+                f"context_steps={self.context_steps!r} (--context-steps) applies to navformer and dt, whose "
+                f"transformer has a context; method {self.method!r} has none"
+            )
         description: dict[str, Any] = {}
         if self.method in ONLINE_METHODS:
             description = self._validate_online()
@@ -89,12 +98,13 @@ class PolicySpec:
             from navformer_rl.training.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
 
             policy, config = self._load_checkpoint()  # on the CPU: this process only checks it
-            policy.native = self.native
             weights = resolve_checkpoint(self.checkpoint) / WEIGHTS_FILENAME
             description = {
                 "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
                 "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
                 "ablation": checkpoint_ablation(self.checkpoint),
+                # an inference option, not the paper's: recorded only when given
+                **({} if self.context_steps is None else {"context_steps": self.context_steps}),
                 # the transformer-step path: the compiled kernel or torch, equal results up to float rounding
                 **policy.describe(resolve_device(self.device)),
             }
@@ -130,12 +140,17 @@ class PolicySpec:
         }
 
     def _load_checkpoint(self):
-        """``(NavFormerPolicy on the CPU, NavFormerConfig)`` of ``navformer`` / ``dt``."""
+        """``(NavFormerPolicy on the CPU, NavFormerConfig)`` of ``navformer`` / ``dt`` with this spec's
+        ``native`` and ``context_steps`` (ValueError naming a context longer than the model's)."""
         from navformer_rl.baselines.dt import load_dt_policy
         from navformer_rl.baselines.navformer import load_navformer_policy
+        from navformer_rl.modules.decoding.incremental import check_window_steps
 
         load = load_navformer_policy if self.method == "navformer" else load_dt_policy
-        return load(self.checkpoint)
+        policy, config = load(self.checkpoint)
+        check_window_steps(self.context_steps, config.window_steps, "context_steps (--context-steps)")
+        policy.native, policy.context_steps = self.native, self.context_steps
+        return policy, config
 
     def build_with_config(self):
         """``(policy, model config or None)``; a ``navformer`` / ``dt`` policy's model on :attr:`device`."""
@@ -147,7 +162,6 @@ class PolicySpec:
             return load_online_policy(self.checkpoint, self.method)  # small CNNs: on the CPU, beside the env
         if self.method in CHECKPOINT_METHODS:
             policy, config = self._load_checkpoint()
-            policy.native = self.native
             return policy.to(resolve_device(self.device)), config
         if self.method == "vrw":
             from navformer_rl.baselines.random_walk import RandomWalkPolicy

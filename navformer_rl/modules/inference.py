@@ -8,7 +8,11 @@ from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import Tensor
 
-from navformer_rl.modules.decoding.incremental import IncrementalNavFormer, use_native_kernel
+from navformer_rl.modules.decoding.incremental import (
+    IncrementalNavFormer,
+    check_window_steps,
+    use_native_kernel,
+)
 from navformer_rl.modules.models.navformer import NavFormerModel
 
 
@@ -31,9 +35,10 @@ class NavFormerPolicy(TensorDictModuleBase):
     Writes ``("agents", "action")`` float32 ``[*R, 2]`` in [-1, 1].
 
     Context: the target token, then per step R-hat, e^s, e^ca, a; each call adds one timestep through the
-    KV cache (``IncrementalNavFormer``). Past ``config.context_tokens`` (1024 tokens = 256 steps) the
-    oldest whole timestep leaves the window and the target token stays (streaming window, see
-    ``docs/model.md``). Without ``step_count`` in the input, state is cleared by ``reset()``, when the
+    KV cache (``IncrementalNavFormer``). Past ``context_steps`` timesteps (None, the default: the model's
+    whole context, ``config.context_tokens`` = 1024 tokens = 256 steps) the oldest whole timestep leaves the
+    window and the target token stays (streaming window, see ``docs/model.md``). A shorter ``context_steps``
+    is an inference-time option, not the paper's (``docs/deviations.md``). Without ``step_count`` in the input, state is cleared by ``reset()``, when the
     number of robots changes, or never otherwise.
 
     In ``env.rollout``: TorchRL's ``step_mdp`` drops rewards from the next input, so R-hat stays at its
@@ -52,6 +57,9 @@ class NavFormerPolicy(TensorDictModuleBase):
     native: run the transformer step through the compiled CPU kernel (``IncrementalNavFormer``'s
     ``native``): None uses it where it builds and runs (a CPU decoder; ``NAVFORMER_NATIVE=0`` turns it
     off), True requires it, False keeps the torch path. Both give the same actions up to float rounding.
+
+    context_steps: the timesteps the policy attends to (see Context above), an int from 1 to
+    ``config.window_steps``; None (default) is all of them. Changing it starts new episodes.
     """
 
     def __init__(
@@ -66,10 +74,13 @@ class NavFormerPolicy(TensorDictModuleBase):
         action_key: NestedKey = ("agents", "action"),
         is_init_key: NestedKey | None = "is_init",
         native: bool | None = None,
+        context_steps: int | None = None,
     ) -> None:
         super().__init__()
         self.model = model
         self.native = native
+        check_window_steps(context_steps, model.config.window_steps, "context_steps")
+        self.context_steps = context_steps
         self.is_init_key = is_init_key
         self.initial_return_to_go = float(initial_return_to_go)
         self.pixels_key, self.target_pixels_key = pixels_key, target_pixels_key
@@ -161,8 +172,16 @@ class NavFormerPolicy(TensorDictModuleBase):
         target = target.reshape(robots, *pixels.shape[-3:])
         device = self.device  # looked up once per call: parameters() is not free at batch 1
         new_episode = self._new_episode_flags(tensordict, robots, device)
-        if self._decoder is None or self._decoder.batch != robots or self._decoder.device != device:
-            self._decoder = IncrementalNavFormer(self.model, robots, device=device, native=self.native)
+        window = check_window_steps(self.context_steps, self.model.config.window_steps, "context_steps")
+        if (
+            self._decoder is None
+            or self._decoder.batch != robots
+            or self._decoder.device != device
+            or self._decoder.window_steps != window
+        ):
+            self._decoder = IncrementalNavFormer(
+                self.model, robots, device=device, native=self.native, window_steps=window
+            )
             self._remember_weights()
             self._return_to_go = torch.full((robots, 1), self.initial_return_to_go, device=device)
             self._prev_action = torch.zeros(robots, self.model.config.action_dim, device=device)

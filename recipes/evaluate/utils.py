@@ -36,7 +36,9 @@ def check_policy(cfg: DictConfig) -> None:
     and generates episodes (``PolicySpec.validate`` loads the checkpoint)."""
     check_cluster(str(cfg.cluster))
     check_backend(str(cfg.backend))
-    PolicySpec(cfg.method, cfg.checkpoint, int(cfg.seed), device=str(cfg.device)).validate(cfg.label)
+    PolicySpec(
+        cfg.method, cfg.checkpoint, int(cfg.seed), device=str(cfg.device), context_steps=cfg.context_steps
+    ).validate(cfg.label)
 
 
 def make_episode_set(cfg: DictConfig) -> EpisodeSet:
@@ -80,6 +82,7 @@ def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult
         resume=bool(cfg.resume),
         backend=str(cfg.backend),
         ray_address=cfg.ray_address,
+        context_steps=cfg.context_steps,
     )
 
 

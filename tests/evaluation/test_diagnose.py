@@ -17,6 +17,7 @@ from navformer_rl.evaluation.diagnose_measures import (
     is_circling,
     is_stuck,
     outcome,
+    phase_measures,
     progress_measures,
     sighting_measures,
     steps_to_free,
@@ -269,6 +270,22 @@ def test_command_statistics_known_answers():
     assert split["angular"]["change_fraction"] == pytest.approx(1 / 2)
 
 
+def test_phase_measures_split_turns_by_time_and_by_touching():
+    # pinned_at_wall: steps 0-39 free turning 0.4, steps 40-99 in contact with no turn (step 40 is taken
+    # free: the contact it ends in starts there)
+    phases = phase_measures([pinned_at_wall()], starts=(0, 25, 50, 200))
+    assert [(p["first_step"], p["last_step"], p["robot_steps"]) for p in phases] == [
+        (0, 24, 25), (25, 49, 25), (50, 199, 50), (200, None, 0)
+    ]  # fmt: skip
+    assert phases[0]["contact_fraction"] == 0.0 and phases[0]["touching_median_abs_turn"] is None
+    assert phases[0]["free_median_abs_turn"] == pytest.approx(0.4) and phases[0]["free_large_fraction"] == 0.0
+    assert phases[1]["contact_fraction"] == pytest.approx(10 / 25)  # steps 40-49
+    assert phases[1]["free_median_abs_turn"] == pytest.approx(0.4)  # steps 25-40 free
+    assert phases[1]["touching_median_abs_turn"] == 0.0
+    assert phases[2]["contact_fraction"] == 1.0 and phases[2]["free_median_abs_turn"] is None
+    assert phases[3]["contact_fraction"] is None and phases[3]["touching_median_abs_turn"] is None
+
+
 def test_turn_agreement_reports_the_averaged_turns():
     expert = np.array([1.0, -1.0, 0.8, 0.1])
     predicted = np.array([0.5, 0.3, 0.2, -0.1])  # halved, wrong way, shrunk; the small turn is not counted
@@ -398,6 +415,21 @@ def test_a_rerun_reuses_the_traces_and_fresh_recomputes_them(vrw_diagnosis, one_
     assert other_seed["episodes_computed"] == 1  # another seed is other work
 
 
+def test_a_shorter_context_is_recorded_and_is_other_work(tmp_path, one_episode):
+    from navformer_rl.evaluation.diagnose import diagnose
+    from navformer_rl.modules import NavFormerConfig
+
+    from .conftest import make_checkpoint
+
+    checkpoint = make_checkpoint(tmp_path / "navformer", NavFormerConfig())
+    out = tmp_path / "diagnosis"
+    whole = diagnose("navformer", one_episode[0], out, checkpoint=checkpoint, progress=False)
+    short = diagnose("navformer", one_episode[0], out, checkpoint=checkpoint, context_steps=2, progress=False)
+    assert (whole["context_steps"], short["context_steps"]) == (None, 2)
+    assert short["episodes_computed"] == 1  # the whole context's trace is not reused
+    assert json.loads((out / "diagnosis.json").read_text())["context_steps"] == 2
+
+
 def test_a_trace_survives_saving_and_a_damaged_file_is_refused(tmp_path, vrw_diagnosis):
     out, _ = vrw_diagnosis
     (path,) = sorted((out / "traces").glob("*.npz"))
@@ -430,6 +462,10 @@ def test_the_cli_diagnoses_and_compares_with_another_folder(tmp_path, one_episod
     [
         (["--method", "vrw", "--held-out", "E", "CA"], "held-out.* does not exist"),
         (["--method", "navformer"], "needs a checkpoint"),
+        (
+            ["--method", "vrw", "--context-steps", "3"],
+            r"context_steps=3 \(--context-steps\) applies to navformer",
+        ),
     ],
 )
 def test_the_cli_refuses_bad_requests_in_one_line(tmp_path, one_episode, capsys, extra, message):

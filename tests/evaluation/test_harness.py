@@ -349,3 +349,27 @@ def test_the_transformer_path_is_recorded_and_part_of_the_resume_key(
     evaluate("navformer", tiny_episodes, out, workers=1, **kwargs)
     assert json.loads((out / "run.json").read_text())["transformer_step"] == "torch"
     assert json.loads((out / "episodes.jsonl").read_text().splitlines()[0])["path_length"] != 123.0
+
+
+def test_a_shorter_context_is_recorded_and_never_mixed_with_the_whole_contexts_results(
+    tmp_path, tiny_episodes, checkpoints
+):
+    """``context_steps`` runs the policy on that window (other actions past it), is written to run.json, and
+    is part of the resume key; other methods and windows longer than the model's are refused by name."""
+    out = tmp_path / "navformer"
+    kwargs = dict(checkpoint=checkpoints["navformer"], maps_per_setup=0, videos_per_setup=0, progress=False)
+    whole = evaluate("navformer", tiny_episodes, out, **kwargs)
+    assert "context_steps" not in json.loads((out / "run.json").read_text())
+    short = evaluate("navformer", tiny_episodes, out, context_steps=2, **kwargs)
+    assert short.episodes_computed == len(tiny_episodes)  # none reused from the whole context
+    assert json.loads((out / "run.json").read_text())["context_steps"] == 2
+    paths = [[r.path_length for r in result.records] for result in (whole, short)]
+    assert paths[0] != paths[1]
+    assert evaluate("navformer", tiny_episodes, out, context_steps=2, **kwargs).episodes_computed == 0
+    with pytest.raises(ValueError, match=r"context_steps=3 \(--context-steps\) applies to navformer and dt"):
+        evaluate("vrw", tiny_episodes, tmp_path / "vrw", context_steps=3, progress=False)
+    with pytest.raises(
+        ValueError,
+        match=r"context_steps \(--context-steps\)=257: expected a whole number of timesteps from 1 to 256",
+    ):
+        evaluate("navformer", tiny_episodes, tmp_path / "long", context_steps=257, **kwargs)

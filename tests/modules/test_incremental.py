@@ -272,3 +272,31 @@ def test_inference_mode_model_and_state_and_float32_only(batch_factory):
         decode(decoder, batch, 1)
     with pytest.raises(ValueError, match="float32 models; this one holds torch.float64"):
         IncrementalNavFormer(small_context_model().double(), 1)
+
+
+@pytest.mark.parametrize("native", NATIVE)
+@pytest.mark.parametrize("window", [1, 3])
+def test_shorter_window_equals_forward_with_that_window(batch_factory, window, native):
+    """``window_steps`` below the model's context: the cache holds that many steps and every step equals
+    ``forward(window_steps=W)``, which differs from the whole-context decoding once the window slides."""
+    model = small_context_model()
+    steps = model.config.window_steps + 4
+    batch = batch_factory(2, steps, seed=3)
+    decoder = IncrementalNavFormer(model, 2, native=native, window_steps=window)
+    assert decoder.window_steps == window
+    assert decoder.cache.slots == 1 + window * model.config.tokens_per_step
+    reference = full(model, batch, steps, window_steps=window)
+    for t in range(steps):
+        torch.testing.assert_close(decode(decoder, batch, t), reference[:, t], rtol=0, atol=1e-5)
+    whole_context = full(model, batch, steps, window_steps=model.config.window_steps)
+    assert torch.equal(reference[:, :window], whole_context[:, :window])
+    assert (reference[:, -1] - whole_context[:, -1]).abs().max() > 1e-4
+
+
+@pytest.mark.parametrize("window", [0, -2, 7, 2.5, True, "4"])
+def test_window_outside_the_context_is_refused_naming_it(window):
+    model = small_context_model()  # a 6-step context
+    with pytest.raises(
+        ValueError, match=rf"window_steps={window!r}: expected a whole number of timesteps from 1 to 6"
+    ):
+        IncrementalNavFormer(model, 1, window_steps=window)

@@ -1,5 +1,6 @@
 """NavFormerPolicy on MultiRobotNavEnv-shaped tensordicts and inside ``env.rollout``."""
 
+import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
@@ -245,3 +246,27 @@ def test_new_episodes_rebuild_the_tables_only_when_the_weights_changed(monkeypat
     TensorDict.from_module(policy.model).data.update_(TensorDict.from_module(make_model(1)).data)
     policy(agents_td(pixels, target, start))
     assert rebuilds == [1]
+
+
+def test_context_steps_runs_the_decoder_with_that_window_and_is_checked():
+    model = make_model()  # a 6-step context
+    policy = NavFormerPolicy(model, context_steps=2)
+    decoder = IncrementalNavFormer(model, 2, window_steps=2)
+    whole = IncrementalNavFormer(model, 2)
+    target, prev = frames(2, 0), torch.zeros(2, 2)
+    differs = False
+    for t in range(5):
+        pixels = frames(2, 300 + t)
+        action = policy(agents_td(pixels, target, torch.full((2, 1), t)))["agents", "action"]
+        expected = decoder.step(target, pixels, torch.ones(2, 1), prev)
+        differs |= not torch.allclose(expected, whole.step(target, pixels, torch.ones(2, 1), prev), atol=1e-4)
+        prev = expected
+        torch.testing.assert_close(action, expected, rtol=0, atol=1e-6)
+    assert policy._decoder.window_steps == 2 and differs
+    policy.context_steps = None  # back to the whole context: a new decoder, new episodes
+    policy(agents_td(frames(2, 9), target, torch.full((2, 1), 5)))
+    assert policy._decoder.window_steps == 6 and policy._decoder.steps_done.tolist() == [1, 1]
+    with pytest.raises(
+        ValueError, match=r"context_steps=7: expected a whole number of timesteps from 1 to 6"
+    ):
+        NavFormerPolicy(model, context_steps=7)

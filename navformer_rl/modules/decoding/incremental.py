@@ -1,7 +1,7 @@
 """Incremental (one timestep per call) NavFormer decoding with a streaming key/value cache.
 
-Per robot ``b`` the cache holds ``S = 1 + W * tps`` slots (``W = config.window_steps``, 256 steps of 4
-tokens for the paper's 1024-token context): slot 0 is the target token, then ``W`` groups of ``tps`` slots
+Per robot ``b`` the cache holds ``S = 1 + W * tps`` slots (``W = window_steps``, by default
+``config.window_steps``: 256 steps of 4 tokens for the paper's 1024-token context): slot 0 is the target token, then ``W`` groups of ``tps`` slots
 used as a ring (step ``t`` lives in group ``t mod W``). ``slot_pos[b, s]`` is the token's position in the
 robot's sequence (-1 = empty); the attention mask is built from it, so slot order never matters.
 
@@ -56,6 +56,9 @@ class IncrementalNavFormer:
     (``torch.optim``'s default optimizers, ``load_state_dict``, ``model.to``), so an evaluation between
     optimizer steps stays exact. Not seen: ``p.data`` writes, fused optimizers (``AdamW(fused=True)``),
     ``load_state_dict(..., assign=True)`` and replaced sub-modules - call ``refresh()`` after those.
+
+    ``window_steps``: the streaming window W in timesteps, at most ``config.window_steps`` (the default);
+    a shorter one is an inference-time option (``NavFormerPolicy(context_steps=)``, ``docs/model.md``).
     The model must hold float32 parameters; the decoder state is allocated outside inference mode, so
     ``step`` may run under ``torch.inference_mode()`` or ``torch.no_grad()`` alike.
     """
@@ -66,9 +69,11 @@ class IncrementalNavFormer:
         batch: int,
         device: torch.device | str | None = None,
         native: bool | None = None,
+        window_steps: int | None = None,
     ) -> None:
         if batch <= 0:
             raise ValueError(f"batch={batch!r}: expected a positive number of robots")
+        self.window_steps = check_window_steps(window_steps, model.config.window_steps)
         dtype = next(model.parameters()).dtype
         if dtype != torch.float32:
             raise ValueError(
@@ -88,7 +93,6 @@ class IncrementalNavFormer:
         self.device = device
         self.dtype = dtype
         self.tokens_per_step = config.tokens_per_step
-        self.window_steps = config.window_steps
         slots = 1 + self.window_steps * self.tokens_per_step
         cache_type = BlockedKVCache if self.native else KVCache
         self.cache = cache_type.empty(
@@ -321,3 +325,16 @@ def use_native_kernel(native: bool | None, model: NavFormerModel, device: torch.
     if reason is not None and native:
         raise ValueError(f"IncrementalNavFormer(native=True): {reason}")
     return reason is None
+
+
+def check_window_steps(window_steps: int | None, most: int, name: str = "window_steps") -> int:
+    """``window_steps`` (None: ``most``, the model's whole context in timesteps), checked: an int in
+    ``[1, most]``; ValueError naming it (as ``name``) and the value otherwise."""
+    if window_steps is None:
+        return most
+    if isinstance(window_steps, bool) or not isinstance(window_steps, int) or not 1 <= window_steps <= most:
+        raise ValueError(
+            f"{name}={window_steps!r}: expected a whole number of timesteps from 1 to {most} (the "
+            "model's context, config.context_tokens // tokens_per_step), or None for all of it"
+        )
+    return window_steps
