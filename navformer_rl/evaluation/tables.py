@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import json
 import math
@@ -44,12 +45,22 @@ class SetupSummary:
 
 
 def read_records(path: str | os.PathLike) -> list[RobotTrial]:
-    """Load robot-trial rows from a per-episode JSONL file (one JSON object per line)."""
+    """Load robot-trial rows from a per-episode JSONL file (one JSON object per line); where ``path`` is
+    missing, its gzip-compressed ``path.gz`` (how a kept record can be stored, e.g. ``docs/results/``)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no per-episode records at {str(path)!r}")
+    compressed = path.with_name(path.name + ".gz")
+    if path.is_file():
+        text = path.read_text()
+    elif compressed.is_file():
+        try:
+            text = gzip.decompress(compressed.read_bytes()).decode()
+        except (OSError, EOFError, UnicodeDecodeError) as error:
+            raise ValueError(f"{compressed} is not a gzip-compressed JSONL file ({error})") from None
+        path = compressed
+    else:
+        raise FileNotFoundError(f"no per-episode records at {str(path)!r} (nor {compressed.name})")
     records = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         try:

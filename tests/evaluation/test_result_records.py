@@ -77,3 +77,61 @@ def test_paired_difference_of_all_the_data_against_a_tenth_at_2500_iterations() 
     assert pooled.setup == "all" and pooled.n_robot_trials == 120
     assert pooled.difference["sr"] == pytest.approx(-0.050, abs=5e-5)
     assert pooled.difference["cr"] == pytest.approx(0.149, abs=5e-4)
+
+
+CONTEXT = DATA_SCALING.parent / "context"
+
+
+@pytest.mark.parametrize(
+    ("record", "baseline", "context_steps", "expected"),
+    [
+        ("nf10k_it2500_w8", "navformer_10k_s0_it02500", 8, {"sr": 0.4083, "cr": 0.4373}),
+        ("nf10k_it2500_w16", "navformer_10k_s0_it02500", 16, {"sr": 0.3917, "cr": 0.3743}),
+        ("nf10k_it2500_w32", "navformer_10k_s0_it02500", 32, {"sr": 0.3500, "cr": 0.3370}),
+        ("nf10k_it2500_w64", "navformer_10k_s0_it02500", 64, {"sr": 0.3250, "cr": 0.4070}),
+        ("nf10k_it2500_w128", "navformer_10k_s0_it02500", 128, {"sr": 0.3833, "cr": 0.3980}),
+        ("shipped_navformer_w16", "navformer_tenth_it02500", 16, {"sr": 0.3917, "cr": 0.2020}),
+        ("shipped_navformer_w32", "navformer_tenth_it02500", 32, {"sr": 0.3667, "cr": 0.2270}),
+        ("shipped_dt_w16", "dt_tenth_it02500", 16, {"sr": 0.3917, "cr": 0.3780}),
+        ("shipped_dt_w32", "dt_tenth_it02500", 32, {"sr": 0.3500, "cr": 0.4240}),
+    ],
+)
+def test_context_records_give_the_quoted_metrics_against_the_whole_context(
+    record: str, baseline: str, context_steps: int, expected: dict[str, float]
+) -> None:
+    """The same checkpoint as its whole-context record, only the inference window differs (run.json)."""
+    import json
+
+    run, whole = (
+        json.loads((folder / "run.json").read_text()) for folder in (CONTEXT / record, PAPER10K / baseline)
+    )
+    assert run["context_steps"] == context_steps and "context_steps" not in whole
+    assert run["checkpoint_sha256"] == whole["checkpoint_sha256"]
+    (summary,) = summarize_seed_groups({record: [CONTEXT / record]})
+    metrics = summary.runs[0].metrics
+    assert metrics.n_trials == 40
+    assert metrics.sr == pytest.approx(expected["sr"], abs=5e-5)
+    assert metrics.cr == pytest.approx(expected["cr"], abs=5e-4)
+    _, rows = paired_differences(CONTEXT / record, PAPER10K / baseline, n_resamples=200)
+    assert rows[-1].n_robot_trials == 120  # the same robot-trials: the data-scaling episodes
+
+
+def test_a_record_kept_gzip_compressed_reads_like_the_plain_one(tmp_path: Path) -> None:
+    import gzip
+    import shutil
+
+    from navformer_rl.evaluation.tables import read_records
+
+    plain = PAPER10K / "navformer_10k_s0_it02500"
+    packed = tmp_path / "packed"
+    packed.mkdir()
+    shutil.copy(plain / "run.json", packed / "run.json")
+    (packed / "episodes.jsonl.gz").write_bytes(gzip.compress((plain / "episodes.jsonl").read_bytes()))
+    assert read_records(packed / "episodes.jsonl") == read_records(plain / "episodes.jsonl")
+    _, rows = paired_differences(packed, PAPER10K / "navformer_tenth_it02500", n_resamples=200)
+    assert rows[-1].difference["sr"] == pytest.approx(-0.050, abs=5e-5)
+    (packed / "episodes.jsonl.gz").write_bytes(b"not gzip")
+    with pytest.raises(ValueError, match="is not a gzip-compressed JSONL file"):
+        read_records(packed / "episodes.jsonl")
+    with pytest.raises(FileNotFoundError, match=r"nor episodes.jsonl.gz"):
+        read_records(tmp_path / "episodes.jsonl")
