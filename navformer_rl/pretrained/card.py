@@ -169,7 +169,9 @@ def _results_markdown(evaluation: dict[str, Any]) -> list[str]:
         "",
         f"{episodes.get('episodes')} episodes of at most {episodes.get('max_steps')} steps (episode set "
         f"sha256 {str(episodes.get('content_sha256'))[:16]}...), policy seed {run.get('seed')}, model on "
-        f"{run.get('device')} ({run.get('transformer_step')} transformer step), "
+        f"{run.get('device')} ({run.get('transformer_step')} transformer step"
+        + (f", attending to its last {run['context_steps']} steps" if run.get("context_steps") else "")
+        + "), "
         f"{100 * float(run.get('confidence', math.nan)):g} % intervals resampling whole "
         f"{run.get('cluster')}s; {run.get('seconds')} s of evaluation with {run.get('workers')} worker(s). "
         f"Folder: `{evaluation['folder']}`.",

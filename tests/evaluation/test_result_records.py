@@ -135,3 +135,29 @@ def test_a_record_kept_gzip_compressed_reads_like_the_plain_one(tmp_path: Path) 
         read_records(packed / "episodes.jsonl")
     with pytest.raises(FileNotFoundError, match=r"nor episodes.jsonl.gz"):
         read_records(tmp_path / "episodes.jsonl")
+
+
+TABLE1 = CONTEXT / "table1"
+
+
+@pytest.mark.parametrize(
+    ("record", "baseline", "expected"),
+    [
+        ("navformer_w16", "navformer", {"sr": 0.060, "cr": -0.176}),
+        ("dt_w16", "dt", {"sr": 0.005, "cr": -0.153}),
+    ],
+)
+def test_table1_records_of_the_context_give_the_quoted_paired_differences(
+    record: str, baseline: str, expected: dict[str, float]
+) -> None:
+    """Table I's 540 trials, stored gzip-compressed: each window against the same weights' whole context."""
+    import json
+
+    run, whole = (json.loads((TABLE1 / name / "run.json").read_text()) for name in (record, baseline))
+    assert run["context_steps"] == 16 and "context_steps" not in whole
+    assert run["checkpoint_sha256"] == whole["checkpoint_sha256"]
+    _, rows = paired_differences(TABLE1 / record, TABLE1 / baseline, n_resamples=200)
+    pooled = rows[-1]
+    assert pooled.setup == "all" and pooled.n_robot_trials == 2160
+    assert pooled.difference["sr"] == pytest.approx(expected["sr"], abs=5e-4)
+    assert pooled.difference["cr"] == pytest.approx(expected["cr"], abs=5e-4)

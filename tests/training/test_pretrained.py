@@ -292,3 +292,14 @@ def test_the_card_counts_a_list_of_dataset_folders_as_one(datasets):
     assert items >= 1
     assert _datasets_items([str(datasets["e"]), str(datasets["e"])]) == (2 * items, seed)
     assert _datasets_items([str(datasets["e"]), str(datasets["e"] / "absent")]) == (None, None)  # unknown
+
+
+def test_the_card_names_an_evaluation_that_ran_on_a_shorter_context():
+    from navformer_rl.pretrained.card import _results_markdown
+
+    run = {"label": "navformer_w16", "episode_set": {"name": "table1", "episodes": 540, "max_steps": 500},
+           "seed": 0, "device": "cpu", "transformer_step": "native", "confidence": 0.95, "cluster": "trial"}  # fmt: skip
+    whole = "\n".join(_results_markdown({"run": run, "folder": "f", "rows": []}))
+    short = "\n".join(_results_markdown({"run": {**run, "context_steps": 16}, "folder": "f", "rows": []}))
+    assert "(native transformer step), " in whole and "attending" not in whole
+    assert "(native transformer step, attending to its last 16 steps), " in short
