@@ -70,6 +70,11 @@ class PolicySpec:
         if self.factory is not None:
             if self.checkpoint is not None:
                 raise ValueError("a policy factory takes no checkpoint; load it inside the factory")
+            if self.context_steps is not None:
+                raise ValueError(
+                    f"context_steps={self.context_steps!r} with a policy factory: build your policy with it "
+                    "(NavFormerPolicy(model, context_steps=...)) inside the factory"
+                )
             if self.device != "cpu":
                 raise ValueError(
                     f"device={self.device!r} with a policy factory: your factory places its own model (e.g. "
