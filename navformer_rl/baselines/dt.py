@@ -15,13 +15,15 @@ def is_dt_config(config) -> bool:
 def load_dt_policy(checkpoint: str | os.PathLike):
     """``(NavFormerPolicy, NavFormerConfig)`` from a DT checkpoint (any path
     ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...).
+    The policy attends to the window the checkpoint was trained on (``data.context_steps``) when set, else to
+    the whole context.
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.
         ValueError: not a navformer_rl checkpoint, or a NavFormer (not DT) model.
     """
     from navformer_rl.modules import NavFormerPolicy
-    from navformer_rl.training.checkpoint import load_policy_model
+    from navformer_rl.training.checkpoint import load_policy_model, training_context_steps
 
     config, model = load_policy_model(checkpoint)
     if not is_dt_config(config):
@@ -30,4 +32,4 @@ def load_dt_policy(checkpoint: str | os.PathLike):
             f"thsc={config.thsc}), not the DT baseline (NavFormerConfig.dt_baseline()); evaluate it with "
             "--method navformer"
         )
-    return NavFormerPolicy(model), config
+    return NavFormerPolicy(model, context_steps=training_context_steps(checkpoint)), config

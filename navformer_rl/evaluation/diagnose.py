@@ -86,7 +86,8 @@ def diagnose(
         progress: show a progress bar.
         resume: reuse stored traces of the same work; False recomputes every episode.
         context_steps: ``navformer`` / ``dt`` only: the timesteps the policy attends to (as in ``evaluate``;
-            None: the model's whole context). Teacher-forced measures use the training windows regardless.
+            None: the window the checkpoint was trained on, else the model's whole context). Teacher-forced
+            measures use the training windows regardless.
 
     Returns:
         The content of ``diagnosis.json``.
@@ -135,8 +136,8 @@ def diagnose(
         native = description.get("transformer_step") == "native"
         identity["transformer_step"] = description.get("transformer_step")
         spec = dataclasses.replace(spec, native=native)
-        if context_steps is not None:
-            identity["context_steps"] = context_steps
+        if description.get("context_steps") is not None:
+            identity["context_steps"] = description["context_steps"]
 
     out_dir = Path(out_dir)
     started = time.perf_counter()
@@ -162,7 +163,7 @@ def diagnose(
             "label": label,
             "checkpoint": spec.checkpoint,
             "checkpoint_sha256": description.get("checkpoint_sha256"),
-            "context_steps": context_steps,
+            "context_steps": description.get("context_steps"),
             "seed": int(seed),
             "episode_set": {
                 "name": episode_set.name,

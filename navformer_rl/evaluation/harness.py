@@ -173,8 +173,9 @@ def evaluate(
             node needs navformer_rl installed and, for ``navformer`` / ``dt``, the checkpoint at the same
             path.
         context_steps: ``navformer`` / ``dt`` only: the timesteps the policy attends to (an inference
-            option, not the paper's, ``NavFormerPolicy(context_steps=)``); None (default): the model's whole
-            context. Recorded in ``run.json``; results of another context are never reused.
+            option, not the paper's, ``NavFormerPolicy(context_steps=)``); None (default): the window the
+            checkpoint was trained on (``data.context_steps``) when set, else the model's whole context.
+            Recorded in ``run.json`` when not the whole; results of another context are never reused.
     """
     invoked = time.perf_counter()
     episode_set = _checked_episode_set(episode_set)

@@ -45,8 +45,9 @@ class PolicySpec:
         device: where ``navformer`` / ``dt`` run their model (``cpu``, ``cuda``, ``cuda:N``, ``auto``); the
             other methods ignore it (``dsac`` / ``matdn`` run their small networks on the CPU).
         context_steps: ``navformer`` / ``dt`` only: the timesteps the policy attends to
-            (``NavFormerPolicy(context_steps=)``, 1 to the model's window); None, the default and the paper's,
-            is the model's whole context.
+            (``NavFormerPolicy(context_steps=)``, 1 to the model's window); None, the default: the window the
+            checkpoint was trained on (``data.context_steps``) when set, else the model's whole context (the
+            paper's).
     """
 
     method: str
@@ -108,8 +109,9 @@ class PolicySpec:
                 "model_config": {k: getattr(config, k) for k in config.__dataclass_fields__},
                 "checkpoint_sha256": hashlib.sha256(weights.read_bytes()).hexdigest(),
                 "ablation": checkpoint_ablation(self.checkpoint),
-                # an inference option, not the paper's: recorded only when given
-                **({} if self.context_steps is None else {"context_steps": self.context_steps}),
+                # an inference option, not the paper's: recorded only when the policy uses one (given, or the
+                # window the checkpoint was trained on)
+                **({} if policy.context_steps is None else {"context_steps": policy.context_steps}),
                 # the transformer-step path: the compiled kernel or torch, equal results up to float rounding
                 **policy.describe(resolve_device(self.device)),
             }
@@ -146,15 +148,20 @@ class PolicySpec:
 
     def _load_checkpoint(self):
         """``(NavFormerPolicy on the CPU, NavFormerConfig)`` of ``navformer`` / ``dt`` with this spec's
-        ``native`` and ``context_steps`` (ValueError naming a context longer than the model's)."""
+        ``native`` and ``context_steps`` (ValueError naming a context longer than the model's); without
+        ``context_steps``, the window the checkpoint was trained on (``data.context_steps``) or the whole context."""
         from navformer_rl.baselines.dt import load_dt_policy
         from navformer_rl.baselines.navformer import load_navformer_policy
         from navformer_rl.modules.decoding.incremental import check_window_steps
 
         load = load_navformer_policy if self.method == "navformer" else load_dt_policy
         policy, config = load(self.checkpoint)
-        check_window_steps(self.context_steps, config.window_steps, "context_steps (--context-steps)")
-        policy.native, policy.context_steps = self.native, self.context_steps
+        policy.native = self.native
+        if (
+            self.context_steps is not None
+        ):  # else the loader's: the checkpoint's training window, or the whole
+            check_window_steps(self.context_steps, config.window_steps, "context_steps (--context-steps)")
+            policy.context_steps = self.context_steps
         return policy, config
 
     def build_with_config(self):

@@ -58,9 +58,13 @@ def load_pretrained(name: str, root: str | os.PathLike | None = None) -> tuple[A
 
 def load_pretrained_policy(name: str, root: str | os.PathLike | None = None, **policy_options: Any) -> Any:
     """The :class:`~navformer_rl.modules.NavFormerPolicy` (KV-cached, every robot in one batch) of the shipped
-    weights ``name``; ``policy_options`` go to its constructor (e.g. ``native=False``). Errors as
+    weights ``name``; ``policy_options`` go to its constructor (e.g. ``native=False``). Without a
+    ``context_steps`` option it attends to the window the weights were trained on (``data.context_steps``,
+    e.g. 16) or, for weights trained on whole trajectories, to its whole context. Errors as
     :func:`load_pretrained`."""
     from navformer_rl.modules import NavFormerPolicy
+    from navformer_rl.training.checkpoint import training_context_steps
 
     model, _ = load_pretrained(name, root)
+    policy_options.setdefault("context_steps", training_context_steps(resolve_pretrained(name, root)))
     return NavFormerPolicy(model, **policy_options)

@@ -241,6 +241,18 @@ def read_checkpoint_config(path: str | os.PathLike) -> dict[str, Any]:
     return header
 
 
+def training_context_steps(path: str | os.PathLike) -> int | None:
+    """The trajectory window a checkpoint was trained on (its training ``data.context_steps``): None when it
+    trained on windows up to the model's whole context (the paper's) or does not record its training
+    configuration. The policy loaders attend to this many steps by default (``docs/model.md``)."""
+    train_config = read_checkpoint_config(path).get("train_config")
+    data = train_config.get("data") if isinstance(train_config, dict) else None
+    value = data.get("context_steps") if isinstance(data, dict) else None
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+        return value
+    return None
+
+
 def recorded_world_size(header: Mapping[str, Any]) -> int:
     """The number of data-parallel processes that wrote a checkpoint (its header's ``run.world_size``; 1 for a
     checkpoint that records none)."""

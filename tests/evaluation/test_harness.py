@@ -14,7 +14,9 @@ from navformer_rl.evaluation import harness
 from navformer_rl.evaluation.episodes import load_episode_set
 from navformer_rl.evaluation.harness import evaluate, make_eval_env
 from navformer_rl.evaluation.measures import clustered_wilson_interval, collision_rate, spl
+from navformer_rl.modules import NavFormerConfig
 from navformer_rl.modules.decoding.native import native_status
+from navformer_rl.training.checkpoint import training_context_steps
 
 
 def test_writes_every_output(vrw_run, tiny_episodes):
@@ -373,3 +375,39 @@ def test_a_shorter_context_is_recorded_and_never_mixed_with_the_whole_contexts_r
         match=r"context_steps \(--context-steps\)=257: expected a whole number of timesteps from 1 to 256",
     ):
         evaluate("navformer", tiny_episodes, tmp_path / "long", context_steps=257, **kwargs)
+
+
+def test_a_checkpoint_trained_on_short_windows_attends_to_them_unless_told_otherwise(
+    tmp_path, tiny_episodes, checkpoints, checkpoint_factory
+):
+    """A checkpoint trained with ``data.context_steps=W`` evaluates on its last W steps by default (the same
+    results as ``context_steps=W`` on the same weights, recorded in run.json); ``context_steps`` overrides it;
+    the loaders and the shipped-weights path give the policy that window."""
+    from navformer_rl.baselines.dt import load_dt_policy
+    from navformer_rl.baselines.navformer import load_navformer_policy
+
+    windowed = checkpoint_factory(tmp_path / "windowed", NavFormerConfig(), {"data": {"context_steps": 2}})
+    assert training_context_steps(windowed) == 2 and training_context_steps(checkpoints["navformer"]) is None
+    assert load_navformer_policy(windowed)[0].context_steps == 2
+    assert load_navformer_policy(checkpoints["navformer"])[0].context_steps is None
+    dt = checkpoint_factory(tmp_path / "dt", NavFormerConfig.dt_baseline(), {"data": {"context_steps": 3}})
+    assert load_dt_policy(dt)[0].context_steps == 3
+    kwargs = dict(maps_per_setup=0, videos_per_setup=0, progress=False)
+    default = evaluate("navformer", tiny_episodes, tmp_path / "default", checkpoint=windowed, **kwargs)
+    assert json.loads((tmp_path / "default" / "run.json").read_text())["context_steps"] == 2
+    given = evaluate(
+        "navformer",
+        tiny_episodes,
+        tmp_path / "given",
+        checkpoint=checkpoints["navformer"],
+        context_steps=2,
+        **kwargs,
+    )
+    paths = [[r.path_length for r in result.records] for result in (default, given)]
+    assert paths[0] == paths[1]  # the same weights (seeded) on the same window
+    whole = evaluate(
+        "navformer", tiny_episodes, tmp_path / "default", checkpoint=windowed, context_steps=256, **kwargs
+    )
+    assert whole.episodes_computed == len(tiny_episodes)  # another window: nothing reused
+    assert json.loads((tmp_path / "default" / "run.json").read_text())["context_steps"] == 256
+    assert [r.path_length for r in whole.records] != paths[0]
