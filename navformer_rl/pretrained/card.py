@@ -244,6 +244,11 @@ def render_card(
         )
         + " |",
     ]
+    if data_config.get("context_steps") is not None:  # an opt-in, not the paper's: trained on shorter windows
+        lines.append(
+            f"| trajectory windows | {data_config['context_steps']} steps (data.context_steps); the policy attends "
+            "to as many at evaluation |"
+        )
     for dataset in training["data"]:
         size = (
             "size not recorded (folder not found at export)"

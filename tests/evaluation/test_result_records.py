@@ -161,3 +161,79 @@ def test_table1_records_of_the_context_give_the_quoted_paired_differences(
     assert pooled.setup == "all" and pooled.n_robot_trials == 2160
     assert pooled.difference["sr"] == pytest.approx(expected["sr"], abs=5e-4)
     assert pooled.difference["cr"] == pytest.approx(expected["cr"], abs=5e-4)
+
+
+TABLE3 = CONTEXT / "table3"
+
+
+@pytest.mark.parametrize(
+    ("record", "expected"),
+    [("navformer", -0.067), ("navformer_w16", 0.0), ("dt", 0.067), ("dt_w16", -0.017)],
+)
+def test_table3_records_give_the_quoted_unseen_minus_seen(record: str, expected: float) -> None:
+    """Table III's 120 episodes, gzip-compressed: the same Jackal among unseen against seen obstacle robots."""
+    from navformer_rl.evaluation.paired import unseen_obstacle_differences
+
+    _, difference = unseen_obstacle_differences(TABLE3 / record, n_resamples=200)
+    assert difference.n_robot_trials == 60
+    assert difference.difference["sr"] == pytest.approx(expected, abs=5e-4)
+
+
+def test_table3_records_pair_navformer_and_dt_with_16_steps() -> None:
+    _, rows = paired_differences(TABLE3 / "navformer_w16", TABLE3 / "dt_w16", n_resamples=200)
+    pooled = rows[-1]
+    assert pooled.n_robot_trials == 300
+    assert pooled.difference["sr"] == pytest.approx(0.020, abs=5e-4)
+    assert pooled.difference["cr"] == pytest.approx(-0.181, abs=5e-4)
+
+
+WINDOW16 = DATA_SCALING.parent / "window16"
+
+
+def test_window16_records_are_the_short_window_checkpoint_on_its_window_and_on_the_whole_context() -> None:
+    """Trained on 16-step windows: recorded attending to 16 steps (the checkpoint's default) and to 256."""
+    import json
+
+    short, whole = (
+        json.loads((WINDOW16 / name / "run.json").read_text())
+        for name in ("navformer_ctx16_it2500", "navformer_ctx16_it2500_w256")
+    )
+    assert short["context_steps"] == 16 and whole["context_steps"] == 256
+    assert short["checkpoint_sha256"] == whole["checkpoint_sha256"]
+    summaries = summarize_seed_groups(
+        {"w16": [WINDOW16 / "navformer_ctx16_it2500"], "w256": [WINDOW16 / "navformer_ctx16_it2500_w256"]}
+    )
+    assert [summary.runs[0].metrics.sr for summary in summaries] == pytest.approx([0.4333, 0.2417], abs=5e-5)
+    _, rows = paired_differences(
+        WINDOW16 / "navformer_ctx16_it2500", PAPER10K / "navformer_10k_s0_it02500", n_resamples=200
+    )
+    assert rows[-1].n_robot_trials == 120
+    assert rows[-1].difference["sr"] == pytest.approx(0.100, abs=5e-5)
+
+
+@pytest.mark.parametrize(
+    ("baseline", "expected"),
+    [("navformer_w16", 0.042), ("navformer", 0.102), ("dt", 0.060), ("dt_w16", 0.055)],
+)
+def test_window16_table1_record_gives_the_quoted_paired_differences(baseline: str, expected: float) -> None:
+    _, rows = paired_differences(WINDOW16 / "table1" / "navformer_ctx16", TABLE1 / baseline, n_resamples=200)
+    pooled = rows[-1]
+    assert pooled.n_robot_trials == 2160
+    assert pooled.difference["sr"] == pytest.approx(expected, abs=5e-4)
+
+
+def test_window16_navformer_and_dt_trained_the_same_way_pair_on_table1_and_table3() -> None:
+    import json
+
+    assert json.loads((WINDOW16 / "dt_ctx16_it2500" / "run.json").read_text())["context_steps"] == 16
+    _, rows = paired_differences(
+        WINDOW16 / "table1" / "navformer_ctx16", WINDOW16 / "table1" / "dt_ctx16", n_resamples=200
+    )
+    assert rows[-1].n_robot_trials == 2160
+    assert rows[-1].difference["sr"] == pytest.approx(0.023, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(0.146, abs=5e-4)
+    from navformer_rl.evaluation.paired import unseen_obstacle_differences
+
+    for record, expected in (("navformer_ctx16", 0.017), ("dt_ctx16", 0.050)):
+        _, difference = unseen_obstacle_differences(WINDOW16 / "table3" / record, n_resamples=200)
+        assert difference.difference["sr"] == pytest.approx(expected, abs=5e-4)

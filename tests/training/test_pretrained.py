@@ -129,6 +129,11 @@ def test_weights_trained_on_short_windows_load_attending_to_them(trained_run, tm
     assert NavFormerPolicy.from_pretrained("pretrained:navformer_w4").context_steps == 4
     assert NavFormerPolicy.from_pretrained("navformer_w4", context_steps=8).context_steps == 8
     assert load_pretrained_policy("navformer_w4", context_steps=None).context_steps is None
+    card = (root / "navformer_w4" / "MODEL_CARD.md").read_text()
+    assert (
+        "| trajectory windows | 4 steps (data.context_steps); the policy attends to as many at evaluation |"
+        in card
+    )
 
 
 def test_a_corrupt_shipped_file_is_refused_naming_it(shipped, datasets, tmp_path, monkeypatch, capsys):
