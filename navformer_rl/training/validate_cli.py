@@ -51,6 +51,13 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="a seeded subset of this many per dataset (all)",
     )
     parser.add_argument("--seed", type=cli_args.seed, default=0, help="subsets and window offsets (0)")
+    parser.add_argument(
+        "--context-steps",
+        type=cli_args.int_at_least(1),
+        default=None,
+        help="windows of at most this many steps for every checkpoint (default: the model's whole window, "
+        "256 steps; give the W of checkpoints trained with data.context_steps=W)",
+    )
     parser.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:N or auto")
     parser.add_argument("--json", metavar="FILE", help="also write the rows as JSON to FILE")
     parser.set_defaults(run=run)
@@ -76,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         max_trajectories=args.max_trajectories,
         seed=args.seed,
         device=args.device,
+        context_steps=args.context_steps,
     )
     losses = [key for key in rows[0] if key.startswith("loss_dt_")]
     print("| checkpoint | iteration | " + " | ".join(losses) + " |")

@@ -226,18 +226,22 @@ def score_checkpoints(
     max_trajectories: int | None = None,
     seed: int = 0,
     device: str = "cpu",
+    context_steps: int | None = None,
 ) -> list[dict[str, Any]]:
     """The teacher-forced action loss (eq. 10, eval mode) of trained checkpoints on trajectory datasets.
 
     The offline form of the trainer's validation (``navformer validate``): score checkpoints of one run at
     several iterations, or of several runs, on the same windows (fixed by ``seed``, as ``validation.seed``;
-    each window at most the model's context, ``NavFormerConfig.window_steps`` steps, as in training).
+    each window at most ``context_steps`` steps, default the model's context, ``NavFormerConfig.window_steps``,
+    as in the paper's training).
 
     Args:
         checkpoints: checkpoint paths in any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes.
         datasets: ``{kind: folder}`` with kinds ``e`` (D_e) and / or ``ca`` (D_ca).
         batch_trajs / max_trajectories / seed: as in :class:`ValidationConfig`.
         device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``.
+        context_steps: the windows' length for every checkpoint, 1 to the models' window (a checkpoint trained
+            with ``data.context_steps=W`` is scored as it trained with W); None: each model's whole window.
 
     Returns:
         One dict per checkpoint: ``{"checkpoint": folder, "iteration": int, "loss_dt_<task>": float, ...}``.
@@ -249,6 +253,7 @@ def score_checkpoints(
     from navformer_rl.data import open_dataset
     from navformer_rl.data.fit import check_model_reads
     from navformer_rl.modules import make_navformer_actor
+    from navformer_rl.modules.decoding.incremental import check_window_steps
     from navformer_rl.objectives import ActionMSELoss
     from navformer_rl.utils.devices import check_device, resolve_device
 
@@ -272,6 +277,7 @@ def score_checkpoints(
     models = [ckpt.load_policy_model(folder) for folder in folders]  # every checkpoint checked first
     for config, _ in models:
         check_model_reads(config, opened, names, tunable=False)
+        check_window_steps(context_steps, config.window_steps, "context_steps (--context-steps)")
     rows = []
     for folder, (config, model) in zip(folders, models, strict=True):
         model.to(torch_device)
@@ -282,8 +288,9 @@ def score_checkpoints(
         }
         with evaluation_mode(model):
             for kind, dataset in opened.items():
+                window = config.window_steps if context_steps is None else context_steps
                 batches = FixedTrajectoryBatches(
-                    dataset, batch_trajs, config.window_steps, seed, max_trajectories=max_trajectories
+                    dataset, batch_trajs, window, seed, max_trajectories=max_trajectories
                 )
                 row[f"loss_dt_{TASK_OF_KIND[kind]}"] = teacher_forced_loss(loss, batches, torch_device)
         rows.append(row)

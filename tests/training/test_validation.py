@@ -253,10 +253,35 @@ def test_scoring_a_checkpoint_offline_gives_the_logged_validation(
     assert __import__("json").loads(out.read_text())[0]["iteration"] == 4
 
 
+def test_scoring_on_the_training_windows_of_a_short_window_run_gives_its_logged_validation(
+    tiny_config, held_out, tmp_path
+):
+    """A run trained with ``data.context_steps=2`` validates on 2-step windows; ``context_steps=2`` offline
+    scores the same windows, the default (the whole window) others."""
+    from navformer_rl.training.validation import score_checkpoints
+
+    run = train(
+        tiny_config(
+            "optim.iterations=2",
+            "data.context_steps=2",
+            *validation_overrides(held_out, "validation.interval=2"),
+            f"output_dir={tmp_path / 'run'}",
+        )
+    )
+    datasets = {"e": str(held_out["e"]), "ca": str(held_out["ca"])}
+    (short,) = score_checkpoints([str(run.run_dir)], datasets, context_steps=2)
+    (whole,) = score_checkpoints([str(run.run_dir)], datasets)
+    for name in HELD_OUT:
+        (logged,) = [value for _, value in scalars(run.run_dir, f"validation/{name}")]
+        assert short[name] == pytest.approx(logged, rel=1e-6), name
+        assert whole[name] != pytest.approx(logged, rel=1e-6), name
+
+
 @pytest.mark.parametrize(
     "arguments, message",
     [
         ([], "give --exploration DIR and / or --collision DIR"),
+        (["--collision", "{ca}", "--context-steps", "300"], "context_steps (--context-steps)=300: expected"),
         (["--exploration", "{ca}"], "holds a 'ca' dataset, expected 'e'"),
         (["--collision", "/nonexistent/ca"], "ca dataset '/nonexistent/ca' does not exist"),
         (["--collision", "{ca}", "--device", "tpu"], "device"),
