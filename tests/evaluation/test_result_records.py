@@ -237,3 +237,11 @@ def test_window16_navformer_and_dt_trained_the_same_way_pair_on_table1_and_table
     for record, expected in (("navformer_ctx16", 0.017), ("dt_ctx16", 0.050)):
         _, difference = unseen_obstacle_differences(WINDOW16 / "table3" / record, n_resamples=200)
         assert difference.difference["sr"] == pytest.approx(expected, abs=5e-4)
+
+
+def test_window16_second_seed_record_gives_the_quoted_difference() -> None:
+    _, rows = paired_differences(
+        WINDOW16 / "navformer_ctx16_s1_it2500", WINDOW16 / "navformer_ctx16_it2500", n_resamples=200
+    )
+    assert rows[-1].n_robot_trials == 120
+    assert rows[-1].difference["sr"] == pytest.approx(-0.150, abs=5e-4)
