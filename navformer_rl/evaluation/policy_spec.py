@@ -157,9 +157,8 @@ class PolicySpec:
         load = load_navformer_policy if self.method == "navformer" else load_dt_policy
         policy, config = load(self.checkpoint)
         policy.native = self.native
-        if (
-            self.context_steps is not None
-        ):  # else the loader's: the checkpoint's training window, or the whole
+        # without context_steps: the loader's, the checkpoint's training window or the whole context
+        if self.context_steps is not None:
             check_window_steps(self.context_steps, config.window_steps, "context_steps (--context-steps)")
             policy.context_steps = self.context_steps
         return policy, config
