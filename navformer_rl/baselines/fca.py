@@ -2,20 +2,14 @@
 
 from __future__ import annotations
 
-import numpy as np
-import torch
-from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 
+from navformer_rl.baselines.expert_policy import ExpertPolicy
 
-class FCAPolicy(TensorDictModuleBase):
-    """Wraps :class:`navformer_rl.experts.policies.FCAController` for ``MultiRobotNavEnv``.
 
-    Privileged: after every reset the harness calls ``bind(env, seed)``, which resets the controller on
-    ``env.world`` and ``env.simulator`` (true map, other robots' true states, target positions) with a
-    generator seeded by the episode seed. Each call reads ``done_key`` (``("agents", "done")`` bool
-    ``[A, 1]``) to know which robots are still active and writes ``action_key`` float32 ``[A, 2]``.
+class FCAPolicy(ExpertPolicy):
+    """:class:`navformer_rl.experts.policies.FCAController` for ``MultiRobotNavEnv``: true map, other robots'
+    true states and target positions, read through ``bind(env, seed)`` (:class:`ExpertPolicy`).
 
     Args:
         controller_kwargs: forwarded to ``FCAController`` (``config``, ``nh_orca``, ``frontier_bias``,
@@ -28,24 +22,6 @@ class FCAPolicy(TensorDictModuleBase):
         action_key: NestedKey = ("agents", "action"),
         **controller_kwargs,
     ) -> None:
-        super().__init__()
         from navformer_rl.experts.policies import FCAController
 
-        self.done_key, self.action_key = done_key, action_key
-        self.in_keys = [done_key]
-        self.out_keys = [action_key]
-        self.controller = FCAController(**controller_kwargs)
-        self._simulator = None
-
-    def bind(self, env, seed: int) -> None:
-        """Start an episode: reset the controller on the env's current world and simulator."""
-        self._simulator = env.simulator
-        self.controller.reset(env.world, env.simulator, np.random.default_rng(int(seed)))
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        if self._simulator is None:
-            raise RuntimeError("FCAPolicy is privileged: call bind(env, seed) after every env reset")
-        done = tensordict.get(self.done_key).reshape(-1).cpu().numpy()
-        action = self.controller.act(self._simulator, ~done)
-        tensordict.set(self.action_key, torch.from_numpy(action).to(tensordict.device or "cpu"))
-        return tensordict
+        super().__init__(FCAController(**controller_kwargs), done_key, action_key)

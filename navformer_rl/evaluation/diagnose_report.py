@@ -45,7 +45,7 @@ def _pair(group: str, first: str, second: str, formatter: Callable[[Any], str]) 
 def _sighting(index: int, key: str, formatter: Callable[[Any], str]) -> Render:
     def render(block: dict[str, Any]) -> str:
         entries = block["sightings"]
-        return formatter(entries[index][key] if index < len(entries) else None)
+        return formatter(entries[index].get(key) if index < len(entries) else None)
 
     return render
 
@@ -87,6 +87,7 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, Render]]:
                 "robot-trials with such a sighting",
                 _sighting(k, "robot_trials_with_sighting_fraction", _pct),
             ),
+            ("first sighting at step (median of those)", _sighting(k, "first_sighting_step_median", _num(0))),
             (f"arrival within {ARRIVAL_WINDOW} steps (per sighting)", _sighting(k, "arrive_fraction", _pct)),
             (
                 f"arrival within {ARRIVAL_WINDOW} steps (first sighting)",

@@ -21,8 +21,8 @@ from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4
 from navformer_rl.tasks import label_ablation
 from navformer_rl.utils.devices import check_device, resolve_device
 
-METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca", "dsac", "matdn")
-"""Methods the harness can run. ``navformer`` / ``dt`` (training checkpoints) and ``dsac`` / ``matdn`` (PPO
+METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca", "dsac", "matdn", "frontier")
+"""Methods the harness can run (``frontier``: the D_e exploration expert, not a paper baseline). ``navformer`` / ``dt`` (training checkpoints) and ``dsac`` / ``matdn`` (PPO
 checkpoints, ``navformer train-ppo``) need a checkpoint."""
 CHECKPOINT_METHODS = ("navformer", "dt")
 """The methods whose checkpoint holds a ``NavFormerModel`` (run by ``NavFormerPolicy``)."""
@@ -182,6 +182,10 @@ class PolicySpec:
             from navformer_rl.baselines.fca import FCAPolicy
 
             return FCAPolicy(), None
+        if self.method == "frontier":
+            from navformer_rl.baselines.frontier import FrontierPolicy
+
+            return FrontierPolicy(), None
         raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
 
 

@@ -78,7 +78,7 @@ def test_cli_errors(tmp_path, capsys):
             _run(argv)
     err = capsys.readouterr().err
     assert (
-        "argument --method: invalid choice: 'random' (choose from 'navformer', 'dt', 'vrw', 'fca', 'dsac', 'matdn')"
+        "argument --method: invalid choice: 'random' (choose from 'navformer', 'dt', 'vrw', 'fca', 'dsac', 'matdn', 'frontier')"
         in err
     )
     assert "argument --protocol: invalid choice: 'table9'" in err

@@ -5,6 +5,7 @@ import json
 import shutil
 
 import pytest
+import torch
 
 from navformer_rl.evaluation.episodes import save_episode_set
 from navformer_rl.evaluation.harness import METHODS, PolicySpec, checkpoint_ablation, evaluate
@@ -153,10 +154,11 @@ def test_corrupt_checkpoints_name_the_file(tmp_path, tiny_episodes, checkpoints)
 
 def test_unknown_method_lists_the_valid_ones(tmp_path, tiny_episodes):
     with pytest.raises(
-        ValueError, match="unknown method 'a3c'; expected one of navformer, dt, vrw, fca, dsac, matdn"
+        ValueError,
+        match="unknown method 'a3c'; expected one of navformer, dt, vrw, fca, dsac, matdn, frontier",
     ):
         evaluate("a3c", tiny_episodes, tmp_path / "x", progress=False)
-    assert METHODS == ("navformer", "dt", "vrw", "fca", "dsac", "matdn")
+    assert METHODS == ("navformer", "dt", "vrw", "fca", "dsac", "matdn", "frontier")
 
 
 def test_bad_episode_file_and_worker_count(tmp_path, tiny_episodes):
@@ -181,6 +183,30 @@ def test_fca_reaches_targets(tmp_path, tiny_episodes):
     assert all(r.success for r in result.records)
     assert all(r.steps == r.success_step for r in result.records)
     assert result.summaries[0].metrics.sr == 1.0
+
+
+def test_the_exploration_expert_finds_its_targets_without_knowing_where_they_are(tmp_path, tiny_episodes):
+    """The D_e expert, closed-loop on the evaluation's episodes: both robots of the first tiny episode find
+    their target within 80 steps; it is reset on every episode's world (bind), so a second run repeats it."""
+    episodes = dataclasses.replace(tiny_episodes, episodes=tiny_episodes.episodes[:1], max_steps=80)
+    first = evaluate(
+        "frontier", episodes, tmp_path / "a", maps_per_setup=0, videos_per_setup=0, progress=False
+    )
+    again = evaluate(
+        "frontier", episodes, tmp_path / "b", maps_per_setup=0, videos_per_setup=0, progress=False
+    )
+    assert all(r.success for r in first.records)
+    assert [r.success_step for r in first.records] == [r.success_step for r in again.records]
+
+
+def test_an_expert_policy_refuses_to_act_before_it_is_bound():
+    from tensordict import TensorDict
+
+    from navformer_rl.baselines import FrontierPolicy
+
+    td = TensorDict({("agents", "done"): torch.zeros(2, 1, dtype=torch.bool)})
+    with pytest.raises(RuntimeError, match="FrontierPolicy is privileged: call bind"):
+        FrontierPolicy()(td)
 
 
 def test_another_methods_results_are_not_overwritten(tmp_path, tiny_episodes):
