@@ -18,7 +18,9 @@ answer to the observation at ``pose[t]``; ``contact[t]`` is what happened on tha
   (:data:`SIGHTING_RANGES`); the fraction followed by arrival within :data:`ARRIVAL_WINDOW` steps, the mean
   change of the distance to the target over the next :data:`APPROACH_WINDOW` steps (negative = closer;
   cut at the trial's end), and the same for each robot-trial's first sighting; the median step of the
-  first sighting (how long exploring took, over robot-trials that see their target); whether the target is
+  first sighting (how long exploring took, over robot-trials that see their target) and the share of those
+  robot-trials that succeed (SR = share with a sighting x this share + the rare successes without one:
+  finding the target apart from reaching it); whether the target is
   recognised: on sightings with the target more than :data:`OFF_CENTRE` off the heading, the share of turn
   commands towards it (a policy that steers at the target it sees turns towards it; one that does not
   react to it turns either way about equally).
@@ -197,7 +199,7 @@ def sighting_measures(
     """The ``sightings`` block of the summary: one entry per range (module docstring)."""
     blocks = []
     for max_range in ranges:
-        arrived, change, first_arrived, first_step, toward = [], [], [], [], []
+        arrived, change, first_arrived, first_step, succeeded, toward = [], [], [], [], [], []
         for r in robots:
             steps = sightings(r, max_range)
             if steps.size == 0:
@@ -207,6 +209,7 @@ def sighting_measures(
             change.append(r.distance[np.minimum(steps + approach, r.n)] - r.distance[steps])
             first_arrived.append(bool(arrives[0]))
             first_step.append(int(steps[0]))
+            succeeded.append(bool(r.success))
             if r.target is not None:
                 acting = steps[steps < r.n]  # a sighting at the last pose has no command
                 off = bearing(r)[acting]
@@ -225,6 +228,7 @@ def sighting_measures(
                 "robot_trials_with_sighting_fraction": _ratio(len(first_arrived), len(robots)),
                 "first_sighting_arrive_fraction": _mean(first_arrived),
                 "first_sighting_step_median": float(np.median(first_step)) if first_step else None,
+                "robot_trials_with_sighting_success_fraction": _mean(succeeded),
                 "off_centre_sightings": int(toward.size),
                 "turn_toward_fraction": _mean(toward),
             }

@@ -88,6 +88,7 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, Render]]:
                 _sighting(k, "robot_trials_with_sighting_fraction", _pct),
             ),
             ("first sighting at step (median of those)", _sighting(k, "first_sighting_step_median", _num(0))),
+            ("SR of those", _sighting(k, "robot_trials_with_sighting_success_fraction", _pct)),
             (f"arrival within {ARRIVAL_WINDOW} steps (per sighting)", _sighting(k, "arrive_fraction", _pct)),
             (
                 f"arrival within {ARRIVAL_WINDOW} steps (first sighting)",

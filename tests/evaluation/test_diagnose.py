@@ -152,6 +152,7 @@ def test_a_sighting_followed_by_arrival_is_counted_with_its_approach():
     assert three["arrive_fraction"] == pytest.approx(0.5)
     assert three["first_sighting_arrive_fraction"] == pytest.approx(0.5)
     assert three["first_sighting_step_median"] == 10.0  # 3.0 m from the target after 10 steps of 0.1 m
+    assert three["robot_trials_with_sighting_success_fraction"] == 0.5
     # over the next 10 steps: -1.0 m while the trial lasts 10 more steps (t <= 16), else to the end
     change = [-0.1 * min(10, 26 - t) for t in range(10, 26)]
     assert three["mean_distance_change"] == pytest.approx(np.mean(change))
@@ -165,6 +166,7 @@ def test_a_target_out_of_view_is_no_sighting():
     assert block["sightings"] == 0 and block["arrive_fraction"] is None
     assert block["robot_trials_with_sighting_fraction"] == 0.0
     assert block["first_sighting_step_median"] is None
+    assert block["robot_trials_with_sighting_success_fraction"] is None
 
 
 def test_arrival_later_than_30_steps_after_a_sighting_does_not_count():
