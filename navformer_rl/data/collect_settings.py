@@ -15,7 +15,7 @@ import numpy as np
 
 from navformer_rl.constants import MAX_EPISODE_STEPS
 from navformer_rl.data.schema import DatasetKind
-from navformer_rl.utils.checks import check_number
+from navformer_rl.utils.checks import check_int, check_number
 
 MAZE_SIZES = (5.0, 7.5, 10.0, 12.5, 15.0, 17.5)
 """World sides for D_e and D_ssl: the paper's 5-17.5 m range on the 2.5 m maze-cell grid."""
@@ -60,9 +60,14 @@ class DaggerSettings:
     beta: float = 0.5
     transformer_step: str = "torch"
     """``"native"`` (the compiled kernel) or ``"torch"``: every worker decodes the same way."""
+    context_steps: int | None = None
+    """The timesteps the policy attends to, as deployed: the window the checkpoint was trained on
+    (``data.context_steps``); None: the model's whole context (the paper's)."""
 
     def __post_init__(self) -> None:
         check_number(self.beta, "dagger beta", at_least=0.0, at_most=1.0)
+        if self.context_steps is not None:
+            check_int(self.context_steps, "dagger context_steps")
         if self.transformer_step not in ("native", "torch"):
             raise ValueError(
                 f"dagger transformer_step={self.transformer_step!r}: expected 'native' or 'torch'"
@@ -74,6 +79,8 @@ class DaggerSettings:
             "beta": float(self.beta),
             "weights_sha256": self.weights_sha256,
             "transformer_step": self.transformer_step,
+            # recorded only for a policy on shorter windows, so whole-context collections keep their record
+            **({} if self.context_steps is None else {"context_steps": int(self.context_steps)}),
         }
 
 

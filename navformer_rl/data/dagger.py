@@ -9,7 +9,8 @@ from a seeded stream of the work unit (:func:`~navformer_rl.data.collect_setting
 collection stays deterministic, resumable and independent of the number of workers.
 
 The policy is a NavFormer or DT checkpoint run by :class:`~navformer_rl.modules.inference.NavFormerPolicy` on
-the CPU, batched over the robots of an episode, its context its own past actions (as deployed). Each worker
+the CPU, batched over the robots of an episode, its context its own past actions, on the window the checkpoint
+was trained on (as deployed: ``navformer evaluate``'s default). Each worker
 process loads it once (:func:`policy_for`) and checks the weights' sha256 against the collection's settings.
 """
 
@@ -43,7 +44,12 @@ def dagger_settings(checkpoint: str, beta: float = 0.5) -> DaggerSettings:
             or ``beta`` outside [0, 1].
     """
     from navformer_rl.modules.inference import NavFormerPolicy
-    from navformer_rl.training.checkpoint import WEIGHTS_FILENAME, load_policy_model, resolve_checkpoint
+    from navformer_rl.training.checkpoint import (
+        WEIGHTS_FILENAME,
+        load_policy_model,
+        resolve_checkpoint,
+        training_context_steps,
+    )
     from navformer_rl.training.pretrained_registry import file_sha256
 
     check_number(beta, "dagger beta", at_least=0.0, at_most=1.0)
@@ -55,11 +61,14 @@ def dagger_settings(checkpoint: str, beta: float = 0.5) -> DaggerSettings:
         weights_sha256=file_sha256(folder / WEIGHTS_FILENAME),
         beta=float(beta),
         transformer_step=step,
+        context_steps=training_context_steps(folder),
     )
 
 
 @functools.lru_cache(maxsize=2)
-def _cached_policy(folder: str, weights_sha256: str, native: bool) -> NavFormerPolicy:
+def _cached_policy(
+    folder: str, weights_sha256: str, native: bool, context_steps: int | None
+) -> NavFormerPolicy:
     from navformer_rl.modules.inference import NavFormerPolicy
     from navformer_rl.training.checkpoint import WEIGHTS_FILENAME, load_policy_model
     from navformer_rl.training.pretrained_registry import file_sha256
@@ -81,13 +90,19 @@ def _cached_policy(folder: str, weights_sha256: str, native: bool) -> NavFormerP
         action_key="action",
         is_init_key=None,
         native=native,
+        context_steps=context_steps,
     )
 
 
 def policy_for(settings: DaggerSettings) -> NavFormerPolicy:
     """The policy of ``settings``, loaded once per process (its weights' sha256 checked; ``ValueError`` when
     the file changed since :func:`dagger_settings`)."""
-    return _cached_policy(settings.checkpoint, settings.weights_sha256, settings.transformer_step == "native")
+    return _cached_policy(
+        settings.checkpoint,
+        settings.weights_sha256,
+        settings.transformer_step == "native",
+        settings.context_steps,
+    )
 
 
 class DaggerMixture:

@@ -31,8 +31,8 @@ CA_SETTINGS = {"n_trajectories": 5, "other_robots": (2, 2), "max_steps": 40}
 """Two arena episodes of 3 robots (DAgger keeps every robot's trajectory: 3 + the first 2 of the second)."""
 
 
-def make_run(run_dir: Path, config: NavFormerConfig, seed: int) -> Path:
-    """A run directory with one seeded, untrained checkpoint of ``config``."""
+def make_run(run_dir: Path, config: NavFormerConfig, seed: int, train_config: dict | None = None) -> Path:
+    """A run directory with one seeded, untrained checkpoint of ``config`` (``train_config`` in its header)."""
     torch.manual_seed(seed)
     model = NavFormerModel(config)
     save_checkpoint(
@@ -40,7 +40,7 @@ def make_run(run_dir: Path, config: NavFormerConfig, seed: int) -> Path:
         1,
         model_state=model.state_dict(),
         model_config=dataclasses.asdict(config),
-        train_config={},
+        train_config=train_config or {},
         resume_state=None,
     )
     return run_dir
@@ -99,6 +99,22 @@ def test_plain_settings_record_what_they_always_did():
     assert record == {k: v for k, v in dataclasses.asdict(plain).items() if k not in ("dagger", "worlds")}
 
 
+def deployed_policy(run: Path, settings, context_steps: int | None = None) -> NavFormerPolicy:
+    """The checkpoint at ``run`` as a collection runs it (keys of the raw simulator frames)."""
+    _, model = load_policy_model(run)
+    return NavFormerPolicy(
+        model,
+        pixels_key="pixels",
+        target_pixels_key="target_pixels",
+        action_key="action",
+        step_count_key=None,
+        reward_key=None,
+        is_init_key=None,
+        native=settings.dagger.transformer_step == "native",
+        context_steps=context_steps,
+    )
+
+
 def policy_rollout(settings, unit: int, policy: NavFormerPolicy):
     """D_e episode 0 of ``unit`` driven by ``policy`` alone, with the expert asked at every step: poses
     float32 ``[T, 3]`` (before each step), the expert's labels and the policy's actions, ``[T, 2]`` each."""
@@ -137,17 +153,7 @@ def test_beta_zero_drives_with_the_policy_and_stores_the_experts_labels(method, 
     labels along that path (not the actions that moved the robot)."""
     s = settings_for("e", "small", seed=4, dagger=dagger_settings(str(runs[method]), 0.0), **E_SETTINGS)
     ds = open_dataset(collect("e", tmp_path / "e", s, workers=1, progress=False))
-    _, model = load_policy_model(runs[method])
-    policy = NavFormerPolicy(
-        model,
-        pixels_key="pixels",
-        target_pixels_key="target_pixels",
-        action_key="action",
-        step_count_key=None,
-        reward_key=None,
-        is_init_key=None,
-        native=s.dagger.transformer_step == "native",
-    )
+    policy = deployed_policy(runs[method], s)
     rows, ep = ds.rows, ds.episodes
     assert ds.metadata["counts"]["policy_steps"] == ds.metadata["counts"]["robot_steps"] == len(rows)
     for unit in range(2):
@@ -157,6 +163,26 @@ def test_beta_zero_drives_with_the_policy_and_stores_the_experts_labels(method, 
         np.testing.assert_array_equal(rows["privileged", "pose"][start : start + length].numpy(), poses)
         np.testing.assert_array_equal(rows["action"][start : start + length].numpy(), labels)
         assert np.abs(labels - driven).max() > 0.1  # the labels are not what moved the robot
+
+
+def test_a_policy_trained_on_short_windows_drives_on_them(tmp_path):
+    """A checkpoint trained with data.context_steps=W drives the collection attending to its last W steps,
+    as `navformer evaluate` deploys it: the stored path is that policy's, not the whole-context one's; the
+    settings record the window (and a whole-context policy's record stays as it was)."""
+    run = make_run(tmp_path / "w2", TINY_MODEL, 0, train_config={"data": {"context_steps": 2}})
+    dagger = dagger_settings(str(run), 0.0)
+    assert dagger.context_steps == 2 and dagger.record()["context_steps"] == 2
+    assert (
+        "context_steps" not in dagger_settings(str(make_run(tmp_path / "whole", TINY_MODEL, 0)), 0.0).record()
+    )
+    s = settings_for("e", "small", seed=4, dagger=dagger, **E_SETTINGS)
+    ds = open_dataset(collect("e", tmp_path / "e", s, workers=1, progress=False))
+    length = int(ds.episodes.length[0])
+    stored = ds.rows["privileged", "pose"][:length].numpy()
+    poses, _, _ = policy_rollout(s, 0, deployed_policy(run, s, context_steps=2))
+    np.testing.assert_array_equal(stored, poses)
+    whole, _, _ = policy_rollout(s, 0, deployed_policy(run, s))
+    assert len(whole) != length or not np.array_equal(whole, stored)
 
 
 def test_a_resumed_dagger_collection_equals_an_uninterrupted_one(runs, tmp_path, folder_bytes):
