@@ -245,3 +245,58 @@ def test_window16_second_seed_record_gives_the_quoted_difference() -> None:
     )
     assert rows[-1].n_robot_trials == 120
     assert rows[-1].difference["sr"] == pytest.approx(-0.150, abs=5e-4)
+
+
+EXPERT = DATA_SCALING.parent / "expert"
+
+
+def test_exploration_expert_records_give_the_quoted_success_rates() -> None:
+    for record, expected, trials in (("frontier", 0.775, 40), ("table1/frontier", 0.5495, 540)):
+        (summary,) = summarize_seed_groups({record: [EXPERT / record]})
+        assert summary.runs[0].metrics.sr == pytest.approx(expected, abs=5e-5)
+        assert summary.runs[0].metrics.n_trials == trials
+    _, rows = paired_differences(WINDOW16 / "navformer_ctx16_it2500", EXPERT / "frontier", n_resamples=200)
+    assert rows[-1].n_robot_trials == 120
+    assert rows[-1].difference["sr"] == pytest.approx(-0.342, abs=5e-4)
+
+
+@pytest.mark.parametrize(
+    ("record", "found", "sr_found"),
+    [
+        ("frontier", 0.817, 0.939),
+        ("navformer_ctx16", 0.550, 0.727),
+        ("dt_ctx16", 0.483, 0.879),
+        ("shipped_navformer", 0.442, 0.830),
+        ("dagger_it500", 0.575, 0.797),
+        ("control_it500", 0.467, 0.750),
+    ],
+)
+def test_diagnosis_records_split_sr_into_finding_and_reaching(
+    record: str, found: float, sr_found: float
+) -> None:
+    """The quoted decomposition: robot-trials that see their target within 3 m, and the SR of those."""
+    from navformer_rl.evaluation.diagnose import load_diagnosis
+
+    summary = load_diagnosis(EXPERT / "diagnosis" / record)["all"]
+    three = summary["sightings"][0]
+    assert three["range_m"] == 3.0
+    assert three["robot_trials_with_sighting_fraction"] == pytest.approx(found, abs=5e-4)
+    assert three["robot_trials_with_sighting_success_fraction"] == pytest.approx(sr_found, abs=5e-4)
+    # SR = found x SR of those + the successes without such a sighting
+    assert summary["success_rate"] >= found * sr_found - 1e-9
+
+
+def test_window16_dagger_records_give_the_quoted_differences() -> None:
+    dagger = WINDOW16 / "dagger" / "dagger_it500"
+    for baseline, expected in (
+        (WINDOW16 / "dagger" / "control_it500", 0.117),
+        (WINDOW16 / "navformer_ctx16_it2500", 0.050),
+    ):
+        _, rows = paired_differences(dagger, baseline, n_resamples=200)
+        assert rows[-1].n_robot_trials == 120
+        assert rows[-1].difference["sr"] == pytest.approx(expected, abs=5e-4)
+
+
+def test_window16_second_seed_of_dt_gives_the_quoted_success_rate() -> None:
+    (summary,) = summarize_seed_groups({"dt_s1": [WINDOW16 / "dt_ctx16_s1_it2500"]})
+    assert summary.runs[0].metrics.sr == pytest.approx(0.2333, abs=5e-5)
