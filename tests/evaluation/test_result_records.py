@@ -300,3 +300,15 @@ def test_window16_dagger_records_give_the_quoted_differences() -> None:
 def test_window16_second_seed_of_dt_gives_the_quoted_success_rate() -> None:
     (summary,) = summarize_seed_groups({"dt_s1": [WINDOW16 / "dt_ctx16_s1_it2500"]})
     assert summary.runs[0].metrics.sr == pytest.approx(0.2333, abs=5e-5)
+
+
+def test_window16_second_seed_on_table1_gives_the_quoted_differences() -> None:
+    seed1 = WINDOW16 / "table1" / "navformer_ctx16_s1"
+    for baseline, expected in (
+        (WINDOW16 / "table1" / "navformer_ctx16", -0.107),
+        (TABLE1 / "navformer", -0.006),
+        (TABLE1 / "dt", -0.048),
+    ):
+        _, rows = paired_differences(seed1, baseline, n_resamples=200)
+        assert rows[-1].n_robot_trials == 2160
+        assert rows[-1].difference["sr"] == pytest.approx(expected, abs=5e-4)
