@@ -312,3 +312,10 @@ def test_window16_second_seed_on_table1_gives_the_quoted_differences() -> None:
         _, rows = paired_differences(seed1, baseline, n_resamples=200)
         assert rows[-1].n_robot_trials == 2160
         assert rows[-1].difference["sr"] == pytest.approx(expected, abs=5e-4)
+
+
+def test_exploration_expert_table3_record_gives_the_quoted_difference() -> None:
+    from navformer_rl.evaluation.paired import unseen_obstacle_differences
+
+    _, difference = unseen_obstacle_differences(EXPERT / "table3" / "frontier", n_resamples=200)
+    assert difference.difference["sr"] == pytest.approx(0.017, abs=5e-4)
