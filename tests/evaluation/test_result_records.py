@@ -319,3 +319,11 @@ def test_exploration_expert_table3_record_gives_the_quoted_difference() -> None:
 
     _, difference = unseen_obstacle_differences(EXPERT / "table3" / "frontier", n_resamples=200)
     assert difference.difference["sr"] == pytest.approx(0.017, abs=5e-4)
+
+
+def test_window16_dagger_table1_record_gives_the_quoted_difference() -> None:
+    _, rows = paired_differences(
+        WINDOW16 / "dagger" / "table1_dagger_it500", WINDOW16 / "table1" / "navformer_ctx16", n_resamples=200
+    )
+    assert rows[-1].n_robot_trials == 2160
+    assert rows[-1].difference["sr"] == pytest.approx(-0.003, abs=5e-4)
