@@ -327,3 +327,12 @@ def test_window16_dagger_table1_record_gives_the_quoted_difference() -> None:
     )
     assert rows[-1].n_robot_trials == 2160
     assert rows[-1].difference["sr"] == pytest.approx(-0.003, abs=5e-4)
+
+
+def test_window16_navformer_and_dt_of_the_second_seed_pair_on_table1() -> None:
+    _, rows = paired_differences(
+        WINDOW16 / "table1" / "navformer_ctx16_s1", WINDOW16 / "table1" / "dt_ctx16_s1", n_resamples=200
+    )
+    assert rows[-1].n_robot_trials == 2160
+    assert rows[-1].difference["sr"] == pytest.approx(0.016, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(-0.026, abs=5e-4)
