@@ -22,8 +22,9 @@ from navformer_rl.tasks import label_ablation
 from navformer_rl.utils.devices import check_device, resolve_device
 
 METHODS: tuple[str, ...] = ("navformer", "dt", "vrw", "fca", "dsac", "matdn", "frontier")
-"""Methods the harness can run (``frontier``: the D_e exploration expert, not a paper baseline). ``navformer`` / ``dt`` (training checkpoints) and ``dsac`` / ``matdn`` (PPO
-checkpoints, ``navformer train-ppo``) need a checkpoint."""
+"""Methods the harness can run (``frontier``: the D_e exploration expert, not a paper baseline).
+``navformer`` / ``dt`` (training checkpoints) and ``dsac`` / ``matdn`` (PPO checkpoints, ``navformer
+train-ppo``) need a checkpoint."""
 CHECKPOINT_METHODS = ("navformer", "dt")
 """The methods whose checkpoint holds a ``NavFormerModel`` (run by ``NavFormerPolicy``)."""
 ONLINE_METHODS = ("dsac", "matdn")
