@@ -9,8 +9,8 @@ happen only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
 set ``NAVFORMER_DEBUG=1`` to see the traceback. Ctrl-C and SIGTERM stop a command the same way (its
-clean-up runs: process pools and collectors shut down, finished work stays) with one line and status 130
-or 143.
+clean-up runs: process pools and collectors shut down, finished work stays; ``train`` first checkpoints the
+iteration under way) with one line and status 130 or 143.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import threading
 from collections.abc import Sequence
 
 from navformer_rl.utils.durable import FolderLockedError
+from navformer_rl.utils.interrupts import Terminated
 from navformer_rl.utils.mp4 import VideoEncoderError
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
@@ -62,11 +63,6 @@ def build_parser() -> argparse.ArgumentParser:
     for module_name in SUBCOMMAND_MODULES:
         importlib.import_module(module_name).register(subparsers)
     return parser
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C's ``KeyboardInterrupt`` so that the same clean-up runs (collector and
-    process-pool shutdown, the one-line report); the exit status is 143."""
 
 
 def _raise_terminated(signum: int, frame) -> None:

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from navformer_rl.training import checkpoint as ckpt
 from navformer_rl.training import distributed as dist
 from navformer_rl.training.config import TrainConfig, named_run, validate_config
@@ -24,6 +26,7 @@ from navformer_rl.training.trainer import Trainer
 from navformer_rl.utils.allocator import keep_freed_memory, release_free_memory
 from navformer_rl.utils.devices import bfloat16_autocast_warning
 from navformer_rl.utils.durable import atomic_write_text
+from navformer_rl.utils.interrupts import StopRequest, stop_at_safe_point
 
 
 @dataclass
@@ -148,6 +151,16 @@ def _truncate_csv_scalars(folder: Path, last_step: int) -> None:
             atomic_write_text(csv, "".join(f"{row}\n" for row in kept))
 
 
+def _stop_agreed(stop: StopRequest, trainer: Trainer) -> bool:
+    """Whether a Ctrl-C or SIGTERM came to any process of the run (one collective per iteration when
+    several train, so that every process saves the same checkpoint and stops after the same iteration)."""
+    distributed = trainer.distributed
+    if not distributed.enabled:
+        return stop.requested
+    flag = torch.tensor([float(stop.requested)], device=distributed.device or trainer.device)
+    return bool(distributed.all_reduce_sum(flag).item() > 0)
+
+
 def train(cfg: TrainConfig) -> TrainResult:
     """Train NavFormer as configured; see :mod:`navformer_rl.training` for one iteration.
 
@@ -156,6 +169,10 @@ def train(cfg: TrainConfig) -> TrainResult:
     iterations), validation when due, a checkpoint every ``checkpoint.interval`` iterations and at the end
     (then, with ``keep_freed_memory``, ``malloc_trim`` hands the free heap back), a tqdm bar named after
     ``logger.exp_name``. ``timeit`` times the phases (``time/<phase>`` in the log rows).
+
+    A Ctrl-C or SIGTERM (a scheduler's preemption) lets the iteration under way finish, saves a checkpoint
+    and then raises (``KeyboardInterrupt``, :class:`~navformer_rl.utils.interrupts.Terminated` for SIGTERM), so
+    ``resume=True`` loses nothing; a second one stops at once, back to the last checkpoint.
 
     Returns a :class:`TrainResult`. With ``resume=True`` the run continues from the latest checkpoint and
     produces the same subsequent losses and weights as an uninterrupted run.
@@ -184,20 +201,23 @@ def _train(cfg: TrainConfig) -> TrainResult:
         disable=not (cfg.logger.progress and distributed.is_main),
         desc=f"train {trainer.cfg.logger.exp_name}",
     )
-    with contextlib.closing(bar), contextlib.closing(trainer):
+    with contextlib.closing(bar), contextlib.closing(trainer), stop_at_safe_point() as stop:
         while trainer.iteration < total:
             metrics = trainer.step()
             trainer.record(metrics)
             if trainer.validation_due():
                 with timeit("validation"):
                     trainer.log(trainer.validate(), timings=False)
-            if trainer.iteration % cfg.checkpoint.interval == 0 or trainer.iteration == total:
+            stopping = _stop_agreed(stop, trainer)
+            if stopping or trainer.iteration % cfg.checkpoint.interval == 0 or trainer.iteration == total:
                 with timeit("checkpoint"):
                     last_checkpoint = trainer.save_checkpoint()
                     if cfg.keep_freed_memory:  # the kept heap's fragmentation must not grow for the whole run
                         release_free_memory()
             bar.update(1)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}", fps=f"{metrics['frames_per_s']:.0f}")
+            if stopping and trainer.iteration < total:
+                raise stop.interrupt()
     distributed.barrier()  # rank 0 has written everything
     if last_checkpoint is None:
         last_checkpoint = ckpt.latest_checkpoint(trainer.run_dir)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -50,7 +51,8 @@ def free_port() -> int:
 
 def _worker(rank: int, base: list[str], out: str, ports: list[int]) -> None:
     """One process of the data-parallel runs: a straight 4-iteration run, then a run that checkpoints at 2,
-    logs iteration 3 and "crashes", then its resume. Saves what the parent checks to ``out/rank<r>.pt``."""
+    logs iteration 3 and "crashes", then its resume, then a run whose rank 1 gets SIGTERM after iteration 1.
+    Saves what the parent checks to ``out/rank<r>.pt``."""
     from navformer_rl.training import distributed, run
     from navformer_rl.training.trainer import Trainer
 
@@ -91,7 +93,26 @@ def _worker(rank: int, base: list[str], out: str, ports: list[int]) -> None:
         trainer.close()
     os.environ["MASTER_PORT"] = str(ports[2])
     train(config(*interrupted, "resume=true"))
-    straight, resumed = trainers
+    straight, resumed = trainers[:2]
+
+    # SIGTERM to rank 1 alone, after iteration 1: every process saves iteration 1 and stops
+    step = Trainer.step
+
+    def step_then_signal(self: Trainer) -> dict[str, float]:
+        metrics = step(self)
+        if rank == 1 and self.iteration == 1:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return metrics
+
+    Trainer.step = step_then_signal
+    os.environ["MASTER_PORT"] = str(ports[3])
+    try:
+        train(config(f"output_dir={out}/signalled", "checkpoint.interval=100"))
+        stopped_by = None
+    except KeyboardInterrupt as interrupt:
+        stopped_by = type(interrupt).__name__
+    finally:
+        Trainer.step = step
     torch.save(
         {
             "writes": writes,
@@ -101,6 +122,7 @@ def _worker(rank: int, base: list[str], out: str, ports: list[int]) -> None:
             "optimizers": {k: o.state_dict()["state"] for k, o in straight.optimizers.items()},
             "resumed_byol": resumed.byol_loss.state_dict(),
             "logger": straight.logger is not None,
+            "stopped_by": stopped_by,
         },
         f"{out}/rank{rank}.pt",
     )
@@ -111,7 +133,7 @@ def runs(datasets, tmp_path_factory) -> dict:
     """The data-parallel runs (2 processes) and one process's run of the same global batches."""
     out = tmp_path_factory.mktemp("distributed")
     base = [*data_overrides(datasets), *TINY_OVERRIDES, *COMMON]
-    ports = [free_port() for _ in range(3)]
+    ports = [free_port() for _ in range(4)]
     torch.multiprocessing.spawn(_worker, args=(base, str(out), ports), nprocs=WORLD_SIZE, join=True)
     single = train(load_train_config([*base, f"output_dir={out / 'single'}", "checkpoint.interval=4"]))
     ranks = [torch.load(out / f"rank{r}.pt", weights_only=True) for r in range(WORLD_SIZE)]
@@ -201,6 +223,14 @@ def test_a_resumed_data_parallel_run_equals_the_uninterrupted_one(runs):
     assert all(torch.equal(wa[key], wb[key]) for key in wa)
     first, _ = runs["ranks"]
     assert all(torch.equal(first["byol"][key], first["resumed_byol"][key]) for key in first["byol"])
+
+
+@pytest.mark.slow  # the `runs` fixture: 2 spawned processes, ~25 s of CPU
+def test_sigterm_to_one_process_checkpoints_every_process_after_the_same_iteration(runs):
+    assert [rank["stopped_by"] for rank in runs["ranks"]] == ["Terminated", "Terminated"]
+    signalled = runs["out"] / "signalled"
+    assert sorted(p.name for p in (signalled / "checkpoints").glob("iter_*")) == ["iter_000001"]
+    assert len(ckpt.load_resume_state(signalled)["rng_ranks"]) == 2  # both processes took part in the save
 
 
 @pytest.mark.slow  # the `runs` fixture: 2 spawned processes, ~25 s of CPU
