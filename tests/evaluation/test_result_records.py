@@ -52,6 +52,10 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_it02000", {"sr": 0.3083, "cr": 0.4215}),
         ("navformer_10k_s0_it02500", {"sr": 0.3333, "cr": 0.4834}),
         ("navformer_10k_s0_it03000", {"sr": 0.3000, "cr": 0.3646}),
+        ("navformer_10k_s0_runb_it01000", {"sr": 0.1417, "cr": 0.5233}),
+        ("navformer_10k_s0_runb_it02000", {"sr": 0.2750, "cr": 0.5513}),
+        ("navformer_10k_s0_runb_it02500", {"sr": 0.3500, "cr": 0.4559}),
+        ("navformer_10k_s0_runb_it03000", {"sr": 0.3333, "cr": 0.5243}),
         ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
         ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
     ],
@@ -336,3 +340,13 @@ def test_window16_navformer_and_dt_of_the_second_seed_pair_on_table1() -> None:
     assert rows[-1].n_robot_trials == 2160
     assert rows[-1].difference["sr"] == pytest.approx(0.016, abs=5e-4)
     assert rows[-1].difference["cr"] == pytest.approx(-0.026, abs=5e-4)
+
+
+def test_paired_difference_of_the_two_runs_at_3000_iterations() -> None:
+    _, rows = paired_differences(
+        PAPER10K / "navformer_10k_s0_runb_it03000", PAPER10K / "navformer_10k_s0_it03000", n_resamples=200
+    )
+    pooled = rows[-1]
+    assert pooled.n_robot_trials == 120
+    assert pooled.difference["sr"] == pytest.approx(0.0333, abs=5e-4)
+    assert pooled.difference["cr"] == pytest.approx(0.160, abs=5e-4)
