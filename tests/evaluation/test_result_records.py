@@ -56,6 +56,7 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_runb_it02000", {"sr": 0.2750, "cr": 0.5513}),
         ("navformer_10k_s0_runb_it02500", {"sr": 0.3500, "cr": 0.4559}),
         ("navformer_10k_s0_runb_it03000", {"sr": 0.3333, "cr": 0.5243}),
+        ("navformer_10k_s0_runb_it04000", {"sr": 0.2833, "cr": 0.6126}),
         ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
         ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
     ],
@@ -69,7 +70,9 @@ def test_paper_training_records_give_the_quoted_metrics(record: str, expected: d
 
 
 def test_paper_training_records_share_the_data_scaling_episodes() -> None:
-    folders = [DATA_SCALING / "navformer_e350_s0", *sorted(p for p in PAPER10K.iterdir() if p.is_dir())]
+    records = sorted(p for p in PAPER10K.iterdir() if (p / "run.json").is_file())
+    assert len(records) >= 11
+    folders = [DATA_SCALING / "navformer_e350_s0", *records]
     summarize_seed_groups({folder.name: [folder] for folder in folders})  # refuses mixed episode sets
 
 
@@ -350,3 +353,13 @@ def test_paired_difference_of_the_two_runs_at_3000_iterations() -> None:
     assert pooled.n_robot_trials == 120
     assert pooled.difference["sr"] == pytest.approx(0.0333, abs=5e-4)
     assert pooled.difference["cr"] == pytest.approx(0.160, abs=5e-4)
+
+
+def test_the_run_b_diagnosis_at_4000_iterations_gives_the_quoted_contact_and_turns() -> None:
+    from navformer_rl.evaluation.diagnose import load_diagnosis
+
+    summary = load_diagnosis(PAPER10K / "diagnosis" / "navformer_10k_s0_runb_it04000")["all"]
+    assert summary["success_rate"] == pytest.approx(0.2833, abs=5e-5)
+    assert summary["walls"]["contact_fraction"] == pytest.approx(0.733, abs=5e-4)
+    assert summary["outcomes"]["stuck"] == pytest.approx(0.617, abs=5e-4)
+    assert summary["progress"]["per_step_target_hidden"] == pytest.approx(0.001, abs=5e-4)
