@@ -57,6 +57,7 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_runb_it02500", {"sr": 0.3500, "cr": 0.4559}),
         ("navformer_10k_s0_runb_it03000", {"sr": 0.3333, "cr": 0.5243}),
         ("navformer_10k_s0_runb_it04000", {"sr": 0.2833, "cr": 0.6126}),
+        ("navformer_10k_s0_runb_it05000", {"sr": 0.4083, "cr": 0.4008}),
         ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
         ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
     ],
@@ -363,3 +364,13 @@ def test_the_run_b_diagnosis_at_4000_iterations_gives_the_quoted_contact_and_tur
     assert summary["walls"]["contact_fraction"] == pytest.approx(0.733, abs=5e-4)
     assert summary["outcomes"]["stuck"] == pytest.approx(0.617, abs=5e-4)
     assert summary["progress"]["per_step_target_hidden"] == pytest.approx(0.001, abs=5e-4)
+
+
+def test_two_checkpoints_of_run_b_1000_iterations_apart_differ_beyond_the_interval() -> None:
+    _, rows = paired_differences(
+        PAPER10K / "navformer_10k_s0_runb_it05000",
+        PAPER10K / "navformer_10k_s0_runb_it04000",
+        n_resamples=200,
+    )
+    assert rows[-1].difference["sr"] == pytest.approx(0.125, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(-0.212, abs=5e-4)
