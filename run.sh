@@ -8,6 +8,7 @@
 #   collect      collect the offline datasets (D_e, D_ca, D_ssl)
 #   train        train NavFormer (or an ablation / the DT baseline) on D_e / D_ca / D_ssl
 #   validate     teacher-forced action loss of checkpoints on held-out D_e / D_ca
+#   average-checkpoints  one checkpoint from the mean of a run's checkpoints' weights (an opt-in)
 #   train-ppo    train the DSAC / MA-TDN baselines online with PPO
 #   evaluate     measure SR / SPL / CR of a method on fixed episodes (and make-episodes / report / seeds / compare / diagnose / strip)
 #   pretrained   list the shipped weights (pretrained:NAME), or ship a trained run
@@ -16,7 +17,7 @@
 # --checkpoint, data.*_path=, output_dir=) are read from the directory you are in.
 set -euo pipefail
 usage() {
-    sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//'
+    sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'
 }
 say() {
     echo "run.sh: $*" >&2

@@ -1,11 +1,11 @@
-"""The ``navformer`` command: ``demo``, ``world-demo``, ``collect``, ``train``, ``validate``, ``evaluate``,
-``pretrained``, ``export``.
+"""The ``navformer`` command: ``demo``, ``world-demo``, ``collect``, ``train``, ``validate``,
+``average-checkpoints``, ``evaluate``, ``pretrained``, ``export``.
 
 Each subcommand is a thin layer over a library function; its parser lives next to that function
 (``register(subparsers)`` in ``navformer_rl.data.cli``, ``navformer_rl.training.cli``,
-``navformer_rl.training.validate_cli``, ``navformer_rl.evaluation.cli``, ``navformer_rl.demo.cli``,
-``navformer_rl.pretrained.cli``, ``navformer_rl.export.cli``). Heavy imports
-happen only when a subcommand runs.
+``navformer_rl.training.validate_cli``, ``navformer_rl.training.average_cli``, ``navformer_rl.evaluation.cli``,
+``navformer_rl.demo.cli``, ``navformer_rl.pretrained.cli``, ``navformer_rl.export.cli``). Heavy imports happen
+only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
 set ``NAVFORMER_DEBUG=1`` to see the traceback. Ctrl-C and SIGTERM stop a command the same way (its
@@ -32,6 +32,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "navformer_rl.data.cli",
     "navformer_rl.training.cli",
     "navformer_rl.training.validate_cli",
+    "navformer_rl.training.average_cli",
     "navformer_rl.online.cli",
     "navformer_rl.evaluation.cli",
     "navformer_rl.pretrained.cli",

@@ -49,9 +49,11 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
     """What the checkpoint folder and its run directory record about the training.
 
     Returns ``{"checkpoint", "iteration", "model_config", "train_config", "data": [{"name", "path", "unit",
-    "available", "used", "seed"}], "training_seconds", "timing_source", "init_from"}`` (``init_from``: the
-    run's record of the weights it was fine-tuned from, ``{"checkpoint", "folder", "iteration",
-    "weights_sha256"}``, or None); ``available`` / ``used`` /
+    "available", "used", "seed"}], "training_seconds", "timing_source", "init_from", "averaged_from"}``
+    (``init_from``: the run's record of the weights it was fine-tuned from, ``{"checkpoint", "folder",
+    "iteration", "weights_sha256"}``, or None; ``averaged_from``: for an averaged checkpoint
+    (:mod:`navformer_rl.training.averaging`), its sources ``[{"checkpoint", "iteration", "weights_sha256"}]``,
+    else None); ``available`` / ``used`` /
     ``seed`` (the collection's) / ``training_seconds`` are None where the files that would give them are not
     there.
     """
@@ -87,6 +89,7 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
         "training_seconds": seconds,
         "timing_source": None if seconds is None else str(log),
         "init_from": (header.get("run") or {}).get("init_from"),
+        "averaged_from": (header.get("run") or {}).get("averaged_from"),
     }
 
 
@@ -271,6 +274,13 @@ def render_card(
             f"| initialised from | `{source.get('checkpoint')}`: iteration {source.get('iteration')} of "
             f"`{source.get('folder')}` (weights sha256 `{str(source.get('weights_sha256'))[:16]}...`); fine-tuned "
             "with fresh optimisers, so the iterations and training time here are this run's own |"
+        )
+    averaged = training.get("averaged_from")
+    if averaged:
+        iterations = ", ".join(str(source.get("iteration")) for source in averaged)
+        lines.append(
+            f"| weights | the uniform mean of {len(averaged)} checkpoints of the run (iterations {iterations}; "
+            "`navformer average-checkpoints`) |"
         )
     lines += [
         f"| device setting | {config.get('device', 'not recorded')} |",

@@ -35,8 +35,11 @@ Modules (one job each):
 - :mod:`~navformer_rl.training.init_from`: fine-tuning from a checkpoint's weights (``init_from=``).
 - :mod:`~navformer_rl.training.validation`: teacher-forced L_DT on held-out trajectories (``validation.*``,
   ``navformer validate``).
-- :mod:`~navformer_rl.training.cli`, :mod:`~navformer_rl.training.validate_cli`: ``navformer train`` and
-  ``navformer validate``.
+- :mod:`~navformer_rl.training.averaging`: one checkpoint from the mean of a run's checkpoints' weights
+  (``navformer average-checkpoints``, an opt-in).
+- :mod:`~navformer_rl.training.cli`, :mod:`~navformer_rl.training.validate_cli`,
+  :mod:`~navformer_rl.training.average_cli`: ``navformer train``, ``navformer validate`` and
+  ``navformer average-checkpoints``.
 
 Names are imported lazily, so the commands answer ``--help`` and argument errors without importing torch.
 """
@@ -64,6 +67,7 @@ _EXPORTS = {
     "TrainConfig": "navformer_rl.training.config",
     "TrainResult": "navformer_rl.training.run",
     "Trainer": "navformer_rl.training.trainer",
+    "average_checkpoints": "navformer_rl.training.averaging",
     "build_trainer": "navformer_rl.training.run",
     "check_datasets_fit_model": "navformer_rl.training.datasets",
     "config_from_dict": "navformer_rl.training.config_io",

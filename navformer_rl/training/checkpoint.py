@@ -92,8 +92,6 @@ def save_checkpoint(
     Returns:
         The path of the checkpoint folder.
     """
-    from safetensors.torch import save_file
-
     root = Path(run_dir) / CHECKPOINTS_DIRNAME
     root.mkdir(parents=True, exist_ok=True)
     final = root / checkpoint_name(iteration)
@@ -107,10 +105,7 @@ def save_checkpoint(
         }
         if run_info is not None:
             header["run"] = dict(run_info)
-        (tmp / CONFIG_FILENAME).write_text(json.dumps(header, indent=2, sort_keys=True))
-        tensors = {k: v.detach().to("cpu").contiguous() for k, v in model_state.items()}
-        metadata = {"format": RUN_FORMAT, "model_config": json.dumps(dict(model_config), sort_keys=True)}
-        save_file(tensors, str(tmp / WEIGHTS_FILENAME), metadata=metadata)
+        write_run_part(tmp, header, model_state)
         if resume_state is not None:
             torch.save(dict(resume_state), tmp / RESUME_FILENAME)
         publish_folder(tmp, final)  # the same iteration saved twice replaces the older folder
@@ -121,6 +116,21 @@ def save_checkpoint(
     if keep_last > 0:
         _prune(root, keep_last, final)
     return final
+
+
+def write_run_part(folder: Path, header: Mapping[str, Any], model_state: Mapping[str, torch.Tensor]) -> None:
+    """Write ``folder/config.json`` (``header``) and ``folder/model.safetensors`` (``model_state`` on CPU,
+    contiguous; its metadata repeats the format and ``header["model_config"]``). Not atomic by itself: callers
+    write into a private folder and publish it."""
+    from safetensors.torch import save_file
+
+    (folder / CONFIG_FILENAME).write_text(json.dumps(dict(header), indent=2, sort_keys=True))
+    tensors = {k: v.detach().to("cpu").contiguous() for k, v in model_state.items()}
+    metadata = {
+        "format": RUN_FORMAT,
+        "model_config": json.dumps(dict(header["model_config"]), sort_keys=True),
+    }
+    save_file(tensors, str(folder / WEIGHTS_FILENAME), metadata=metadata)
 
 
 def _prune(root: Path, keep_last: int, latest: Path) -> None:

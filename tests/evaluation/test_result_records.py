@@ -58,6 +58,9 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_runb_it03000", {"sr": 0.3333, "cr": 0.5243}),
         ("navformer_10k_s0_runb_it04000", {"sr": 0.2833, "cr": 0.6126}),
         ("navformer_10k_s0_runb_it05000", {"sr": 0.4083, "cr": 0.4008}),
+        ("navformer_10k_s0_runb_avg02000-03000", {"sr": 0.3333, "cr": 0.3502}),
+        ("navformer_10k_s0_runb_avg03000-04000", {"sr": 0.2667, "cr": 0.5542}),
+        ("navformer_10k_s0_runb_avg04000-05000", {"sr": 0.3833, "cr": 0.5249}),
         ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
         ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
     ],
@@ -374,3 +377,20 @@ def test_two_checkpoints_of_run_b_1000_iterations_apart_differ_beyond_the_interv
     )
     assert rows[-1].difference["sr"] == pytest.approx(0.125, abs=5e-4)
     assert rows[-1].difference["cr"] == pytest.approx(-0.212, abs=5e-4)
+
+
+@pytest.mark.parametrize(
+    ("window", "expected_sr", "expected_cr"),
+    [("02000-03000", 0.0, -0.174), ("03000-04000", -0.0167, -0.0584), ("04000-05000", -0.025, 0.124)],
+)
+def test_averaged_checkpoints_against_the_last_one_they_average(
+    window: str, expected_sr: float, expected_cr: float
+) -> None:
+    _, rows = paired_differences(
+        PAPER10K / f"navformer_10k_s0_runb_avg{window}",
+        PAPER10K / f"navformer_10k_s0_runb_it{window.split('-')[1]}",
+        n_resamples=200,
+    )
+    assert rows[-1].n_robot_trials == 120
+    assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
