@@ -52,7 +52,11 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--last", type=cli_args.int_at_least(0), metavar="ITERATION", help="with --run: the last iteration"
     )
     parser.add_argument(
-        "--out", required=True, type=cli_args.output_folder, help="the checkpoint folder to write"
+        "--out",
+        required=True,
+        type=cli_args.output_folder,
+        metavar="DIR",
+        help="the checkpoint folder to write",
     )
     parser.add_argument("--force", action="store_true", help="replace an existing --out")
     parser.set_defaults(run=run)
