@@ -270,7 +270,10 @@ def command_statistics(
     and ``histogram`` (fractions of the ``N`` actions in ``bins`` equal bins over [-1, 1]); and
     ``change_fraction``: the share of consecutive actions of one sequence whose component changes by more
     than :data:`TURN_CHANGE` (``starts`` bool ``[N]`` marks each sequence's first action; None: one
-    sequence). A policy that keeps repeating its last command changes it rarely."""
+    sequence). A policy that keeps repeating its last command changes it rarely. The angular block adds
+    ``main_direction_share``: per sequence, the share of its summed ``|angular|`` turned in its main direction
+    (``(1 + |sum a| / sum |a|) / 2``: 0.5 as much left as right, 1 only one way), averaged over the sequences
+    that turn at all (None without one). A policy that finds targets by circling one way scores near 1."""
     actions = np.asarray(actions, dtype=np.float64).reshape(-1, 2)
     follows = np.ones(actions.shape[0], dtype=bool) if starts is None else ~np.asarray(starts, dtype=bool)
     follows[:1] = False
@@ -292,7 +295,23 @@ def command_statistics(
             "change_fraction": _mean((np.abs(np.diff(values, prepend=0.0)) > TURN_CHANGE)[follows]),
             "histogram": [round(float(c) / size, 6) for c in counts],
         }
+    out["angular"]["main_direction_share"] = main_direction_share(actions[:, 1], ~follows)
     return out
+
+
+def main_direction_share(angular: np.ndarray, starts: np.ndarray) -> float | None:
+    """Mean over the sequences of ``angular`` (``starts`` bool marks each one's first step) that turn at all of
+    the share of their summed ``|angular|`` in their main direction (see :func:`command_statistics`)."""
+    if angular.size == 0:
+        return None
+    starts = np.asarray(starts, dtype=bool).copy()
+    starts[0] = True
+    sequence = np.cumsum(starts) - 1
+    count = int(sequence[-1]) + 1
+    signed = np.bincount(sequence, weights=np.clip(angular, -1.0, 1.0), minlength=count)
+    total = np.bincount(sequence, weights=np.abs(np.clip(angular, -1.0, 1.0)), minlength=count)
+    turning = total > 0
+    return _mean((1.0 + np.abs(signed[turning]) / total[turning]) / 2.0) if turning.any() else None
 
 
 def phase_measures(

@@ -124,6 +124,10 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, Render]]:
             f"angular command changes by > {TURN_CHANGE:g} from the step before",
             lambda block: _pct(block["commands"]["angular"].get("change_fraction")),  # n/a in older diagnoses
         ),
+        (
+            "\\|angular\\| turned in each robot-trial's main direction (mean)",
+            lambda block: _pct(block["commands"]["angular"].get("main_direction_share")),  # n/a in older ones
+        ),
     ]
     return rows
 

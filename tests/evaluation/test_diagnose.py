@@ -16,6 +16,7 @@ from navformer_rl.evaluation.diagnose_measures import (
     command_statistics,
     is_circling,
     is_stuck,
+    main_direction_share,
     outcome,
     phase_measures,
     progress_measures,
@@ -272,6 +273,19 @@ def test_command_statistics_known_answers():
     # a second sequence starting at the third action: the 1 -> 0 pair is not a step of either
     split = command_statistics(actions, bins=4, starts=np.array([True, False, True, False]))
     assert split["angular"]["change_fraction"] == pytest.approx(1 / 2)
+    # main direction: one sequence turns -1, 1, 0, 0.2 (0.2 of 2.2 net: (1 + 0.2 / 2.2) / 2); split, the
+    # first turns -1, 1 (balanced: 0.5) and the second 0, 0.2 (one way: 1)
+    assert stats["angular"]["main_direction_share"] == pytest.approx((1 + 0.2 / 2.2) / 2)
+    assert split["angular"]["main_direction_share"] == pytest.approx(0.75)
+
+
+def test_main_direction_share_skips_sequences_that_never_turn():
+    angular = np.array([0.5, 0.5, -0.5, 0.0, 0.0, -1.0, -1.0])
+    starts = np.array([True, False, False, True, False, True, False])
+    # (1 + 0.5 / 1.5) / 2 and 1; the sequence of zeros counts in neither
+    assert main_direction_share(angular, starts) == pytest.approx(((2 / 3) + 1) / 2)
+    assert main_direction_share(np.zeros(3), np.array([True, False, False])) is None
+    assert main_direction_share(np.zeros(0), np.zeros(0, dtype=bool)) is None
 
 
 def test_phase_measures_split_turns_by_time_and_by_touching():

@@ -394,3 +394,76 @@ def test_averaged_checkpoints_against_the_last_one_they_average(
     assert rows[-1].n_robot_trials == 120
     assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
     assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
+
+
+# SR, robot-trials with the target in view within 3 m, progress per step while it is hidden, mean |angular|,
+# mean angular, |angular| in each trial's main direction, steps in contact, stuck at the end
+CHECKPOINT_DIAGNOSES = [
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_it01000",
+        (0.1417, 0.2583, -0.0026, 0.3192, 0.0845, 0.8184, 0.5706, 0.4583),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_it02000",
+        (0.2750, 0.3667, 0.0001, 0.1431, 0.0760, 0.7583, 0.6520, 0.3750),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_it02500",
+        (0.3500, 0.3833, 0.0007, 0.1824, 0.0910, 0.7592, 0.5600, 0.2167),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_it03000",
+        (0.3333, 0.4417, 0.0025, 0.1727, 0.0160, 0.7329, 0.6474, 0.4917),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_it04000",
+        (0.2833, 0.3750, 0.0007, 0.1227, -0.0256, 0.7117, 0.7330, 0.6167),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_it05000",
+        (0.4083, 0.5167, 0.0001, 0.3169, -0.2267, 0.8383, 0.4822, 0.4250),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_avg02000-03000",
+        (0.3333, 0.4167, -0.0003, 0.2651, 0.1847, 0.8282, 0.4161, 0.0667),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_avg03000-04000",
+        (0.2667, 0.3417, 0.0012, 0.1200, 0.0328, 0.7268, 0.6942, 0.5250),
+    ),
+    (
+        "paper10k/diagnosis/navformer_10k_s0_runb_avg04000-05000",
+        (0.3833, 0.4500, 0.0016, 0.1542, -0.0319, 0.6843, 0.6895, 0.5583),
+    ),
+    ("expert/diagnosis/shipped_navformer", (0.3833, 0.4417, -0.0004, 0.2997, 0.2427, 0.8824, 0.4022, 0.1583)),
+    ("expert/diagnosis/shipped_dt", (0.3250, 0.4083, 0.0007, 0.2288, -0.0057, 0.7137, 0.6234, 0.4000)),
+    ("expert/diagnosis/frontier", (0.7750, 0.8167, 0.0209, 0.2274, -0.0077, 0.7624, 0.5241, 0.1583)),
+    ("expert/diagnosis/fca", (0.9667, 0.9000, 0.0514, 0.4096, 0.1030, 0.7354, 0.0000, 0.0000)),
+]
+
+
+@pytest.mark.parametrize(("record", "expected"), CHECKPOINT_DIAGNOSES)
+def test_closed_loop_diagnoses_give_the_quoted_search_and_turn_measures(record: str, expected: tuple) -> None:
+    from navformer_rl.evaluation.diagnose import load_diagnosis
+
+    summary = load_diagnosis(DATA_SCALING.parent / record)["all"]
+    turns = summary["commands"]["angular"]
+    measured = (
+        summary["success_rate"],
+        summary["sightings"][0]["robot_trials_with_sighting_fraction"],
+        summary["progress"]["per_step_target_hidden"],
+        turns["mean_abs"],
+        turns["mean"],
+        turns["main_direction_share"],
+        summary["walls"]["contact_fraction"],
+        summary["outcomes"]["stuck"],
+    )
+    assert summary["sightings"][0]["range_m"] == 3.0 and summary["robot_trials"] == 120
+    assert measured == pytest.approx(expected, abs=5e-5)
+
+
+def test_no_learned_checkpoint_gets_closer_while_its_target_is_hidden() -> None:
+    hidden = {record: expected[2] for record, expected in CHECKPOINT_DIAGNOSES}
+    learned = [value for record, value in hidden.items() if "frontier" not in record and "fca" not in record]
+    assert len(learned) == 11 and max(abs(value) for value in learned) < 0.003
+    assert hidden["expert/diagnosis/frontier"] > 0.02 and hidden["expert/diagnosis/fca"] > 0.05
