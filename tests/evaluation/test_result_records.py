@@ -59,6 +59,10 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_runb_it04000", {"sr": 0.2833, "cr": 0.6126}),
         ("navformer_10k_s0_runb_it05000", {"sr": 0.4083, "cr": 0.4008}),
         ("navformer_10k_s0_runb_it06000", {"sr": 0.3750, "cr": 0.4775}),
+        ("navformer_10k_s0_runb_it02500_w16", {"sr": 0.3750, "cr": 0.3689}),
+        ("navformer_10k_s0_runb_it04000_w16", {"sr": 0.3000, "cr": 0.5946}),
+        ("navformer_10k_s0_runb_it05000_w16", {"sr": 0.3417, "cr": 0.3999}),
+        ("navformer_10k_s0_runb_it06000_w16", {"sr": 0.3333, "cr": 0.4404}),
         ("navformer_10k_s0_runb_avg02000-03000", {"sr": 0.3333, "cr": 0.3502}),
         ("navformer_10k_s0_runb_avg03000-04000", {"sr": 0.2667, "cr": 0.5542}),
         ("navformer_10k_s0_runb_avg04000-05000", {"sr": 0.3833, "cr": 0.5249}),
@@ -472,3 +476,33 @@ def test_no_learned_checkpoint_gets_closer_while_its_target_is_hidden() -> None:
     learned = [value for record, value in hidden.items() if "frontier" not in record and "fca" not in record]
     assert len(learned) == 12 and max(abs(value) for value in learned) < 0.003
     assert hidden["expert/diagnosis/frontier"] > 0.02 and hidden["expert/diagnosis/fca"] > 0.05
+
+
+@pytest.mark.parametrize(
+    ("iteration", "expected_sr", "expected_cr"),
+    [
+        ("02500", 0.025, -0.087),
+        ("04000", 0.0167, -0.018),
+        ("05000", -0.0667, -0.0009),
+        ("06000", -0.0417, -0.0371),
+    ],
+)
+def test_run_b_with_a_16_step_context_against_its_whole_context(
+    iteration: str, expected_sr: float, expected_cr: float
+) -> None:
+    _, rows = paired_differences(
+        PAPER10K / f"navformer_10k_s0_runb_it{iteration}_w16",
+        PAPER10K / f"navformer_10k_s0_runb_it{iteration}",
+        n_resamples=200,
+    )
+    assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
+
+
+def test_run_b_at_5000_keeps_turning_as_its_context_fills() -> None:
+    from navformer_rl.evaluation.diagnose import load_diagnosis
+
+    phases = load_diagnosis(PAPER10K / "diagnosis" / "navformer_10k_s0_runb_it05000")["all"]["phases"]
+    turns = {phase["first_step"]: phase["free_median_abs_turn"] for phase in phases}
+    expected = {0: 0.4356, 25: 0.2777, 50: 0.3364, 100: 0.4584, 200: 0.6525}
+    assert {step: turns[step] for step in expected} == pytest.approx(expected, abs=5e-5)
