@@ -167,10 +167,17 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         dest="seeds_plot",
         type=Path,
         metavar="PNG",
-        help="also draw SR per group (mean ± std, each seed a dot); groups named SERIES@X (e.g. "
-        "navformer@3496) become one line per SERIES over X",
+        help="also draw SR per group (mean ± std, each seed a dot; a group of one run: its 95 %% interval); "
+        "groups named SERIES@X (e.g. navformer@3496) become one line per SERIES over X",
     )
     seeds.add_argument("--x-label", dest="seeds_x_label", default="x", help="--plot's x-axis label")
+    seeds.add_argument(
+        "--x-scale",
+        dest="seeds_x_scale",
+        choices=("auto", "linear", "log"),
+        default="auto",
+        help="--plot's x axis: auto (logarithmic when the largest X is at least 5x the smallest), linear, log",
+    )
     _add_cluster_option(seeds, "trial")
     seeds.set_defaults(run=_run_seeds)
 
@@ -472,7 +479,7 @@ def _run_seeds(args: argparse.Namespace) -> int:
     if plot is not None:
         from navformer_rl.evaluation.plots import plot_seed_groups
 
-        plot_seed_groups(summaries, plot, x_label=args.seeds_x_label)
+        plot_seed_groups(summaries, plot, x_label=args.seeds_x_label, x_scale=args.seeds_x_scale)
     if args.seeds_json:
         print(json.dumps([s.to_dict() for s in summaries], indent=2))
     else:

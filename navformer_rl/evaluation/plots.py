@@ -114,15 +114,25 @@ SERIES_NAME = r"^(?P<series>.+)@(?P<x>[0-9]+(?:\.[0-9]+)?)$"
 """A seed group named ``SERIES@X`` (e.g. ``navformer@3496``) is point X of the line SERIES."""
 
 
+X_SCALES = ("auto", "linear", "log")
+"""``plot_seed_groups``' x axes: ``auto`` is logarithmic when the largest X is at least 5x the smallest."""
+
+
 def plot_seed_groups(
-    summaries: Sequence[SeedGroupSummary], path: str | os.PathLike, x_label: str = "x"
+    summaries: Sequence[SeedGroupSummary],
+    path: str | os.PathLike,
+    x_label: str = "x",
+    x_scale: str = "auto",
 ) -> dict[str, list[tuple[float, float, float]]]:
     """SR of several configurations over their training seeds, as a PNG at ``path``.
 
     When every group is named ``SERIES@X`` (:data:`SERIES_NAME`), one line per series over X (e.g. SR
-    against dataset size), else one bar per group. Each point or bar is the mean over the seeds with the
-    standard deviation as its error bar, and every seed's own SR drawn as a dot. Returns the drawn values,
-    ``{series (or group name): [(x, mean SR, std), ...]}`` (x is the bar position for bars).
+    against dataset size or training iterations; ``x_scale`` one of :data:`X_SCALES`), else one bar per
+    group. Each point or bar is the mean over the seeds with the standard deviation as its error bar, and
+    every seed's own SR drawn as a dot. When every group holds one run (e.g. the checkpoints of one run), the
+    error bar is that run's 95 % interval instead (trial-clustered, as ``navformer evaluate`` reports it).
+    Returns the drawn values, ``{series (or group name): [(x, mean SR, std), ...]}`` (x is the bar position
+    for bars; std 0 for groups of one run).
     """
     import re
 
@@ -133,6 +143,9 @@ def plot_seed_groups(
 
     if not summaries:
         raise ValueError("no seed groups to plot")
+    if x_scale not in X_SCALES:
+        raise ValueError(f"x_scale={x_scale!r}: expected one of {', '.join(X_SCALES)}")
+    single = all(len(group.runs) == 1 for group in summaries)
     matches = [re.match(SERIES_NAME, group.name) for group in summaries]
     drawn: dict[str, list[tuple[float, float, float]]] = {}
     fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
@@ -148,14 +161,14 @@ def plot_seed_groups(
             xs = [x for x, _ in points]
             means = [100 * group.mean["sr"] for _, group in points]
             stds = [100 * np.nan_to_num(group.std["sr"]) for _, group in points]
-            ax.errorbar(xs, means, yerr=stds, marker="o", capsize=4, color=colors[k % 10], label=name)
-            for x, group in points:
+            bars = _interval_bars([group for _, group in points], means) if single else stds
+            ax.errorbar(xs, means, yerr=bars, marker="o", capsize=4, color=colors[k % 10], label=name)
+            for x, group in points if not single else ():
                 seeds = [100 * run.metrics.sr for run in group.runs]
                 ax.scatter([x] * len(seeds), seeds, s=14, color=colors[k % 10], alpha=0.45, zorder=3)
             drawn[name] = [(x, m, s) for x, m, s in zip(xs, means, stds)]
-        if max(x for points in drawn.values() for x, _, _ in points) >= 5 * min(
-            x for points in drawn.values() for x, _, _ in points
-        ):
+        xs = [x for points in drawn.values() for x, _, _ in points]
+        if x_scale == "log" or (x_scale == "auto" and max(xs) >= 5 * min(xs)):
             ax.set_xscale("log")
             ax.minorticks_off()
         ticks = sorted({x for points in drawn.values() for x, _, _ in points})
@@ -165,15 +178,29 @@ def plot_seed_groups(
     else:
         for k, group in enumerate(summaries):
             mean, std = 100 * group.mean["sr"], 100 * np.nan_to_num(group.std["sr"])
-            ax.bar(k, mean, yerr=std, capsize=4, color=colors[k % 10], alpha=0.8)
-            seeds = [100 * run.metrics.sr for run in group.runs]
-            ax.scatter([k] * len(seeds), seeds, s=14, color="black", zorder=3)
+            bar = _interval_bars([group], [mean]) if single else std
+            ax.bar(k, mean, yerr=bar, capsize=4, color=colors[k % 10], alpha=0.8)
+            if not single:
+                seeds = [100 * run.metrics.sr for run in group.runs]
+                ax.scatter([k] * len(seeds), seeds, s=14, color="black", zorder=3)
             drawn[group.name] = [(float(k), mean, std)]
         ax.set_xticks(range(len(summaries)), [group.name for group in summaries])
-    ax.set_ylabel("SR (%): mean ± std over seeds; dots: seeds")
+    ax.set_ylabel(
+        "SR (%) and its 95 % interval (one run each)"
+        if single
+        else "SR (%): mean ± std over seeds; dots: seeds"
+    )
     ax.set_ylim(0, 100)
     ax.grid(alpha=0.3)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120)
     plt.close(fig)
     return drawn
+
+
+def _interval_bars(groups: Sequence[SeedGroupSummary], means: Sequence[float]) -> np.ndarray:
+    """Asymmetric error bars ``[2, n]`` (percentage points below and above ``means``) of the groups' pooled SR
+    intervals."""
+    low = [mean - 100 * group.pooled.sr_ci[0] for group, mean in zip(groups, means)]
+    high = [100 * group.pooled.sr_ci[1] - mean for group, mean in zip(groups, means)]
+    return np.clip(np.array([low, high]), 0.0, None)

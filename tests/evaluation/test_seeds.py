@@ -151,6 +151,22 @@ def test_series_groups_plot_as_lines_of_mean_and_std(tmp_path, two_seeds):
     assert [name for name in bars] == ["navformer@350", "dt"]  # not all SERIES@X: one bar per group
 
 
+def test_groups_of_one_run_plot_their_interval(tmp_path, two_seeds):
+    from navformer_rl.evaluation.plots import _interval_bars, plot_seed_groups
+
+    a, b = two_seeds
+    summaries = summarize_seed_groups({"nf@1000": [a], "nf@2000": [b]})
+    drawn = plot_seed_groups(summaries, tmp_path / "curve.png", x_label="iteration", x_scale="linear")
+    assert drawn == {"nf": [(1000.0, 50.0, 0.0), (2000.0, 25.0, 0.0)]}
+    bars = _interval_bars(summaries, [50.0, 25.0])
+    for k, group in enumerate(summaries):  # below and above the point: the run's own 95 % interval
+        low, high = group.pooled.sr_ci
+        assert bars[:, k] == pytest.approx([50.0 - 25.0 * k - 100 * low, 100 * high - 50.0 + 25.0 * k])
+        assert bars[0, k] > 0 and bars[1, k] > 0
+    with pytest.raises(ValueError, match="x_scale='logit': expected one of auto, linear, log"):
+        plot_seed_groups(summaries, tmp_path / "x.png", x_scale="logit")
+
+
 def test_cli_writes_the_seed_plot(tmp_path, two_seeds, capsys):
     out = tmp_path / "plot.png"
     argv = [
@@ -166,5 +182,6 @@ def test_cli_writes_the_seed_plot(tmp_path, two_seeds, capsys):
     ]
     assert main(argv) == 0
     assert out.stat().st_size > 0
+    assert main([*argv, "--x-scale", "linear"]) == 0
     assert main(["evaluate", "seeds", "--group", "nf", *map(str, two_seeds), "--plot", str(tmp_path)]) == 2
     assert "--plot" in capsys.readouterr().err
