@@ -506,3 +506,17 @@ def test_run_b_at_5000_keeps_turning_as_its_context_fills() -> None:
     turns = {phase["first_step"]: phase["free_median_abs_turn"] for phase in phases}
     expected = {0: 0.4356, 25: 0.2777, 50: 0.3364, 100: 0.4584, 200: 0.6525}
     assert {step: turns[step] for step in expected} == pytest.approx(expected, abs=5e-5)
+
+
+def test_run_b_at_5000_on_table1_against_the_shipped_weights() -> None:
+    record = PAPER10K / "table1" / "navformer_10k_s0_runb_it05000"
+    (summary,) = summarize_seed_groups({"run B": [record]})
+    assert summary.runs[0].metrics.n_trials == 540
+    assert summary.runs[0].metrics.sr == pytest.approx(0.2523, abs=5e-5)
+    assert summary.runs[0].metrics.cr == pytest.approx(0.4604, abs=5e-5)
+    table1 = DATA_SCALING.parent / "context" / "table1"
+    for shipped, expected_sr, expected_cr in (("navformer", 0.0764, 0.0718), ("dt", 0.0343, -0.1031)):
+        _, rows = paired_differences(record, table1 / shipped, n_resamples=200)
+        assert rows[-1].n_robot_trials == 2160
+        assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
+        assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
