@@ -520,3 +520,15 @@ def test_run_b_at_5000_on_table1_against_the_shipped_weights() -> None:
         assert rows[-1].n_robot_trials == 2160
         assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
         assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
+
+
+def test_run_b_at_6000_on_table1_against_5000() -> None:
+    record = PAPER10K / "table1" / "navformer_10k_s0_runb_it06000"
+    (summary,) = summarize_seed_groups({"run B": [record]})
+    assert summary.runs[0].metrics.sr == pytest.approx(0.2032, abs=5e-5)
+    assert summary.runs[0].metrics.cr == pytest.approx(0.5442, abs=5e-5)
+    _, rows = paired_differences(
+        record, PAPER10K / "table1" / "navformer_10k_s0_runb_it05000", n_resamples=200
+    )
+    assert rows[-1].difference["sr"] == pytest.approx(-0.0491, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(0.0838, abs=5e-4)
