@@ -533,3 +533,12 @@ def test_run_b_at_6000_on_table1_against_5000() -> None:
     )
     assert rows[-1].difference["sr"] == pytest.approx(-0.0491, abs=5e-4)
     assert rows[-1].difference["cr"] == pytest.approx(0.0838, abs=5e-4)
+
+
+def test_run_b_at_7000_on_table1() -> None:
+    record = PAPER10K / "table1" / "navformer_10k_s0_runb_it07000"
+    (summary,) = summarize_seed_groups({"run B": [record]})
+    assert summary.runs[0].metrics.sr == pytest.approx(0.2579, abs=5e-4)
+    _, rows = paired_differences(record, DATA_SCALING.parent / "context" / "table1" / "dt", n_resamples=200)
+    assert rows[-1].difference["sr"] == pytest.approx(0.040, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(0.063, abs=5e-4)
