@@ -66,6 +66,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Select the checkpoints, average them, print what was written."""
     from navformer_rl.training.averaging import average_checkpoints, run_checkpoints
+    from navformer_rl.training.checkpoint import read_checkpoint_config
 
     if args.run_dir is not None:
         if args.first is None or args.last is None:
@@ -78,8 +79,6 @@ def run(args: argparse.Namespace) -> int:
             )
         checkpoints = args.checkpoint
     out = average_checkpoints(checkpoints, args.out, overwrite=args.force)
-    from navformer_rl.training.checkpoint import read_checkpoint_config
-
     sources = read_checkpoint_config(out)["run"]["averaged_from"]
     iterations = ", ".join(str(source["iteration"]) for source in sources)
     print(f"averaged {len(sources)} checkpoints (iterations {iterations}) -> {out}")

@@ -3,8 +3,9 @@
 An opt-in beyond the paper (``docs/deviations.md``), after stochastic weight averaging (Izmailov et al., UAI
 2018) and latest-weight averaging (Kaddour, 2022): a policy's closed-loop success can swing by several points
 between checkpoints a few hundred iterations apart while the offline loss falls smoothly
-(``docs/results.md``); the mean of the last checkpoints of a run is one model that does not depend on where
-the run happened to stop.
+(``docs/results.md``), and the mean of a run's last checkpoints is one model instead of one draw. Measured on
+the paper's 10,000-iteration run, the mean of the last 1,000 iterations' checkpoints follows the last one it
+averages (the same SR within 2.5 points) rather than removing the swings.
 
 The result is a checkpoint's run part (``config.json`` + ``model.safetensors``, no ``resume.pt``) that every
 command accepting ``--checkpoint`` reads, and ``init_from=`` fine-tunes from. Its header is the newest
