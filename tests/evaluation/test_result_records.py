@@ -61,6 +61,7 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_runb_it06000", {"sr": 0.3750, "cr": 0.4775}),
         ("navformer_10k_s0_runb_it07000", {"sr": 0.4333, "cr": 0.5635}),
         ("navformer_10k_s0_runb_it08000", {"sr": 0.4083, "cr": 0.4299}),
+        ("navformer_10k_s0_runb_it09000", {"sr": 0.4500, "cr": 0.4759}),
         ("navformer_10k_s0_runb_it02500_w16", {"sr": 0.3750, "cr": 0.3689}),
         ("navformer_10k_s0_runb_it04000_w16", {"sr": 0.3000, "cr": 0.5946}),
         ("navformer_10k_s0_runb_it05000_w16", {"sr": 0.3417, "cr": 0.3999}),
