@@ -62,6 +62,8 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("navformer_10k_s0_runb_it07000", {"sr": 0.4333, "cr": 0.5635}),
         ("navformer_10k_s0_runb_it08000", {"sr": 0.4083, "cr": 0.4299}),
         ("navformer_10k_s0_runb_it09000", {"sr": 0.4500, "cr": 0.4759}),
+        ("navformer_10k_s0_runb_it10000", {"sr": 0.4833, "cr": 0.4432}),
+        ("navformer_10k_s0_runb_avg09000-10000", {"sr": 0.5333, "cr": 0.4306}),
         ("navformer_10k_s0_runb_it02500_w16", {"sr": 0.3750, "cr": 0.3689}),
         ("navformer_10k_s0_runb_it04000_w16", {"sr": 0.3000, "cr": 0.5946}),
         ("navformer_10k_s0_runb_it05000_w16", {"sr": 0.3417, "cr": 0.3999}),
@@ -440,6 +442,10 @@ CHECKPOINT_DIAGNOSES = [
         (0.4083, 0.4917, -0.0006, 0.2276, -0.0492, 0.6925, 0.5429, 0.5000),
     ),
     (
+        "paper10k/diagnosis/navformer_10k_s0_runb_it10000",
+        (0.4833, 0.5917, 0.0021, 0.2124, 0.0404, 0.6974, 0.5784, 0.3917),
+    ),
+    (
         "paper10k/diagnosis/navformer_10k_s0_runb_avg02000-03000",
         (0.3333, 0.4167, -0.0003, 0.2651, 0.1847, 0.8282, 0.4161, 0.0667),
     ),
@@ -481,7 +487,7 @@ def test_closed_loop_diagnoses_give_the_quoted_search_and_turn_measures(record: 
 def test_no_learned_checkpoint_gets_closer_while_its_target_is_hidden() -> None:
     hidden = {record: expected[2] for record, expected in CHECKPOINT_DIAGNOSES}
     learned = [value for record, value in hidden.items() if "frontier" not in record and "fca" not in record]
-    assert len(learned) == 13 and max(abs(value) for value in learned) < 0.003
+    assert len(learned) == 14 and max(abs(value) for value in learned) < 0.003
     assert hidden["expert/diagnosis/frontier"] > 0.02 and hidden["expert/diagnosis/fca"] > 0.05
 
 
@@ -548,3 +554,24 @@ def test_run_b_at_7000_on_table1() -> None:
     _, rows = paired_differences(record, DATA_SCALING.parent / "context" / "table1" / "dt", n_resamples=200)
     assert rows[-1].difference["sr"] == pytest.approx(0.040, abs=5e-4)
     assert rows[-1].difference["cr"] == pytest.approx(0.063, abs=5e-4)
+
+
+def test_the_shipped_navformer_on_table1_and_table3() -> None:
+    """Run B's iteration 10,000 (``pretrained:navformer``): Table I against the tenth-scale DT, Table III's drop."""
+    from navformer_rl.evaluation.paired import unseen_obstacle_differences
+
+    record = PAPER10K / "table1" / "navformer_10k_s0_runb_it10000"
+    (summary,) = summarize_seed_groups({"run B": [record]})
+    assert summary.runs[0].metrics.n_trials == 540
+    assert summary.runs[0].metrics.sr == pytest.approx(0.2917, abs=5e-5)
+    assert summary.runs[0].metrics.cr == pytest.approx(0.5333, abs=5e-5)
+    table1 = DATA_SCALING.parent / "context" / "table1"
+    for tenth, expected_sr, expected_cr in (("navformer", 0.1157, 0.1447), ("dt", 0.0736, -0.0302)):
+        _, rows = paired_differences(record, table1 / tenth, n_resamples=200)
+        assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
+        assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
+    _, difference = unseen_obstacle_differences(
+        PAPER10K / "table3" / "navformer_10k_s0_runb_it10000", n_resamples=200
+    )
+    assert difference.n_robot_trials == 60
+    assert difference.difference["sr"] == pytest.approx(-0.0333, abs=5e-4)
