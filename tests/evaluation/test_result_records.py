@@ -521,18 +521,28 @@ def test_run_b_at_5000_keeps_turning_as_its_context_fills() -> None:
     assert {step: turns[step] for step in expected} == pytest.approx(expected, abs=5e-5)
 
 
-def test_run_b_at_5000_on_table1_against_the_shipped_weights() -> None:
-    record = PAPER10K / "table1" / "navformer_10k_s0_runb_it05000"
+@pytest.mark.parametrize(
+    ("iteration", "expected_sr", "expected_cr", "against_tenth"),
+    [
+        ("05000", 0.2523, 0.4604, {"navformer": (0.0764, 0.0718), "dt": (0.0343, -0.1031)}),
+        ("10000", 0.2917, 0.5333, {"navformer": (0.1157, 0.1447), "dt": (0.0736, -0.0302)}),
+    ],
+)
+def test_run_b_on_table1_against_the_tenth_scale_weights(
+    iteration: str, expected_sr: float, expected_cr: float, against_tenth: dict[str, tuple[float, float]]
+) -> None:
+    """Iterations 5,000 and 10,000 (``pretrained:navformer``) paired with ``navformer_tenth`` and ``dt``."""
+    record = PAPER10K / "table1" / f"navformer_10k_s0_runb_it{iteration}"
     (summary,) = summarize_seed_groups({"run B": [record]})
     assert summary.runs[0].metrics.n_trials == 540
-    assert summary.runs[0].metrics.sr == pytest.approx(0.2523, abs=5e-5)
-    assert summary.runs[0].metrics.cr == pytest.approx(0.4604, abs=5e-5)
+    assert summary.runs[0].metrics.sr == pytest.approx(expected_sr, abs=5e-5)
+    assert summary.runs[0].metrics.cr == pytest.approx(expected_cr, abs=5e-5)
     table1 = DATA_SCALING.parent / "context" / "table1"
-    for shipped, expected_sr, expected_cr in (("navformer", 0.0764, 0.0718), ("dt", 0.0343, -0.1031)):
-        _, rows = paired_differences(record, table1 / shipped, n_resamples=200)
+    for tenth, (sr_difference, cr_difference) in against_tenth.items():
+        _, rows = paired_differences(record, table1 / tenth, n_resamples=200)
         assert rows[-1].n_robot_trials == 2160
-        assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
-        assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
+        assert rows[-1].difference["sr"] == pytest.approx(sr_difference, abs=5e-4)
+        assert rows[-1].difference["cr"] == pytest.approx(cr_difference, abs=5e-4)
 
 
 def test_run_b_at_6000_on_table1_against_5000() -> None:
@@ -556,20 +566,10 @@ def test_run_b_at_7000_on_table1() -> None:
     assert rows[-1].difference["cr"] == pytest.approx(0.063, abs=5e-4)
 
 
-def test_the_shipped_navformer_on_table1_and_table3() -> None:
-    """Run B's iteration 10,000 (``pretrained:navformer``): Table I against the tenth-scale DT, Table III's drop."""
+def test_the_shipped_navformer_on_table3() -> None:
+    """Run B's iteration 10,000 (``pretrained:navformer``): the same Jackal among unseen against seen robots."""
     from navformer_rl.evaluation.paired import unseen_obstacle_differences
 
-    record = PAPER10K / "table1" / "navformer_10k_s0_runb_it10000"
-    (summary,) = summarize_seed_groups({"run B": [record]})
-    assert summary.runs[0].metrics.n_trials == 540
-    assert summary.runs[0].metrics.sr == pytest.approx(0.2917, abs=5e-5)
-    assert summary.runs[0].metrics.cr == pytest.approx(0.5333, abs=5e-5)
-    table1 = DATA_SCALING.parent / "context" / "table1"
-    for tenth, expected_sr, expected_cr in (("navformer", 0.1157, 0.1447), ("dt", 0.0736, -0.0302)):
-        _, rows = paired_differences(record, table1 / tenth, n_resamples=200)
-        assert rows[-1].difference["sr"] == pytest.approx(expected_sr, abs=5e-4)
-        assert rows[-1].difference["cr"] == pytest.approx(expected_cr, abs=5e-4)
     _, difference = unseen_obstacle_differences(
         PAPER10K / "table3" / "navformer_10k_s0_runb_it10000", n_resamples=200
     )
