@@ -118,6 +118,15 @@ X_SCALES = ("auto", "linear", "log")
 """``plot_seed_groups``' x axes: ``auto`` is logarithmic when the largest X is at least 5x the smallest."""
 
 
+def _labels_collide(ticks: list[float]) -> bool:
+    """Whether a label at every X of a linear axis would overlap: two X closer than 6 % of the span.
+
+    Then matplotlib's own round ticks label the axis and the markers show where the measurements are.
+    """
+    span = ticks[-1] - ticks[0]
+    return len(ticks) > 1 and min(b - a for a, b in zip(ticks, ticks[1:])) < 0.06 * span
+
+
 def plot_seed_groups(
     summaries: Sequence[SeedGroupSummary],
     path: str | os.PathLike,
@@ -172,7 +181,8 @@ def plot_seed_groups(
             ax.set_xscale("log")
             ax.minorticks_off()
         ticks = sorted({x for points in drawn.values() for x, _, _ in points})
-        ax.set_xticks(ticks, [f"{x:g}" for x in ticks])
+        if ax.get_xscale() == "log" or not _labels_collide(ticks):
+            ax.set_xticks(ticks, [f"{x:g}" for x in ticks])
         ax.set_xlabel(x_label)
         ax.legend()
     else:

@@ -185,3 +185,12 @@ def test_cli_writes_the_seed_plot(tmp_path, two_seeds, capsys):
     assert main([*argv, "--x-scale", "linear"]) == 0
     assert main(["evaluate", "seeds", "--group", "nf", *map(str, two_seeds), "--plot", str(tmp_path)]) == 2
     assert "--plot" in capsys.readouterr().err
+
+
+def test_a_linear_axis_labels_every_x_unless_the_labels_would_collide() -> None:
+    from navformer_rl.evaluation.plots import _labels_collide
+
+    assert not _labels_collide([1000.0, 2000.0, 3000.0])
+    assert not _labels_collide([350.0, 1000.0, 3496.0])
+    assert _labels_collide([1000.0, 2000.0, 2500.0, 3000.0, 10000.0])  # 500 apart on a 9,000 span
+    assert not _labels_collide([5.0])
