@@ -396,7 +396,12 @@ def test_two_checkpoints_of_run_b_1000_iterations_apart_differ_beyond_the_interv
 
 @pytest.mark.parametrize(
     ("window", "expected_sr", "expected_cr"),
-    [("02000-03000", 0.0, -0.174), ("03000-04000", -0.0167, -0.0584), ("04000-05000", -0.025, 0.124)],
+    [
+        ("02000-03000", 0.0, -0.174),
+        ("03000-04000", -0.0167, -0.0584),
+        ("04000-05000", -0.025, 0.124),
+        ("09000-10000", 0.05, -0.0126),
+    ],
 )
 def test_averaged_checkpoints_against_the_last_one_they_average(
     window: str, expected_sr: float, expected_cr: float
