@@ -78,6 +78,10 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("dt_10k_s0_it04000", {"sr": 0.3500, "cr": 0.5184}),
         ("dt_10k_s0_it05000", {"sr": 0.3417, "cr": 0.6025}),
         ("dt_10k_s0_it06000", {"sr": 0.5000, "cr": 0.4928}),
+        ("dt_10k_s0_it07000", {"sr": 0.3500, "cr": 0.5942}),
+        ("dt_10k_s0_it08000", {"sr": 0.5167, "cr": 0.4443}),
+        ("dt_10k_s0_it09000", {"sr": 0.4833, "cr": 0.4700}),
+        ("dt_10k_s0_it10000", {"sr": 0.5167, "cr": 0.4634}),
         ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
         ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
     ],
@@ -576,6 +580,25 @@ def test_run_b_at_7000_on_table1() -> None:
     _, rows = paired_differences(record, DATA_SCALING.parent / "context" / "table1" / "dt", n_resamples=200)
     assert rows[-1].difference["sr"] == pytest.approx(0.040, abs=5e-4)
     assert rows[-1].difference["cr"] == pytest.approx(0.063, abs=5e-4)
+
+
+def test_navformer_against_dt_at_the_papers_scale_on_table1() -> None:
+    """Both final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``) on Table I:
+    DT is ahead in every setup and touches less."""
+    navformer = PAPER10K / "table1" / "navformer_10k_s0_runb_it10000"
+    dt = PAPER10K / "table1" / "dt_10k_s0_it10000"
+    (summary,) = summarize_seed_groups({"DT": [dt]})
+    assert summary.runs[0].metrics.n_trials == 540
+    assert summary.runs[0].metrics.sr == pytest.approx(0.3694, abs=5e-5)
+    assert summary.runs[0].metrics.cr == pytest.approx(0.5032, abs=5e-5)
+    _, rows = paired_differences(navformer, dt, n_resamples=200)
+    assert [row.setup for row in rows][-1] == "all" and len(rows) == 10
+    assert all(row.difference["sr"] < 0 for row in rows)
+    assert rows[-1].difference["sr"] == pytest.approx(-0.0778, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(0.0302, abs=5e-4)
+    _, rows = paired_differences(dt, DATA_SCALING.parent / "context" / "table1" / "dt", n_resamples=200)
+    assert rows[-1].difference["sr"] == pytest.approx(0.1514, abs=5e-4)
+    assert rows[-1].difference["cr"] == pytest.approx(-0.0604, abs=5e-4)
 
 
 def test_the_shipped_navformer_on_table3() -> None:
