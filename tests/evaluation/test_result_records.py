@@ -601,12 +601,15 @@ def test_navformer_against_dt_at_the_papers_scale_on_table1() -> None:
     assert rows[-1].difference["cr"] == pytest.approx(-0.0604, abs=5e-4)
 
 
-def test_the_shipped_navformer_on_table3() -> None:
-    """Run B's iteration 10,000 (``pretrained:navformer``): the same Jackal among unseen against seen robots."""
+@pytest.mark.parametrize(
+    ("record", "expected_sr_difference"),
+    [("navformer_10k_s0_runb_it10000", -0.0333), ("dt_10k_s0_it10000", -0.1000)],
+)
+def test_the_shipped_policies_on_table3(record: str, expected_sr_difference: float) -> None:
+    """The final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``): the same Jackal
+    among unseen against seen robots."""
     from navformer_rl.evaluation.paired import unseen_obstacle_differences
 
-    _, difference = unseen_obstacle_differences(
-        PAPER10K / "table3" / "navformer_10k_s0_runb_it10000", n_resamples=200
-    )
+    _, difference = unseen_obstacle_differences(PAPER10K / "table3" / record, n_resamples=200)
     assert difference.n_robot_trials == 60
-    assert difference.difference["sr"] == pytest.approx(-0.0333, abs=5e-4)
+    assert difference.difference["sr"] == pytest.approx(expected_sr_difference, abs=5e-4)
