@@ -82,6 +82,7 @@ PAPER10K = DATA_SCALING.parent / "paper10k"
         ("dt_10k_s0_it08000", {"sr": 0.5167, "cr": 0.4443}),
         ("dt_10k_s0_it09000", {"sr": 0.4833, "cr": 0.4700}),
         ("dt_10k_s0_it10000", {"sr": 0.5167, "cr": 0.4634}),
+        ("dt_10k_s0_avg09000-10000", {"sr": 0.4667, "cr": 0.4312}),
         ("navformer_tenth_it02500", {"sr": 0.3833, "cr": 0.3342}),
         ("dt_tenth_it02500", {"sr": 0.3250, "cr": 0.5057}),
     ],
@@ -462,6 +463,10 @@ CHECKPOINT_DIAGNOSES = [
         (0.4833, 0.5917, 0.0021, 0.2124, 0.0404, 0.6974, 0.5784, 0.3917),
     ),
     (
+        "paper10k/diagnosis/dt_10k_s0_it10000",
+        (0.5167, 0.5667, 0.0070, 0.1812, -0.0037, 0.7067, 0.6650, 0.4500),
+    ),
+    (
         "paper10k/diagnosis/navformer_10k_s0_runb_avg02000-03000",
         (0.3333, 0.4167, -0.0003, 0.2651, 0.1847, 0.8282, 0.4161, 0.0667),
     ),
@@ -500,11 +505,14 @@ def test_closed_loop_diagnoses_give_the_quoted_search_and_turn_measures(record: 
     assert measured == pytest.approx(expected, abs=5e-5)
 
 
-def test_no_learned_checkpoint_gets_closer_while_its_target_is_hidden() -> None:
+def test_only_the_paper_scale_dt_gets_closer_while_its_target_is_hidden() -> None:
     hidden = {record: expected[2] for record, expected in CHECKPOINT_DIAGNOSES}
+    paper_dt = hidden.pop("paper10k/diagnosis/dt_10k_s0_it10000")
     learned = [value for record, value in hidden.items() if "frontier" not in record and "fca" not in record]
     assert len(learned) == 14 and max(abs(value) for value in learned) < 0.003
     assert hidden["expert/diagnosis/frontier"] > 0.02 and hidden["expert/diagnosis/fca"] > 0.05
+    # DT's paper-scale run is the one learned policy that closes in, by about a third of the exploration expert
+    assert 0.005 < paper_dt < hidden["expert/diagnosis/frontier"] / 2
 
 
 @pytest.mark.parametrize(
@@ -547,7 +555,7 @@ def test_run_b_at_5000_keeps_turning_as_its_context_fills() -> None:
 def test_run_b_on_table1_against_the_tenth_scale_weights(
     iteration: str, expected_sr: float, expected_cr: float, against_tenth: dict[str, tuple[float, float]]
 ) -> None:
-    """Iterations 5,000 and 10,000 (``pretrained:navformer``) paired with ``navformer_tenth`` and ``dt``."""
+    """Iterations 5,000 and 10,000 (``pretrained:navformer``) paired with ``navformer_tenth`` and ``dt_tenth``."""
     record = PAPER10K / "table1" / f"navformer_10k_s0_runb_it{iteration}"
     (summary,) = summarize_seed_groups({"run B": [record]})
     assert summary.runs[0].metrics.n_trials == 540
