@@ -22,7 +22,12 @@ from navformer_rl.data.prefetch import Prefetcher
 from navformer_rl.data.samplers import split_by_length
 from navformer_rl.tasks import DATASETS, TRAJECTORY_KINDS
 from navformer_rl.training import checkpoint as ckpt
-from navformer_rl.training.config import TrainConfig, model_config
+from navformer_rl.training.config import (
+    TrainConfig,
+    encoder_optimizer,
+    model_config,
+    with_encoder_optimizer,
+)
 from navformer_rl.training.distributed import (
     Distributed,
     ShardedAugmentation,
@@ -83,6 +88,16 @@ def _with_defaults(defaults: Mapping[str, Any], values: Mapping[str, Any]) -> di
     return merged
 
 
+def _recorded_encoder_optimizer(recorded: Mapping[str, Any]) -> str:
+    """The optimiser that stepped a recorded run's visual encoders: its ``optim.encoder_optimizer``, which a
+    run records resolved; a run recorded before the setting existed had them under AdamW with
+    ``encoder_training=joint`` and under Adam with ``frozen``."""
+    value = (recorded.get("optim") or {}).get("encoder_optimizer")
+    if value is not None:
+        return value
+    return "adam" if recorded.get("encoder_training") == "frozen" else "adamw"
+
+
 def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     """``values`` flattened to dotted keys (``model`` overrides kept whole), less :data:`RESUME_MAY_CHANGE`."""
     flat: dict[str, Any] = {}
@@ -111,7 +126,8 @@ class Trainer:
         cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
             (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
-        optimizers: ``{"navformer": AdamW, "dve": Adam}`` ("dve" absent without SSL).
+        optimizers: ``{"navformer": AdamW, "dve": Adam}`` (:meth:`parameter_groups`; "dve" absent when it
+            would own nothing: ``ablation=dt``).
         scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
         log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
@@ -139,7 +155,8 @@ class Trainer:
         from navformer_rl.modules import NavFormerModel, make_navformer_actor
         from navformer_rl.objectives import ActionBinLoss, ActionMSELoss, BYOLLoss, BYOLTauSchedule
 
-        self.cfg = cfg
+        self.cfg = with_encoder_optimizer(cfg)
+        cfg = self.cfg
         self.distributed = distributed if distributed is not None else Distributed()
         self.run_info: dict[str, Any] = {**self.distributed.run_info(), "init_from": None}
         self.run_dir = Path(cfg.output_dir)
@@ -234,17 +251,24 @@ class Trainer:
         return [t for module in modules for t in (*module.parameters(), *module.buffers())]
 
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
-        """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint)."""
+        """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint, complete).
+
+        ``navformer`` (AdamW): the navigation network (token embeddings, transformer, head), plus the visual
+        encoders when :func:`~navformer_rl.training.config.encoder_optimizer` is ``adamw``. ``dve`` (Adam):
+        the visual encoders when it is ``adam`` (the paper's split, §VI), then BYOL's projectors and
+        predictors; absent when it would be empty. Which losses reach the encoders is ``encoder_training``'s.
+        """
         encoder_ids = {id(p) for p in self.model.dve.parameters()}
         model_params = [p for p in self.model.parameters() if p.requires_grad]
-        frozen = self.cfg.encoder_training == "frozen"
-        navformer = [p for p in model_params if not (frozen and id(p) in encoder_ids)]
-        groups = {"navformer": navformer}
+        encoders_under_adam = encoder_optimizer(self.cfg) == "adam"
+        groups = {
+            "navformer": [p for p in model_params if not (encoders_under_adam and id(p) in encoder_ids)]
+        }
+        dve = [p for p in model_params if id(p) in encoder_ids] if encoders_under_adam else []
         if self.byol_loss is not None:
             model_ids = {id(p) for p in model_params}
-            dve = [p for p in self.byol_loss.parameters() if id(p) not in model_ids]
-            if frozen:
-                dve = [p for p in model_params if id(p) in encoder_ids] + dve
+            dve += [p for p in self.byol_loss.parameters() if id(p) not in model_ids]
+        if dve:
             groups["dve"] = dve
         return groups
 
@@ -348,6 +372,7 @@ class Trainer:
             total += float(losses["weighted_loss_byol"])
             metrics.update({k: float(losses[k]) for k in byol_out.keys()})
             metrics["tau"] = float(tau)
+        if "dve" in self.optimizers:
             metrics["lr_dve"] = self.optimizers["dve"].param_groups[0]["lr"]
         metrics["loss"] = total
         if not math.isfinite(total):
@@ -527,6 +552,7 @@ class Trainer:
             )
         # a key the checkpoint lacks came after it was written; the run had that key's default
         saved = _with_defaults(TrainConfig().to_dict(), header["train_config"])
+        saved["optim"]["encoder_optimizer"] = _recorded_encoder_optimizer(header["train_config"])
         before, now = _comparable(saved), _comparable(self.cfg.to_dict())
         changed = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
         if changed:

@@ -39,11 +39,12 @@ def weights(run_dir: Path, iteration: int) -> dict[str, torch.Tensor]:
     "encoder_training, extra",
     [
         ("joint", []),
+        ("joint", ["optim.encoder_optimizer=adamw"]),
         ("frozen", []),
         # float16 autocast on CPU is slow (~80 s here): checked with the slow tests
         pytest.param("joint", ["model.autocast_dtype=float16"], marks=pytest.mark.slow),
     ],
-    ids=["joint", "frozen", "joint-float16"],
+    ids=["joint", "joint-adamw", "frozen", "joint-float16"],
 )
 def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_training, extra):
     common = [f"encoder_training={encoder_training}", "optim.iterations=6", "checkpoint.keep_last=0", *extra]
@@ -74,8 +75,9 @@ def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_tra
     for key, value in ra["byol"].items():  # EMA target params, BYOL heads' BatchNorm statistics
         assert torch.equal(value, rb["byol"][key]), key
     # float16 autocast trains with loss scaling, whose state is part of the resume part
-    assert ("grad_scaler" in ra) == bool(extra)
-    if extra:
+    scaled = "model.autocast_dtype=float16" in extra
+    assert ("grad_scaler" in ra) == scaled
+    if scaled:
         assert ra["grad_scaler"] == rb["grad_scaler"] and ra["grad_scaler"]["scale"] > 0
     assert straight.metrics == {
         **resumed.metrics,
@@ -212,6 +214,30 @@ def test_a_checkpoint_from_before_a_new_key_resumes_with_that_keys_default(tiny_
     train(tiny_config("optim.iterations=2", f"output_dir={other}", "ssl.loss_weight=0.5"))
     with pytest.raises(ValueError, match=r"differs in \['ssl.loss_weight'\]"):
         train(tiny_config("optim.iterations=3", f"output_dir={other}", "resume=true"))
+
+
+@pytest.mark.parametrize(("encoder_training", "legacy_optimizer"), [("joint", "adamw"), ("frozen", "adam")])
+def test_a_checkpoint_from_before_the_encoder_optimizer_key_resumes_with_its_own_optimiser(
+    tiny_config, tmp_path, encoder_training, legacy_optimizer
+):
+    """A run recorded before ``optim.encoder_optimizer`` existed had its encoders under AdamW (``joint``) or
+    Adam (``frozen``): it resumes with that optimiser named, and a resume with the other one is refused."""
+    import json
+
+    run = tmp_path / "run"
+    common = [f"encoder_training={encoder_training}", f"output_dir={run}"]
+    first = train(tiny_config(*common, "optim.iterations=2", f"optim.encoder_optimizer={legacy_optimizer}"))
+    header_path = first.checkpoint / "config.json"
+    header = json.loads(header_path.read_text())
+    del header["train_config"]["optim"]["encoder_optimizer"]  # as written before the key existed
+    header_path.write_text(json.dumps(header))
+    other = "adam" if legacy_optimizer == "adamw" else "adamw"
+    with pytest.raises(ValueError, match=r"differs in \['optim.encoder_optimizer'\]"):
+        train(tiny_config(*common, "optim.iterations=3", "resume=true", f"optim.encoder_optimizer={other}"))
+    resumed = tiny_config(
+        *common, "optim.iterations=3", "resume=true", f"optim.encoder_optimizer={legacy_optimizer}"
+    )
+    assert train(resumed).iterations == 3
 
 
 @pytest.mark.parametrize(
