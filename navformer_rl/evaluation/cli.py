@@ -92,7 +92,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=cli_args.int_at_least(1),
         default=None,
         help="navformer, dt: the timesteps the policy attends to, from 1 to the model's window (default: "
-        "the window the checkpoint was trained on, data.context_steps, else the whole context, 256 steps; a "
+        "the window the checkpoint was trained on, data.context_steps, else the whole context: 256 steps for "
+        "navformer, 341 for dt; a "
         "shorter one is an inference option, not the paper's)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -36,7 +36,7 @@ class NavFormerPolicy(TensorDictModuleBase):
 
     Context: the target token, then per step R-hat, e^s, e^ca, a; each call adds one timestep through the
     KV cache (``IncrementalNavFormer``). Past ``context_steps`` timesteps (None, the default: the model's
-    whole context, ``config.context_tokens`` = 1024 tokens = 256 steps) the oldest whole timestep leaves the
+    whole context, ``config.context_tokens`` = 1024 tokens = 256 steps, 341 for DT) the oldest whole timestep leaves the
     window and the target token stays (streaming window, see ``docs/model.md``). A shorter ``context_steps``
     is an inference-time option, not the paper's (``docs/deviations.md``). Without ``step_count`` in the input, state is cleared by ``reset()``, when the
     number of robots changes, or never otherwise.
