@@ -71,7 +71,7 @@ def test_optimisers_own_the_right_parameters(tiny_config, mode):
 
 def test_frozen_mode_keeps_the_dt_loss_out_of_the_encoders(tiny_config):
     trainer = build_trainer(tiny_config("encoder_training=frozen", "optim.iterations=1"))
-    _, batch = trainer.cross_task.sample()
+    batch = trainer.cross_task.sample()
     trainer.dt_loss(batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels"))[
         "loss_dt"
     ].backward()
@@ -105,7 +105,7 @@ def test_length_levers_give_the_whole_batch_gradient_without_the_padding(tiny_co
     """Known answer: with dropout off, a batch of trajectories of four lengths gives the same loss and
     gradients in one padded forward, in length-sorted chunks cropped to their own longest window
     (``optim.chunks_by_length``) and with the transformer run in length groups (``optim.length_groups``)."""
-    _, batch = build_trainer(
+    batch = build_trainer(
         tiny_config("optim.iterations=1", f"output_dir={tmp_path / 'draw'}")
     ).cross_task.sample()
     batch = batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels").clone()
