@@ -51,6 +51,7 @@ def add_policy_transforms(env: EnvBase, policy: Any = None) -> EnvBase:
 
     Examples:
         >>> from navformer_rl.envs.multi_robot import MultiRobotNavEnv
+        >>> from navformer_rl.envs.policy_transforms import add_policy_transforms
         >>> env = add_policy_transforms(MultiRobotNavEnv(size=7.5, n_robots=2, seed=0))
         >>> type(env.transform).__name__  # only InitTracker: ("agents", "step_count") is the env's own
         'InitTracker'
@@ -73,6 +74,7 @@ class ToUint8Image(Transform):
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
+        >>> from navformer_rl.envs.policy_transforms import ToUint8Image
         >>> frames = TensorDict({"pixels": torch.rand(2, 3, 84, 84)}, batch_size=[2])
         >>> images = ToUint8Image()(frames)["pixels"]  # in place: frames now holds uint8 HWC
         >>> images.dtype, images.shape
