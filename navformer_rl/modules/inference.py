@@ -61,12 +61,14 @@ class NavFormerPolicy(TensorDictModuleBase):
 
     Writes ``("agents", "action")`` float32 ``[*R, 2]`` in [-1, 1].
 
-    Keys, as on TorchRL modules: ``in_keys`` ``[pixels, target_pixels, step_count, reward, is_init]`` (those
-    read; the optional three may be left out) and ``out_keys`` ``[action]``, given to the constructor or
-    assigned (``policy.in_keys = [...]``), or by name with ``set_keys(pixels=..., target_pixels=...,
-    step_count=..., reward=..., is_init=..., action=...)`` (None: not read), as TorchRL's losses do; the
-    former keywords ``pixels_key=``, ``target_pixels_key=``, ``step_count_key=``, ``reward_key=``,
-    ``action_key=``, ``is_init_key=`` keep working. ``SINGLE_ROBOT_POLICY_KEYS`` are the single-robot env's.
+    Keys, as on TorchRL modules: ``in_keys`` are the keys read, in the order ``[pixels, target_pixels,
+    step_count, reward, is_init]`` (the last three optional), ``out_keys`` ``[action]``; both are constructor
+    arguments and assignable. An ``in_keys`` list is taken in order for what the policy reads (all five for a
+    new policy), those past its end then not read; a dict sets them by name. Or name them with
+    ``set_keys(pixels=..., target_pixels=..., step_count=..., reward=..., is_init=..., action=...)`` (None:
+    not read), as TorchRL's losses do; the former keywords ``pixels_key=``, ``target_pixels_key=``,
+    ``step_count_key=``, ``reward_key=``, ``action_key=``, ``is_init_key=`` keep working.
+    ``SINGLE_ROBOT_POLICY_KEYS`` are the single-robot env's.
     A missing ``pixels`` / ``target_pixels`` is a ``MissingKeyError`` naming it and ``set_keys``.
 
     Env transforms: the resets come from ``step_count`` or ``is_init``. ``MultiRobotNavEnv`` has
@@ -164,12 +166,14 @@ class NavFormerPolicy(TensorDictModuleBase):
             named = dict(keys)
         else:
             keys = list(keys)
-            if not 2 <= len(keys) <= len(POLICY_IN_KEYS):
+            read = [name for name in POLICY_IN_KEYS if self._keys[name] is not None]
+            if not 2 <= len(keys) <= len(read):
                 raise ValueError(
-                    f"NavFormerPolicy.in_keys={keys!r}: expected 2 to {len(POLICY_IN_KEYS)} keys, in the order "
-                    f"{list(POLICY_IN_KEYS)} (the last three optional: those left out are not read)"
+                    f"NavFormerPolicy.in_keys={keys!r}: expected 2 to {len(read)} keys, taken in order for what "
+                    f"it reads, {read} (those past the list's end are then not read); set_keys(name=key) "
+                    "names them one by one"
                 )
-            named = dict.fromkeys(OPTIONAL_POLICY_IN_KEYS) | dict(zip(POLICY_IN_KEYS, keys))
+            named = dict.fromkeys(read[len(keys) :]) | dict(zip(read, keys))
         self.set_keys(**named)
 
     @property

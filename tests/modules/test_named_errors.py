@@ -139,6 +139,14 @@ def test_policy_keys_as_on_torchrl_modules(model):
     assigned = NavFormerPolicy(model)
     assigned.in_keys = {"pixels": "frame"}
     assert assigned.pixels_key == "frame" and assigned.target_pixels_key == ("agents", "target_pixels")
+    by_name.in_keys = (
+        by_name.in_keys
+    )  # a list is taken for what the policy reads: a round trip changes nothing
+    assert (
+        by_name.in_keys == ["pixels", "target_pixels", "step_count", "is_init"] and by_name.reward_key is None
+    )
+    by_name.in_keys = ["frame", "goal"]  # renamed, and the keys past the list's end no longer read
+    assert by_name.in_keys == ["frame", "goal"] and by_name.is_init_key is None
     with pytest.raises(ValueError, match=r"either as in_keys= / out_keys= or as \['pixels_key'\]"):
         NavFormerPolicy(model, in_keys=["a", "b"], pixels_key="pixels")
     with pytest.raises(ValueError, match=r"\['observation'\] are not keys of the policy"):
