@@ -123,7 +123,7 @@ class Trainer:
             (``make_navformer_actor``), what the DT loss runs.  dt_loss: ``ActionMSELoss`` (``ActionBinLoss``
             with ``model.action_bins``).  validation_loss: ``ActionMSELoss`` on the same actor (the validation rows).
         byol_loss: ``BYOLLoss`` or None (no SSL).
-        cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
+        cross_task: ``CrossTaskReplayBuffer`` of the D_e / D_ca batchers.  pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
             (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
         optimizers: ``{"navformer": AdamW, "dve": Adam}`` (:meth:`parameter_groups`; "dve" absent when it
@@ -151,7 +151,7 @@ class Trainer:
     ) -> None:
         from torchrl.objectives import SoftUpdate
 
-        from navformer_rl.data import CrossTaskSampler
+        from navformer_rl.data import CrossTaskReplayBuffer
         from navformer_rl.modules import NavFormerModel, make_navformer_actor
         from navformer_rl.objectives import ActionBinLoss, ActionMSELoss, BYOLLoss, BYOLTauSchedule
 
@@ -191,7 +191,7 @@ class Trainer:
                 )
             if self.pairs is not None:
                 self.pairs = ShardedPairBatcher(self.pairs, self.distributed)
-        self.cross_task = CrossTaskSampler(batchers["e"], batchers["ca"])
+        self.cross_task = CrossTaskReplayBuffer(batchers["e"], batchers["ca"])
         self.batches = Prefetcher(
             self._draw_batches, self._sampler_state, self._load_sampler_state, enabled=cfg.data.prefetch
         )
@@ -287,9 +287,9 @@ class Trainer:
     # -- batches --------------------------------------------------------------------------------------
     def _draw_batches(self) -> tuple[str, Any, Any]:
         """One iteration's ``(task, trajectory batch [N] with BATCH_KEYS, D_ssl pairs [B] or None)``."""
-        task, batch = self.cross_task.sample()
+        batch = self.cross_task.sample()
         pairs = self.pairs.sample() if self.pairs is not None else None
-        return task, batch.select(*BATCH_KEYS), pairs
+        return self.cross_task.task_of(batch), batch.select(*BATCH_KEYS), pairs
 
     def _sampler_state(self) -> dict[str, Any]:
         """The samplers' positions and RNG states (``cross_task`` and, with SSL, ``pairs``) for a checkpoint."""

@@ -105,7 +105,7 @@ def test_both_losses_reach_the_encoders_under_the_split(tiny_config):
     """eq. 11 with §VI's optimisers: L_DT and L_BYOL each give every encoder a gradient, and one iteration's
     Adam step moves the encoders (Adam's state holds them)."""
     trainer = build_trainer(tiny_config("optim.iterations=1"))
-    _, batch = trainer.cross_task.sample()
+    batch = trainer.cross_task.sample()
     encoders = [p for _, enc in trainer.model.observation_encoders() for p in enc.parameters()]
     batch = batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels")
     for loss in (
@@ -131,7 +131,7 @@ def test_a_bad_encoder_optimiser_is_named(tiny_config):
 
 def test_frozen_mode_keeps_the_dt_loss_out_of_the_encoders(tiny_config):
     trainer = build_trainer(tiny_config("encoder_training=frozen", "optim.iterations=1"))
-    _, batch = trainer.cross_task.sample()
+    batch = trainer.cross_task.sample()
     trainer.dt_loss(batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels"))[
         "loss_dt"
     ].backward()
@@ -168,7 +168,7 @@ def test_length_levers_give_the_whole_batch_gradient_without_the_padding(tiny_co
     """Known answer: with dropout off, a batch of trajectories of four lengths gives the same loss and
     gradients in one padded forward, in length-sorted chunks cropped to their own longest window
     (``optim.chunks_by_length``) and with the transformer run in length groups (``optim.length_groups``)."""
-    _, batch = build_trainer(
+    batch = build_trainer(
         tiny_config("optim.iterations=1", f"output_dir={tmp_path / 'draw'}")
     ).cross_task.sample()
     batch = batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels").clone()

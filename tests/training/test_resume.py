@@ -106,6 +106,29 @@ def test_drawing_batches_ahead_changes_nothing_but_the_wait(tiny_config, tmp_pat
     assert load_resume_state(plain.checkpoint)["cross_task"]["iteration"] == 4
 
 
+def test_a_checkpoint_with_the_former_sampler_state_resumes_the_same(tiny_config, tmp_path):
+    """Checkpoints written before CrossTaskReplayBuffer hold the CrossTaskSampler's layout, ``{"iteration",
+    <task>: the trajectory sampler's state}``: they resume on the batches an uninterrupted run draws."""
+    common = ["optim.iterations=4", "checkpoint.keep_last=0", "data.prefetch=false"]
+    plain = train(tiny_config(*common, f"output_dir={tmp_path / 'plain'}"))
+    old_dir = tmp_path / "old"
+    crash_after_checkpoint(tiny_config(*common, "checkpoint.interval=3", f"output_dir={old_dir}"))
+    resume_file = old_dir / "checkpoints" / "iter_000003" / "resume.pt"
+    state = torch.load(resume_file, weights_only=True)
+    cross_task = state["cross_task"]
+    assert cross_task["exploration"]["generator"] is None  # the batchers' samplers own their generators
+    state["cross_task"] = {"iteration": cross_task["iteration"]} | {
+        task: cross_task[task]["sampler"] for task in ("exploration", "collision_avoidance")
+    }
+    torch.save(state, resume_file)
+    resumed = train(tiny_config(*common, "checkpoint.interval=3", "resume=true", f"output_dir={old_dir}"))
+    assert resumed.iterations == 4
+    for name in ("loss", "loss_dt", "loss_byol"):
+        assert scalars(plain.run_dir, name) == scalars(old_dir, name), name
+    wa, wb = weights(plain.run_dir, 4), weights(old_dir, 4)
+    assert all(torch.equal(wa[key], wb[key]) for key in wa)
+
+
 @pytest.mark.parametrize("dtype, scaled", [(None, False), ("bfloat16", False), ("float16", True)])
 def test_loss_scaling_only_under_float16(tiny_config, dtype, scaled):
     overrides = [] if dtype is None else [f"model.autocast_dtype={dtype}"]
