@@ -1,7 +1,7 @@
 """Train NavFormer with our TorchRL pieces in your own loop (no recipe, no CLI).
 
 Builds tiny synthetic datasets in the real on-disk format (swap in folders from ``navformer collect``), then
-wires the pieces by hand: trajectory batchers alternating D_e / D_ca (``CrossTaskSampler``), the model's DVE,
+wires the pieces by hand: trajectory batchers alternating D_e / D_ca (``CrossTaskReplayBuffer``), the model's DVE,
 causal transformer and head as TensorDict modules (``make_navformer_actor``), the DT loss (eq. 10, ``ActionMSELoss``), BYOL on D_ssl
 (eqs. 6-8, ``BYOLLoss`` + TorchRL ``SoftUpdate``), summed as in eq. 11. Then scores the model on held-out
 trajectories (eq. 10 in eval mode on fixed windows: ``FixedTrajectoryBatches`` + ``teacher_forced_loss``).
@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 from torchrl.objectives import SoftUpdate
 
-from navformer_rl.data import CrossTaskSampler, open_dataset
+from navformer_rl.data import CrossTaskReplayBuffer, open_dataset
 from navformer_rl.data.synthetic import make_synthetic_dataset
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import ActionMSELoss, BYOLLoss, BYOLTauSchedule
@@ -51,7 +51,7 @@ def train(root: Path, iterations: int) -> None:
     e, ca, ssl = (open_dataset(root / kind) for kind in ("e", "ca", "ssl"))
 
     # D_e and D_ca alternate each iteration (paper §VI); batches are [N] TensorDicts with [N, T] steps + mask.
-    cross_task = CrossTaskSampler(e.trajectory_batcher(4, seed=1), ca.trajectory_batcher(8, seed=2))
+    cross_task = CrossTaskReplayBuffer(e.trajectory_batcher(4, seed=1), ca.trajectory_batcher(8, seed=2))
     pairs = ssl.pair_batcher(32, seed=3)
 
     model = NavFormerModel(NavFormerConfig())
@@ -66,7 +66,8 @@ def train(root: Path, iterations: int) -> None:
     )
 
     for iteration in range(iterations):
-        task, batch = cross_task.sample()
+        batch = cross_task.sample()
+        task = cross_task.task_of(batch)
         loss_dt = dt_loss(batch)["loss_dt"]
         loss_byol = byol_loss(pairs.sample())["loss_byol"]
         optim.zero_grad()

@@ -16,7 +16,13 @@ def run(*args: str, timeout: int = 300) -> subprocess.CompletedProcess:
         capture_output=True,
         text=True,
         timeout=timeout,
-        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin", "RL_LOGGING_LEVEL": "WARNING"},
+        # PYTHONPATH: the checkout under test, not wherever the environment installed navformer_rl
+        env={
+            "OMP_NUM_THREADS": "1",
+            "PATH": "/usr/bin:/bin",
+            "RL_LOGGING_LEVEL": "WARNING",
+            "PYTHONPATH": str(ROOT),
+        },
     )
 
 
@@ -27,6 +33,19 @@ def test_training_example_runs_and_alternates_tasks():
     assert [line[1] for line in iterations] == ["exploration", "collision_avoidance"]
     assert all(float(line[3]) > 0 and float(line[5]) > 0 for line in iterations)
     assert held_out[:3] == ["held-out", "D_e", "L_DT"] and float(held_out[3]) > 0
+
+
+def test_compose_example_trains_on_torchrl_buffers_and_collects_without_warnings():
+    out = run("examples/compose_with_torchrl.py", "--steps", "4", "--frames", "20")
+    assert out.returncode == 0, out.stderr
+    assert "Warning" not in out.stderr, out.stderr  # the Collector finds the transforms the policy needs
+    steps = [line.split() for line in out.stdout.splitlines() if line.startswith("step ")]
+    assert [line[2] for line in steps] == ["exploration", "collision_avoidance"] * 2
+    assert all(float(line[-3]) > 0 and float(line[-1]) > 0 for line in steps)  # L_DT, L_BYOL
+    collected = [
+        line for line in out.stdout.splitlines() if line.startswith("collected (10,): actions (10, 2, 2)")
+    ]
+    assert len(collected) == 2
 
 
 def test_swap_the_head_example_trains_and_decodes_with_its_own_head():

@@ -11,7 +11,7 @@ from __future__ import annotations
 from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
-    "CrossTaskSampler": "navformer_rl.data.cross_task",
+    "CrossTaskReplayBuffer": "navformer_rl.data.cross_task",
     "NavDataset": "navformer_rl.data.dataset",
     "open_dataset": "navformer_rl.data.dataset",
     "DEFAULT_CONTEXT_STEPS": "navformer_rl.data.samplers",

@@ -13,6 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import torch
+from tensordict import TensorDict
+from torchrl.data.replay_buffers import Storage
 
 from navformer_rl.data.dataset import NavDataset
 from navformer_rl.data.samplers import (
@@ -172,6 +174,48 @@ def _gather_parts(
     return out
 
 
+class ConcatRowsStorage(Storage):
+    """A read-only TorchRL ``Storage`` over the rows of a :class:`ConcatNavDataset` (nothing copied):
+    ``get(index)`` gathers every key part by part, ids shifted to the concatenation's (the storage of a
+    :class:`ConcatTrajectoryBatcher`)."""
+
+    def __init__(self, dataset: ConcatNavDataset) -> None:
+        super().__init__(max_size=len(dataset))
+        self.dataset = dataset
+        self._shifts = {
+            "episode": dataset.trajectory_offsets[:-1],
+            "target_id": dataset.target_offsets[:-1],
+        }
+
+    def get(self, index) -> TensorDict:
+        rows = torch.arange(len(self))[index].reshape(-1)
+        parts = self.dataset.parts
+        out = TensorDict(batch_size=[rows.numel()])
+        for key in parts[0].rows.keys(include_nested=True, leaves_only=True):
+            sources = [part.rows.get(key).as_subclass(torch.Tensor) for part in parts]
+            name = key if isinstance(key, str) else key[-1]
+            out.set(
+                key,
+                _gather_parts(sources, self.dataset.row_offsets, rows, None, False, self._shifts.get(name)),
+            )
+        return out
+
+    def set(self, cursor, data, *, set_cursor: bool = True):
+        raise RuntimeError("ConcatRowsStorage is read-only: its rows are the dataset folders' files")
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        return None
+
+    def _empty(self) -> None:
+        raise RuntimeError("ConcatRowsStorage is read-only: its rows are the dataset folders' files")
+
+
 class ConcatTrajectoryBatcher(TrajectoryBatcher):
     """A :class:`~navformer_rl.data.samplers.TrajectoryBatcher` over a :class:`ConcatNavDataset`: the sampler
     draws over the concatenated episode table and each key is gathered part by part (:func:`_gather_parts`)
@@ -188,7 +232,16 @@ class ConcatTrajectoryBatcher(TrajectoryBatcher):
         pin_memory: bool = False,
     ) -> None:
         first = dataset.parts[0]
-        super().__init__(first.rows, first.targets, sampler, keys, reuse_buffers, buffer_sets, pin_memory)
+        super().__init__(
+            first.rows,
+            first.targets,
+            sampler,
+            keys,
+            reuse_buffers,
+            buffer_sets,
+            pin_memory,
+            storage=ConcatRowsStorage(dataset),
+        )
         self._part_sources = {
             key: [part.rows.get(key).as_subclass(torch.Tensor) for part in dataset.parts]
             for key in self.fields

@@ -197,7 +197,8 @@ class NavDataset:
         pin_memory: bool = False,
     ) -> TrajectoryBatcher:
         """Fast padded batches ``[N]`` with per-step keys ``[N, T, ...]``, ``mask`` and ``target_pixels``
-        (buffer options: :class:`TrajectoryBatcher`)."""
+        (buffer options: :class:`TrajectoryBatcher`, a read-only TorchRL ``TensorDictReplayBuffer`` whose
+        ``dumps`` / ``loads`` reference this dataset as ``replay_buffer``'s do)."""
         self._require_trajectories(num_trajectories)
         sampler = TrajectorySampler(num_trajectories, context_steps, seed=seed, episodes=self.episodes)
         return TrajectoryBatcher(
@@ -208,6 +209,7 @@ class NavDataset:
             reuse_buffers=reuse_buffers,
             buffer_sets=buffer_sets,
             pin_memory=pin_memory,
+            checkpointer=DatasetReferenceCheckpointer(self),
         )
 
     def pair_buffer(self, batch_size: int = 512, seed: int = 0) -> TensorDictReplayBuffer:

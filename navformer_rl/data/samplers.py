@@ -10,7 +10,9 @@ Two layers:
   the same sampler and gather every key once with ``torch.index_select(..., out=)`` into buffers allocated
   once, returning ``[N, T]`` (or ``[B]``) TensorDicts with the target images attached. (TorchRL's
   ``SliceSampler`` gathers the pixels twice and allocates fresh tensors: ~17x slower, see
-  ``benchmarks/data.md``.)
+  ``benchmarks/data.md``.) ``TrajectoryBatcher`` is itself a TorchRL ``TensorDictReplayBuffer`` (read-only,
+  over the dataset's rows), so it composes where TorchRL takes a buffer, e.g. in
+  :class:`~navformer_rl.data.cross_task.CrossTaskReplayBuffer`.
 
 Randomness: one ``torch.Generator`` per sampler; ``state_dict()``/``load_state_dict()`` capture it together with
 the epoch permutation and cursor, so a resumed run draws exactly the batches an uninterrupted run would.
@@ -24,7 +26,13 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict
-from torchrl.data.replay_buffers import Sampler
+from torchrl.data.replay_buffers import (
+    ImmutableDatasetWriter,
+    Sampler,
+    Storage,
+    TensorDictReplayBuffer,
+    TensorStorage,
+)
 
 from navformer_rl.data.schema import TRAJECTORY_FIELDS, FieldSpec
 from navformer_rl.utils.length_groups import length_sorted_groups
@@ -147,6 +155,23 @@ class TrajectorySampler(Sampler):
         seed: seed of the sampler's ``torch.Generator``.
         episodes: the trajectory table; built from the storage's ``episode``/``target_id`` columns on first
             use when omitted.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+        >>> from navformer_rl.data import TrajectorySampler
+        >>> # three trajectories of 4, 2 and 5 steps, stored whole and in order (ids 0, 1, 2)
+        >>> episode = torch.tensor([0, 0, 0, 0, 1, 1, 2, 2, 2, 2, 2])
+        >>> step = torch.cat([torch.arange(4), torch.arange(2), torch.arange(5)])
+        >>> rows = TensorDict({"episode": episode, "target_id": episode, "step": step}, batch_size=[11])
+        >>> buffer = TensorDictReplayBuffer(
+        ...     storage=LazyTensorStorage(11), sampler=TrajectorySampler(3, context_steps=4, seed=0), batch_size=3
+        ... )
+        >>> _ = buffer.extend(rows)
+        >>> batch = buffer.sample().reshape(3, -1)  # flat [N * T] -> [N, T]: every trajectory, cropped to 4 steps
+        >>> batch["step"].shape, batch["mask"].sum(1).sort().values.tolist()
+        (torch.Size([3, 4]), [2, 4, 4])
     """
 
     def __init__(
@@ -275,8 +300,13 @@ def _check_buffer_options(buffer_sets: int, pin_memory: bool) -> None:
         raise ValueError("pin_memory=True needs CUDA (page-locked memory speeds up copies to a GPU)")
 
 
-class TrajectoryBatcher:
-    """Fast padded trajectory batches: ``sample() -> TensorDict`` with batch size ``[N]``.
+def _rows_as_gathered(rows: TensorDict) -> TensorDict:
+    """The collate function of a :class:`TrajectoryBatcher`'s storage reads: its storages return TensorDicts."""
+    return rows
+
+
+class TrajectoryBatcher(TensorDictReplayBuffer):
+    """Fast padded trajectory batches, a read-only TorchRL replay buffer: ``sample() -> TensorDict [N]``.
 
     Per-step keys have shape ``[N, T, ...]``: every trajectory key of the schema (``pixels`` uint8
     ``[N, T, 84, 84, 3]``, ``action`` ``[N, T, 2]``, ``return_to_go`` ``[N, T, 1]``, ``step`` ``[N, T]``, ...)
@@ -285,6 +315,12 @@ class TrajectoryBatcher:
     int64 ``[N]``. T is the longest window in the batch. (The root batch size is ``[N]`` because the target
     image is per trajectory.)
 
+    As a ``TensorDictReplayBuffer`` its storage is a ``TensorStorage`` over the dataset's rows, its sampler the
+    :class:`TrajectorySampler` and its writer TorchRL's ``ImmutableDatasetWriter`` (``extend`` raises: the
+    rows are the dataset's files); ``sample(batch_size)`` takes the number of trajectories (at most the
+    sampler's ``num_trajectories``, the default), and ``state_dict()`` / ``load_state_dict()`` hold the
+    sampler's state (positions and generator), not the rows.
+
     With ``reuse_buffers=True`` (default) every key is gathered with ``index_select(out=)`` into buffers that
     are reused across calls (grown in steps of 32 timesteps up to ``N * context_steps`` rows when a batch
     needs more), so the returned tensors are overwritten by the ``buffer_sets``-th next ``sample()`` (the
@@ -292,6 +328,17 @@ class TrajectoryBatcher:
     train while the next is drawn (:class:`~navformer_rl.data.prefetch.Prefetcher`). ``pin_memory=True``
     (CUDA only) allocates page-locked buffers, so ``.to("cuda", non_blocking=True)`` copies asynchronously.
     ``reuse_buffers=False`` allocates fresh tensors per batch.
+
+    Examples:
+        >>> import tempfile
+        >>> from navformer_rl.data import make_synthetic_dataset, open_dataset
+        >>> root = make_synthetic_dataset(tempfile.mkdtemp() + "/e", "e", n_trajectories=6, seed=0)
+        >>> batcher = open_dataset(root).trajectory_batcher(4, context_steps=16, seed=0)
+        >>> batch = batcher.sample()
+        >>> batch.batch_size, batch["pixels"].dtype, batch["pixels"].shape[2:], batch["mask"].shape[0]
+        (torch.Size([4]), torch.uint8, torch.Size([84, 84, 3]), 4)
+        >>> batch["target_pixels"].shape
+        torch.Size([4, 84, 84, 3])
     """
 
     _GROWTH_STEPS = 32
@@ -305,13 +352,23 @@ class TrajectoryBatcher:
         reuse_buffers: bool = True,
         buffer_sets: int = 1,
         pin_memory: bool = False,
+        *,
+        storage: Storage | None = None,
+        checkpointer=None,
     ):
         _check_buffer_options(buffer_sets, pin_memory)
         if sampler.episodes is None:
             sampler.bind(EpisodeTable.from_rows(rows["episode"], rows["target_id"]))
+        super().__init__(
+            storage=TensorStorage(rows) if storage is None else storage,
+            sampler=sampler,
+            writer=ImmutableDatasetWriter(),
+            batch_size=sampler.num_trajectories,
+            checkpointer=checkpointer,
+            collate_fn=_rows_as_gathered,
+        )
         self.rows = rows
         self.targets = targets.as_subclass(torch.Tensor)
-        self.sampler = sampler
         self.fields: dict[tuple[str, ...], FieldSpec] = (
             TRAJECTORY_FIELDS if keys is None else {tuple(k): TRAJECTORY_FIELDS[tuple(k)] for k in keys}
         )
@@ -346,9 +403,22 @@ class TrajectoryBatcher:
             buffers[key] = buffer
         return buffer
 
-    def sample(self) -> TensorDict:
-        """The next batch of the sampler's draws (see the class docstring for keys and shapes)."""
-        return self.gather(self.sampler.draw())
+    def sample(
+        self, batch_size: int | None = None, return_info: bool = False
+    ) -> TensorDict | tuple[TensorDict, dict[str, torch.Tensor]]:
+        """The next batch of the sampler's draws (see the class docstring for keys and shapes).
+
+        ``batch_size``: trajectories, at most (and by default) the sampler's ``num_trajectories``.
+        ``return_info``: also return ``{"index": int64 [N, T] storage rows, "mask": bool [N, T]}``.
+        """
+        if batch_size is not None and not 1 <= batch_size <= self.sampler.num_trajectories:
+            raise ValueError(
+                f"sample(batch_size={batch_size!r}): expected 1 to {self.sampler.num_trajectories} trajectories "
+                "(the sampler's num_trajectories, which sizes the reused buffers)"
+            )
+        draw = self.sampler.draw(batch_size)
+        batch = self.gather(draw)
+        return (batch, {"index": draw.index, "mask": draw.mask}) if return_info else batch
 
     def gather(self, draw: TrajectoryDraw) -> TensorDict:
         """The batch of the windows in ``draw`` (at most the sampler's ``num_trajectories`` of them), e.g. a
@@ -382,10 +452,14 @@ class TrajectoryBatcher:
         return _gather_into(self.targets, index, buffer, self.pin_memory)
 
     def state_dict(self) -> dict[str, Any]:
+        """The sampler's state (torch tensors and ints): where the epoch stands and its generator."""
         return self.sampler.state_dict()
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.sampler.load_state_dict(state)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(rows={len(self)}, sampler={self.sampler!r})"
 
 
 PER_TRAJECTORY_KEYS = ("target_pixels", "trajectory")

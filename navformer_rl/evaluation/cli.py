@@ -92,7 +92,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=cli_args.int_at_least(1),
         default=None,
         help="navformer, dt: the timesteps the policy attends to, from 1 to the model's window (default: "
-        "the window the checkpoint was trained on, data.context_steps, else the whole context, 256 steps; a "
+        "the window the checkpoint was trained on, data.context_steps, else the whole context: 256 steps for "
+        "navformer, 341 for dt; a "
         "shorter one is an inference option, not the paper's)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -186,10 +187,24 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="paired difference A - B of SR / SPL / CR on the same episodes, with intervals",
         description="Compare two evaluation folders of one episode set robot-trial by robot-trial: per setup "
         "and pooled, the mean difference A - B of success, SPL and CR with a cluster-bootstrap interval "
-        "(docs/evaluation.md, 'Paired comparisons').",
+        "(docs/evaluation.md, 'Paired comparisons'). Two models trained with several seeds: --group NAME "
+        "FOLDER... twice, each robot-trial averaged over a model's seeds and the interval resampling the "
+        "seeds too.",
     )
-    compare.add_argument("compare_a", type=Path, metavar="A", help="evaluation folder of the first method")
-    compare.add_argument("compare_b", type=Path, metavar="B", help="evaluation folder of the second method")
+    compare.add_argument(
+        "compare_a", type=Path, nargs="?", metavar="A", help="evaluation folder of the first method"
+    )
+    compare.add_argument(
+        "compare_b", type=Path, nargs="?", metavar="B", help="evaluation folder of the second method"
+    )
+    compare.add_argument(
+        "--group",
+        dest="compare_groups",
+        nargs="+",
+        action="append",
+        metavar=("NAME", "FOLDER"),
+        help="instead of A B: a model's name, then its evaluation folders (one per training seed); give two",
+    )
     compare.add_argument(
         "--out",
         dest="compare_out",
@@ -448,11 +463,37 @@ def _run_unseen(args: argparse.Namespace) -> int:
 
 
 def _run_compare(args: argparse.Namespace) -> int:
-    from navformer_rl.evaluation.paired import paired_differences, paired_markdown
+    from navformer_rl.evaluation.paired import (
+        paired_differences,
+        paired_markdown,
+        pooled_paired_differences,
+    )
     from navformer_rl.utils.durable import atomic_write_text
 
     out = _output_file(args.compare_out, "--out") if args.compare_out is not None else None
-    labels, rows = paired_differences(args.compare_a, args.compare_b, cluster=args.cluster_by)
+    groups = args.compare_groups or []
+    positional = [folder for folder in (args.compare_a, args.compare_b) if folder is not None]
+    if groups:
+        if positional:
+            raise ValueError("give either two folders A B or two --group NAME FOLDER..., not both")
+        if len(groups) != 2 or any(len(group) < 2 for group in groups):
+            raise ValueError(
+                f"--group given {len(groups)} time(s) ({[g[0] for g in groups]}); give it twice, each a name "
+                "then at least one evaluation folder"
+            )
+        (name_a, *folders_a), (name_b, *folders_b) = groups
+        labels, rows = pooled_paired_differences(
+            [Path(f) for f in folders_a],
+            [Path(f) for f in folders_b],
+            (name_a, name_b),
+            cluster=args.cluster_by,
+        )
+    elif len(positional) == 2:
+        labels, rows = paired_differences(args.compare_a, args.compare_b, cluster=args.cluster_by)
+    else:
+        raise ValueError(
+            "compare needs two evaluation folders A B, or two --group NAME FOLDER... (one folder per seed)"
+        )
     table = paired_markdown(labels, rows, cluster=args.cluster_by)
     if out is not None:
         atomic_write_text(out, table)

@@ -10,6 +10,11 @@ per-robot differences of the drawn clusters (:func:`~navformer_rl.evaluation.mea
 seeded). An interval that excludes zero says the difference holds on these episodes beyond the trial-to-trial
 noise; it does not cover the spread between training seeds (``navformer evaluate seeds``).
 
+:func:`pooled_paired_differences` compares two *models* trained with several seeds each (one evaluation
+folder per seed, all on one episode set): each robot-trial's value is its mean over a side's seeds, and the
+interval resamples the seeds of each side with replacement as well as the trials (a two-level bootstrap), so
+it widens with the seed-to-seed spread. With one folder per side it is :func:`paired_differences`.
+
 Only robots measured in both folders count (Table III's unseen obstacle robots are not measured).
 
 :func:`unseen_obstacle_differences` pairs within one folder instead: Table III's ``-unseen`` setup replays
@@ -42,9 +47,9 @@ PAIRED_METRICS: tuple[str, ...] = ("sr", "spl", "cr")
 
 @dataclass(frozen=True)
 class PairedDifference:
-    """``A - B`` on one setup (or ``all``): each metric's mean for A and B over the paired robot-trials, the
-    mean difference and its ``(low, high)`` interval (``(nan, nan)`` with fewer clusters than
-    :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`)."""
+    """``A - B`` on one setup (or ``all``): each metric's mean for A and B over the paired robot-trials (and
+    over each side's ``n_seeds`` training seeds), the mean difference and its ``(low, high)`` interval
+    (``(nan, nan)`` with fewer clusters than :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`)."""
 
     setup: str
     n_robot_trials: int
@@ -54,6 +59,7 @@ class PairedDifference:
     b: dict[str, float]
     difference: dict[str, float]
     interval: dict[str, tuple[float, float]]
+    n_seeds: tuple[int, int] = (1, 1)
 
     def excludes_zero(self, metric: str) -> bool:
         """Whether ``metric``'s interval lies wholly on one side of zero."""
@@ -86,33 +92,75 @@ def _paired(
 
 def _difference(
     setup: str,
-    pairs: Sequence[tuple[RobotTrial, RobotTrial]],
+    records: Sequence[Sequence[RobotTrial]],
+    n_seeds: tuple[int, int],
     cluster: str,
     confidence: float,
     seed: int,
     n_resamples: int,
 ) -> PairedDifference:
-    values = [(_metric_values(x), _metric_values(y)) for x, y in pairs]
-    a = {m: np.array([va[m] for va, _ in values]) for m in PAIRED_METRICS}
-    b = {m: np.array([vb[m] for _, vb in values]) for m in PAIRED_METRICS}
-    if cluster == "trial":
-        keys = [x.episode_id for x, _ in pairs]
-    else:
-        keys = [f"{x.setup}/{x.world_seed}" for x, _ in pairs]
+    """``records``: per matched robot-trial, A's seeds' records then B's (``n_seeds`` of each)."""
+    k_a, k_b = n_seeds
+    values = np.array([[[_metric_values(r)[m] for r in row] for m in PAIRED_METRICS] for row in records])
+    a_seeds, b_seeds = values[:, :, :k_a], values[:, :, k_a:]  # [robot-trial, metric, seed]
+    a, b = a_seeds.mean(axis=2), b_seeds.mean(axis=2)
+    first = [row[0] for row in records]
+    keys = (
+        [x.episode_id for x in first] if cluster == "trial" else [f"{x.setup}/{x.world_seed}" for x in first]
+    )
     _, groups = np.unique(np.array(keys), return_inverse=True)
-    interval = {
-        m: bootstrap_mean_interval(a[m] - b[m], groups, confidence, n_resamples, seed) for m in PAIRED_METRICS
-    }
+    if n_seeds == (1, 1):
+        interval = {
+            m: bootstrap_mean_interval(a[:, i] - b[:, i], groups, confidence, n_resamples, seed)
+            for i, m in enumerate(PAIRED_METRICS)
+        }
+    else:
+        interval = {
+            m: _two_level_interval(a_seeds[:, i], b_seeds[:, i], groups, confidence, n_resamples, seed)
+            for i, m in enumerate(PAIRED_METRICS)
+        }
     return PairedDifference(
         setup=setup,
-        n_robot_trials=len(pairs),
-        n_trials=len({x.episode_id for x, _ in pairs}),
+        n_robot_trials=len(records),
+        n_trials=len({x.episode_id for x in first}),
         n_clusters=int(groups.max()) + 1,
-        a={m: float(a[m].mean()) for m in PAIRED_METRICS},
-        b={m: float(b[m].mean()) for m in PAIRED_METRICS},
-        difference={m: float((a[m] - b[m]).mean()) for m in PAIRED_METRICS},
+        a={m: float(a[:, i].mean()) for i, m in enumerate(PAIRED_METRICS)},
+        b={m: float(b[:, i].mean()) for i, m in enumerate(PAIRED_METRICS)},
+        difference={m: float((a[:, i] - b[:, i]).mean()) for i, m in enumerate(PAIRED_METRICS)},
         interval=interval,
+        n_seeds=n_seeds,
     )
+
+
+def _two_level_interval(
+    a: np.ndarray, b: np.ndarray, groups: np.ndarray, confidence: float, n_resamples: int, seed: int
+) -> tuple[float, float]:
+    """Percentile interval of ``mean(A) - mean(B)`` over robot-trials, ``a`` float ``[N, seeds of A]`` and
+    ``b`` ``[N, seeds of B]``: each resample draws each side's seeds with replacement, then whole groups
+    (``groups`` int ``[N]``) with replacement, and takes the mean over the drawn groups' robot-trials of the
+    drawn A seeds' mean minus the drawn B seeds' mean. ``(nan, nan)`` with too few groups."""
+    n_groups = int(groups.max()) + 1
+    if n_groups < min_trials_for_interval(confidence):
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    counts = np.bincount(groups, minlength=n_groups).astype(np.float64)
+    # each resample's seed weights (how often each seed is drawn, over the side's size) and group draws
+    weights_a = (
+        rng.multinomial(a.shape[1], np.full(a.shape[1], 1 / a.shape[1]), size=n_resamples) / a.shape[1]
+    )
+    weights_b = (
+        rng.multinomial(b.shape[1], np.full(b.shape[1], 1 / b.shape[1]), size=n_resamples) / b.shape[1]
+    )
+    drawn = rng.multinomial(n_groups, np.full(n_groups, 1 / n_groups), size=n_resamples)  # [resamples, G]
+    group_sums = [
+        np.stack([np.bincount(groups, weights=v[:, k], minlength=n_groups) for k in range(v.shape[1])], 1)
+        for v in (a, b)
+    ]  # [G, seeds] per side
+    sums = group_sums[0] @ weights_a.T - group_sums[1] @ weights_b.T  # [G, resamples]
+    stats = (drawn * sums.T).sum(axis=1) / (drawn @ counts)
+    alpha = (1.0 - confidence) / 2.0
+    low, high = np.quantile(stats, [alpha, 1.0 - alpha])
+    return float(low), float(high)
 
 
 def paired_differences(
@@ -137,27 +185,82 @@ def paired_differences(
         FileNotFoundError: a folder that is not a finished evaluation.
         ValueError: the folders ran different episode sets, or one lacks robot-trials of the other.
     """
+    return pooled_paired_differences([folder_a], [folder_b], None, cluster, confidence, seed, n_resamples)
+
+
+def pooled_paired_differences(
+    folders_a: Sequence[str | os.PathLike],
+    folders_b: Sequence[str | os.PathLike],
+    names: tuple[str, str] | None = None,
+    cluster: str = "trial",
+    confidence: float = 0.95,
+    seed: int = 0,
+    n_resamples: int = 10_000,
+) -> tuple[tuple[str, str], list[PairedDifference]]:
+    """``A - B`` per setup and pooled (``all``, last) for two models, each given as the evaluation folders of
+    its training seeds on one episode set (module docstring: each robot-trial's mean over a side's seeds; a
+    two-level bootstrap over seeds and trials when a side has several).
+
+    Args:
+        folders_a, folders_b: one ``navformer evaluate`` folder per training seed of A and of B.
+        names: ``(name of A, name of B)``; None: the folders' labels (one folder per side) or
+            ``"label + N seeds"``.
+        cluster, confidence, seed, n_resamples: as :func:`paired_differences`.
+
+    Raises:
+        FileNotFoundError: a folder that is not a finished evaluation.
+        ValueError: a side with no folder or the same folder twice, folders of different episode sets, or
+            one lacking robot-trials of another.
+    """
     check_cluster(cluster)
-    folders = (Path(folder_a), Path(folder_b))
+    sides = [[Path(f) for f in folders_a], [Path(f) for f in folders_b]]
+    for side, folders in zip("AB", sides, strict=True):
+        if not folders:
+            raise ValueError(f"side {side} has no evaluation folder; give at least one per side")
+        if len(set(folders)) != len(folders):
+            raise ValueError(
+                f"side {side} names a folder twice ({[str(f) for f in folders]}); give each seed once"
+            )
+    folders = [*sides[0], *sides[1]]
     runs = [read_run(folder) for folder in folders]
     digests = [(run.get("episode_set") or {}).get("content_sha256") for run in runs]
-    if digests[0] is None or digests[0] != digests[1]:
-        raise ValueError(
-            f"{folders[0]} and {folders[1]} ran different episode sets (content_sha256 {str(digests[0])[:12]} vs "
-            f"{str(digests[1])[:12]}); a paired comparison needs both evaluated with the same --episodes file"
+    for folder, digest in zip(folders[1:], digests[1:], strict=True):
+        if digests[0] is None or digest != digests[0]:
+            raise ValueError(
+                f"{folders[0]} and {folder} ran different episode sets (content_sha256 {str(digests[0])[:12]} "
+                f"vs {str(digest)[:12]}); a paired comparison needs every evaluation run with the same "
+                "--episodes file"
+            )
+    labels = [str(run.get("label")) for run in runs]
+    if names is None:
+        k_a = len(sides[0])
+        names = tuple(  # type: ignore[assignment]
+            side_labels[0] if len(side_labels) == 1 else f"{side_labels[0]} + {len(side_labels) - 1} seeds"
+            for side_labels in (labels[:k_a], labels[k_a:])
         )
-    labels = (str(runs[0].get("label")), str(runs[1].get("label")))
-    names = (f"{folders[0]} ({labels[0]})", f"{folders[1]} ({labels[1]})")
-    pairs = _paired(*(read_records(folder / "episodes.jsonl") for folder in folders), names)
-    if not pairs:
-        raise ValueError(f"{folders[0]} and {folders[1]} hold no measured robot-trials to compare")
-    setups = sorted({(x.size, x.n_robots, x.setup) for x, _ in pairs}, key=lambda key: setup_order_key(*key))
+    described = [f"{folder} ({label})" for folder, label in zip(folders, labels, strict=True)]
+    records = [read_records(folder / "episodes.jsonl") for folder in folders]
+    matched = [_paired(records[0], other, (described[0], described[i])) for i, other in enumerate(records)]
+    rows = [[pairs[j][1] for pairs in matched] for j in range(len(matched[0]))]
+    if not rows:
+        raise ValueError(f"{', '.join(map(str, folders))} hold no measured robot-trials to compare")
+    n_seeds = (len(sides[0]), len(sides[1]))
+    first = [row[0] for row in rows]
+    setups = sorted({(x.size, x.n_robots, x.setup) for x in first}, key=lambda key: setup_order_key(*key))
     out = [
-        _difference(setup, [p for p in pairs if p[0].setup == setup], cluster, confidence, seed, n_resamples)
+        _difference(
+            setup,
+            [row for row in rows if row[0].setup == setup],
+            n_seeds,
+            cluster,
+            confidence,
+            seed,
+            n_resamples,
+        )
         for _, _, setup in setups
     ]
-    out.append(_difference(ALL_SETUPS, pairs, cluster, confidence, seed, n_resamples))
-    return labels, out
+    out.append(_difference(ALL_SETUPS, rows, n_seeds, cluster, confidence, seed, n_resamples))
+    return names, out
 
 
 def _seen_partner(record: RobotTrial) -> tuple[str, int]:
@@ -212,7 +315,7 @@ def unseen_obstacle_differences(
         raise ValueError(
             f"{folder}: no measured robot-trials in a '*{UNSEEN_SUFFIX}' setup (Table III's episodes)"
         )
-    return label, _difference(label, pairs, "trial", confidence, seed, n_resamples)
+    return label, _difference(label, pairs, (1, 1), "trial", confidence, seed, n_resamples)
 
 
 def _signed(value: float, percent: bool) -> str:
@@ -251,10 +354,17 @@ def paired_markdown(
             f"{100 * row.b['sr']:.1f} % | {_cell(row, 'sr')} | {_cell(row, 'spl')} | {_cell(row, 'cr')} |"
         )
     units = {"trial": "trials", "world": "mazes"}[cluster]
+    seeds = max((row.n_seeds for row in rows), default=(1, 1))
+    resampled = f"whole {units}" if seeds == (1, 1) else f"each side's training seeds and whole {units}"
+    pooled = (
+        ""
+        if seeds == (1, 1)
+        else f"each robot-trial's value is its mean over {seeds[0]} seeds of {a} and {seeds[1]} of {b}; "
+    )
     lines += [
         "",
-        f"Paired on the same robot-trials; {100 * confidence:g} % percentile-bootstrap intervals resampling whole "
-        f"{units} (n/a with fewer than {min_trials_for_interval(confidence)} {units}); * : the interval excludes "
-        "zero.",
+        f"Paired on the same robot-trials; {pooled}{100 * confidence:g} % percentile-bootstrap intervals "
+        f"resampling {resampled} (n/a with fewer than {min_trials_for_interval(confidence)} {units}); * : the "
+        "interval excludes zero.",
     ]
     return "\n".join(lines) + "\n"

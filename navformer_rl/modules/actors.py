@@ -22,9 +22,10 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential, dispatch
 from tensordict.utils import NestedKey
 
+from navformer_rl.modules.inputs import check_trajectory_steps, check_unmasked_padding, require_keys
 from navformer_rl.modules.models.dve import DualVisualEncoder
 from navformer_rl.modules.models.navformer import NavFormerModel
 from navformer_rl.modules.models.thsc import ActionHead, BinnedActionHead
@@ -41,6 +42,67 @@ EMBED_KEY = "embed"
 """Parent key of the DVE's outputs: ``("embed", "static")``, ``("embed", "general")``, ``("embed", "target")``."""
 HIDDEN_KEY = "hidden"
 """Parent key of the causal transformer's outputs: ``("hidden", name)`` for name in ``HIDDEN_NAMES``."""
+
+
+INPUT_MEANINGS: dict[str, str] = {
+    "pixels": "uint8 frames [N, T, 84, 84, 3]",
+    "target_pixels": "uint8 target images [N, 84, 84, 3]",
+    "return_to_go": "float R-hat [N, T, 1]",
+    "action": "float actions [N, T, 2], teacher forcing",
+    "step": "int64 absolute timesteps [N, T]",
+    "mask": "bool [N, T], True on valid steps",
+    "target_embedding": "the DVE's target embedding e_g [N, d]",
+    "static": "the DVE's e^s [N, T, d]",
+    "general": "the DVE's e^ca [N, T, d]",
+    "target_hidden": "the transformer's h_g [N, T, d]",
+    "observation_hidden": "the transformer's h_o [N, T, d]",
+    "tokens_hidden": "the transformer's token hidden states [N, T, tps, d]",
+}
+"""What each input of the parts holds, for the errors naming a missing key."""
+OPTIONAL_INPUTS = ("mask",)
+"""The only optional input of a trajectory batch: without it every step counts as valid."""
+
+
+class CheckedModule(TensorDictModule):
+    """A ``TensorDictModule`` whose call first checks its in keys: a missing required key is a
+    :class:`~navformer_rl.modules.inputs.MissingKeyError` naming it, what it holds and how to rename it
+    (``in_keys=`` of ``maker``), instead of a failure inside the module. ``inputs``: one input name of
+    :data:`INPUT_MEANINGS` per in key, in order; ``mask`` may be absent. With ``step_input``, the timesteps
+    must be ``[N, T]`` and, without a mask, show no padding (``check_unmasked_padding``)."""
+
+    def __init__(
+        self,
+        module: torch.nn.Module,
+        in_keys: Sequence[NestedKey] | dict[str, NestedKey],
+        out_keys: Sequence[NestedKey],
+        *,
+        inputs: Sequence[str],
+        maker: str,
+        step_input: bool = False,
+        **kwargs,
+    ) -> None:
+        super().__init__(module, in_keys=in_keys, out_keys=out_keys, **kwargs)
+        self.maker = maker
+        names = list(inputs)
+        self.input_keys = dict(zip(names, self.in_keys, strict=True))
+        self.required = {
+            key: INPUT_MEANINGS.get(name, f"the input {name!r} of the module")
+            for name, key in self.input_keys.items()
+            if name not in OPTIONAL_INPUTS
+        }
+        self.step_input = step_input
+        self.rename_hint = f"pass in_keys=[...] to {maker} in the order {names}"
+
+    @dispatch(auto_batch_size=False)
+    def forward(self, tensordict: TensorDictBase, *args, **kwargs) -> TensorDictBase:
+        require_keys(tensordict, self.required, self.maker, self.rename_hint)
+        if self.step_input:
+            step_key, mask_key = self.input_keys["step"], self.input_keys["mask"]
+            step = tensordict.get(step_key)
+            check_trajectory_steps(step, step_key, 0, self.maker, "int64 [N, T]")
+            if tensordict.get(mask_key, None) is None:
+                check_unmasked_padding(step, mask_key, step_key, self.maker)
+        return super().forward(tensordict, *args, **kwargs)
 
 
 def _checked(keys: Sequence[NestedKey] | None, default: list[NestedKey], what: str) -> list[NestedKey]:
@@ -64,10 +126,12 @@ def dve_module(
     ``[..., d]`` and e_g.
     """
     default_out: list[NestedKey] = [(EMBED_KEY, name) for name in (*dve.names, "target")]
-    return TensorDictModule(
+    return CheckedModule(
         dve,
         in_keys=_checked(in_keys, ["pixels", "target_pixels", "mask"], "in_keys"),
         out_keys=_checked(out_keys, default_out, "out_keys"),
+        inputs=["pixels", "target_pixels", "mask"],
+        maker="dve_module",
     )
 
 
@@ -94,11 +158,14 @@ def transformer_module(
         "mask",
     ]
     in_keys = _checked(in_keys, default_in, "in_keys")
-    return TensorDictModule(
+    return CheckedModule(
         transformer,
         in_keys=dict(zip(arguments, in_keys, strict=True)),
         out_to_in_map=True,
         out_keys=_checked(out_keys, [(HIDDEN_KEY, name) for name in HIDDEN_NAMES], "out_keys"),
+        inputs=arguments,
+        maker="transformer_module",
+        step_input=True,
     )
 
 
@@ -114,10 +181,12 @@ def head_module(
     ``[B, T, A]`` in [-1, 1] (logits ``[B, T, A, K]``), 0 on padded steps.
     """
     default_in: list[NestedKey] = [*((HIDDEN_KEY, name) for name in head.reads), "mask"]
-    return TensorDictModule(
+    return CheckedModule(
         head,
         in_keys=_checked(in_keys, default_in, "in_keys"),
         out_keys=_checked(out_keys, _head_out_keys(head, NAVFORMER_OUT_KEYS[0]), "out_keys"),
+        inputs=[*(f"{name}_hidden" for name in head.reads), "mask"],
+        maker="head_module",
     )
 
 
@@ -184,6 +253,39 @@ class LengthGroups(TensorDictModuleBase):
         return tensordict
 
 
+class NavFormerActor(TensorDictSequential):
+    """The ``TensorDictSequential`` of :func:`make_navformer_actor`, which checks its inputs first.
+
+    Before any part runs: every key of ``in_keys`` but the mask present (else a
+    :class:`~navformer_rl.modules.inputs.MissingKeyError` naming it and ``make_navformer_actor(in_keys=...)``),
+    the frames ``[N, T, H, W, 3]`` (a flat ``[N * T]`` replay-buffer sample is named as such), and a batch
+    without a mask whose timesteps show padding refused (``check_unmasked_padding``).
+    """
+
+    def __init__(self, *modules: TensorDictModuleBase, input_keys: dict[str, NestedKey]) -> None:
+        super().__init__(*modules)
+        self.input_keys = dict(input_keys)
+        self.required = {
+            key: INPUT_MEANINGS[name] for name, key in self.input_keys.items() if name not in OPTIONAL_INPUTS
+        }
+        self.rename_hint = (
+            f"pass make_navformer_actor(model, in_keys=[...]) in the order {list(NAVFORMER_IN_KEYS)}"
+        )
+
+    @dispatch(auto_batch_size=False)
+    def forward(self, tensordict: TensorDictBase, *args, **kwargs) -> TensorDictBase:
+        require_keys(tensordict, self.required, "the NavFormer actor", self.rename_hint)
+        keys = self.input_keys
+        check_trajectory_steps(
+            tensordict.get(keys["pixels"]), keys["pixels"], 3, "the NavFormer actor", "uint8 [N, T, H, W, 3]"
+        )
+        if tensordict.get(keys["mask"], None) is None:
+            check_unmasked_padding(
+                tensordict.get(keys["step"]), keys["mask"], keys["step"], "the NavFormer actor"
+            )
+        return super().forward(tensordict, *args, **kwargs)
+
+
 def make_navformer_actor(
     model: NavFormerModel,
     in_keys: Sequence[NestedKey] = NAVFORMER_IN_KEYS,
@@ -217,6 +319,34 @@ def make_navformer_actor(
     composing ``dve_module`` / ``transformer_module`` / ``head_module`` (or your own module on the same
     keys) in a ``TensorDictSequential``; the result works with ``ActionMSELoss`` (and, with a
     ``BinnedActionHead``, ``ActionBinLoss``).
+
+    Inputs are checked before any part runs (:class:`NavFormerActor`): a missing key (``mask`` is optional),
+    a flat ``[N * T]`` sample, or a padded batch without ``mask`` is one error naming the key to set.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
+        >>> model = NavFormerModel(NavFormerConfig(d_embed=32, n_blocks=1, n_heads=2, d_head=16))
+        >>> actor = make_navformer_actor(model)
+        >>> n, t = 2, 5
+        >>> batch = TensorDict(
+        ...     {
+        ...         "target_pixels": torch.zeros(n, 84, 84, 3, dtype=torch.uint8),
+        ...         "pixels": torch.zeros(n, t, 84, 84, 3, dtype=torch.uint8),
+        ...         "return_to_go": torch.ones(n, t, 1),
+        ...         "action": torch.zeros(n, t, 2),
+        ...         "step": torch.arange(t).expand(n, t),
+        ...         "mask": torch.ones(n, t, dtype=torch.bool),
+        ...     },
+        ...     batch_size=[n],
+        ... )
+        >>> actor(batch)["action_pred"].shape
+        torch.Size([2, 5, 2])
+        >>> actor(batch.exclude("return_to_go"))
+        Traceback (most recent call last):
+        ...
+        navformer_rl.modules.inputs.MissingKeyError: the NavFormer actor reads 'return_to_go' (float R-hat [N, T, 1]), ...
     """
     target_pixels, pixels, return_to_go, action, step, mask = _checked(
         in_keys, list(NAVFORMER_IN_KEYS), "in_keys"
@@ -244,4 +374,9 @@ def make_navformer_actor(
             TensorDictSequential(*per_step), length_groups, mask, per_trajectory_keys=[(EMBED_KEY, "target")]
         )
         per_step = [grouped]
-    return TensorDictSequential(dve_module(model.dve, in_keys=[pixels, target_pixels, mask]), *per_step)
+    input_keys = dict(
+        zip(NAVFORMER_IN_KEYS, (target_pixels, pixels, return_to_go, action, step, mask), strict=True)
+    )
+    return NavFormerActor(
+        dve_module(model.dve, in_keys=[pixels, target_pixels, mask]), *per_step, input_keys=input_keys
+    )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
@@ -13,7 +15,32 @@ from navformer_rl.modules.decoding.incremental import (
     check_window_steps,
     use_native_kernel,
 )
+from navformer_rl.modules.inputs import MissingKeyError
 from navformer_rl.modules.models.navformer import NavFormerModel
+
+POLICY_IN_KEYS: tuple[str, ...] = ("pixels", "target_pixels", "step_count", "reward", "is_init")
+"""What :class:`NavFormerPolicy` reads, in the order of its ``in_keys``; the last three are optional."""
+OPTIONAL_POLICY_IN_KEYS = ("step_count", "reward", "is_init")
+DEFAULT_POLICY_KEYS: dict[str, NestedKey | None] = {
+    "pixels": ("agents", "pixels"),
+    "target_pixels": ("agents", "target_pixels"),
+    "step_count": ("agents", "step_count"),
+    "reward": ("agents", "reward"),
+    "is_init": "is_init",
+    "action": ("agents", "action"),
+}
+"""The policy's keys for ``MultiRobotNavEnv`` (its defaults), by name (``set_keys``)."""
+SINGLE_ROBOT_POLICY_KEYS: dict[str, NestedKey | None] = {
+    "pixels": "pixels",
+    "target_pixels": "target_pixels",
+    "step_count": "step_count",
+    "reward": None,
+    "is_init": "is_init",
+    "action": "action",
+}
+"""The keys for the single-robot TorchRL env (``make_torchrl_target_nav_env``, root keys) with ``StepCounter``
+and ``InitTracker`` (``navformer_rl.envs.policy_transforms.add_policy_transforms``):
+``NavFormerPolicy(model).set_keys(**SINGLE_ROBOT_POLICY_KEYS)``."""
 
 
 class NavFormerPolicy(TensorDictModuleBase):
@@ -34,9 +61,24 @@ class NavFormerPolicy(TensorDictModuleBase):
 
     Writes ``("agents", "action")`` float32 ``[*R, 2]`` in [-1, 1].
 
+    Keys, as on TorchRL modules: ``in_keys`` are the keys read, in the order ``[pixels, target_pixels,
+    step_count, reward, is_init]`` (the last three optional), ``out_keys`` ``[action]``; both are constructor
+    arguments and assignable. An ``in_keys`` list is taken in order for what the policy reads (all five for a
+    new policy), those past its end then not read; a dict sets them by name. Or name them with
+    ``set_keys(pixels=..., target_pixels=..., step_count=..., reward=..., is_init=..., action=...)`` (None:
+    not read), as TorchRL's losses do; the former keywords ``pixels_key=``, ``target_pixels_key=``,
+    ``step_count_key=``, ``reward_key=``, ``action_key=``, ``is_init_key=`` keep working.
+    ``SINGLE_ROBOT_POLICY_KEYS`` are the single-robot env's.
+    A missing ``pixels`` / ``target_pixels`` is a ``MissingKeyError`` naming it and ``set_keys``.
+
+    Env transforms: the resets come from ``step_count`` or ``is_init``. ``MultiRobotNavEnv`` has
+    ``("agents", "step_count")``; TorchRL's ``Collector`` still looks for ``"is_init"`` (``InitTracker``) and
+    warns without it. ``navformer_rl.envs.policy_transforms.add_policy_transforms(env, policy)`` appends what
+    an env lacks (``InitTracker``, and ``StepCounter`` for a ``step_count`` key the env does not have).
+
     Context: the target token, then per step R-hat, e^s, e^ca, a; each call adds one timestep through the
     KV cache (``IncrementalNavFormer``). Past ``context_steps`` timesteps (None, the default: the model's
-    whole context, ``config.context_tokens`` = 1024 tokens = 256 steps) the oldest whole timestep leaves the
+    whole context, ``config.context_tokens`` = 1024 tokens = 256 steps, 341 for DT) the oldest whole timestep leaves the
     window and the target token stays (streaming window, see ``docs/model.md``). A shorter ``context_steps``
     is an inference-time option, not the paper's (``docs/deviations.md``). Without ``step_count`` in the input, state is cleared by ``reset()``, when the
     number of robots changes, or never otherwise.
@@ -67,6 +109,8 @@ class NavFormerPolicy(TensorDictModuleBase):
         model: NavFormerModel,
         *,
         initial_return_to_go: float = 1.0,
+        in_keys: Sequence[NestedKey] | Mapping[str, NestedKey | None] | None = None,
+        out_keys: Sequence[NestedKey] | None = None,
         pixels_key: NestedKey = ("agents", "pixels"),
         target_pixels_key: NestedKey = ("agents", "target_pixels"),
         step_count_key: NestedKey | None = ("agents", "step_count"),
@@ -81,20 +125,109 @@ class NavFormerPolicy(TensorDictModuleBase):
         self.native = native
         check_window_steps(context_steps, model.config.window_steps, "context_steps")
         self.context_steps = context_steps
-        self.is_init_key = is_init_key
         self.initial_return_to_go = float(initial_return_to_go)
-        self.pixels_key, self.target_pixels_key = pixels_key, target_pixels_key
-        self.step_count_key, self.reward_key, self.action_key = step_count_key, reward_key, action_key
-        self.in_keys = [
-            k
-            for k in (pixels_key, target_pixels_key, step_count_key, reward_key, is_init_key)
-            if k is not None
-        ]
-        self.out_keys = [action_key]
+        given = {
+            "pixels": pixels_key,
+            "target_pixels": target_pixels_key,
+            "step_count": step_count_key,
+            "reward": reward_key,
+            "is_init": is_init_key,
+            "action": action_key,
+        }
+        changed = [f"{name}_key" for name, key in given.items() if key != DEFAULT_POLICY_KEYS[name]]
+        if changed and (in_keys is not None or out_keys is not None):
+            raise ValueError(
+                f"NavFormerPolicy: pass the keys either as in_keys= / out_keys= or as {changed}, not both"
+            )
+        self._keys: dict[str, NestedKey | None] = dict(given)
+        if in_keys is not None:
+            self.in_keys = in_keys
+        if out_keys is not None:
+            self.out_keys = out_keys
         self._decoder: IncrementalNavFormer | None = None
         self._weights_seen: tuple[list[Tensor], list[Tensor]] | None = None  # see _weights_changed
         self._return_to_go: Tensor | None = None
         self._prev_action: Tensor | None = None
+
+    # -- keys -------------------------------------------------------------------------------------------
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        """The keys read, in the order of :data:`POLICY_IN_KEYS` (those not read left out)."""
+        return [self._keys[name] for name in POLICY_IN_KEYS if self._keys[name] is not None]
+
+    @in_keys.setter
+    def in_keys(self, keys: Sequence[NestedKey] | Mapping[str, NestedKey | None]) -> None:
+        if isinstance(keys, Mapping):
+            unknown = sorted(set(keys) - set(POLICY_IN_KEYS))
+            if unknown:
+                raise ValueError(
+                    f"NavFormerPolicy.in_keys: unknown names {unknown}; expected {list(POLICY_IN_KEYS)}"
+                )
+            named = dict(keys)
+        else:
+            keys = list(keys)
+            read = [name for name in POLICY_IN_KEYS if self._keys[name] is not None]
+            if not 2 <= len(keys) <= len(read):
+                raise ValueError(
+                    f"NavFormerPolicy.in_keys={keys!r}: expected 2 to {len(read)} keys, taken in order for what "
+                    f"it reads, {read} (those past the list's end are then not read); set_keys(name=key) "
+                    "names them one by one"
+                )
+            named = dict.fromkeys(read[len(keys) :]) | dict(zip(read, keys))
+        self.set_keys(**named)
+
+    @property
+    def out_keys(self) -> list[NestedKey]:
+        """``[action]``: where the actions are written."""
+        return [self._keys["action"]]
+
+    @out_keys.setter
+    def out_keys(self, keys: Sequence[NestedKey]) -> None:
+        keys = list(keys)
+        if len(keys) != 1:
+            raise ValueError(
+                f"NavFormerPolicy.out_keys={keys!r}: expected one key, where the actions are written"
+            )
+        self.set_keys(action=keys[0])
+
+    def set_keys(self, **keys: NestedKey | None) -> NavFormerPolicy:
+        """Set keys by name - ``pixels``, ``target_pixels``, ``step_count``, ``reward``, ``is_init``
+        (None: not read), ``action`` - as TorchRL's losses do; returns the policy."""
+        unknown = sorted(set(keys) - set(DEFAULT_POLICY_KEYS))
+        if unknown:
+            raise ValueError(
+                f"NavFormerPolicy.set_keys: {unknown} are not keys of the policy; expected some of "
+                f"{list(DEFAULT_POLICY_KEYS)}"
+            )
+        for name in ("pixels", "target_pixels", "action"):
+            if name in keys and keys[name] is None:
+                raise ValueError(f"NavFormerPolicy.set_keys: {name} is required, got None")
+        self._keys.update(keys)
+        return self
+
+    @property
+    def pixels_key(self) -> NestedKey:
+        return self._keys["pixels"]
+
+    @property
+    def target_pixels_key(self) -> NestedKey:
+        return self._keys["target_pixels"]
+
+    @property
+    def step_count_key(self) -> NestedKey | None:
+        return self._keys["step_count"]
+
+    @property
+    def reward_key(self) -> NestedKey | None:
+        return self._keys["reward"]
+
+    @property
+    def is_init_key(self) -> NestedKey | None:
+        return self._keys["is_init"]
+
+    @property
+    def action_key(self) -> NestedKey:
+        return self._keys["action"]
 
     @classmethod
     def from_pretrained(cls, name: str, **policy_options) -> NavFormerPolicy:
@@ -143,20 +276,27 @@ class NavFormerPolicy(TensorDictModuleBase):
         finally:
             self.model.train()
 
-    def _input(self, tensordict: TensorDictBase, key: NestedKey) -> Tensor:
+    def _input(self, tensordict: TensorDictBase, name: str) -> Tensor:
+        key = self._keys[name]
         value = tensordict.get(key, None)
+        side = self.model.config.image_size
         if value is None:
             keys = sorted(map(str, tensordict.keys(True, True)))
-            side = self.model.config.image_size
-            raise KeyError(
-                f"NavFormerPolicy reads {key!r} (uint8 [..., {side}, {side}, 3]), missing from the input tensordict "
-                f"with keys {keys}; pass pixels_key= / target_pixels_key= for other names (e.g. 'pixels' "
-                "for a single-robot env)"
+            raise MissingKeyError(
+                f"NavFormerPolicy reads {key!r} ({name}: uint8 [..., {side}, {side}, 3]), missing from the input "
+                f"tensordict with keys {keys}; point it at your key with policy.set_keys({name}=...) (e.g. "
+                "set_keys(**SINGLE_ROBOT_POLICY_KEYS) for the single-robot env)"
+            )
+        if value.dtype != torch.uint8:
+            raise ValueError(
+                f"NavFormerPolicy: {key!r} must be uint8 HWC images [..., {side}, {side}, 3], got {value.dtype} "
+                f"{list(value.shape)}; for TorchRL's float CHW images (ToTensorImage) append "
+                "navformer_rl.envs.policy_transforms.ToUint8Image to the env"
             )
         return value
 
     def _act(self, tensordict: TensorDictBase) -> TensorDictBase:
-        pixels = self._input(tensordict, self.pixels_key)
+        pixels = self._input(tensordict, "pixels")
         lead = pixels.shape[:-3]
         robots = int(torch.Size(lead).numel())
         side = self.model.config.image_size
@@ -165,7 +305,7 @@ class NavFormerPolicy(TensorDictModuleBase):
                 f"{self.pixels_key!r}: expected frames [..., {side}, {side}, 3] (the model's image_size), got "
                 f"shape {tuple(pixels.shape)}"
             )
-        target = self._input(tensordict, self.target_pixels_key)
+        target = self._input(tensordict, "target_pixels")
         if target.shape != pixels.shape:
             raise ValueError(
                 f"{self.target_pixels_key!r}: expected the shape of {self.pixels_key!r} "

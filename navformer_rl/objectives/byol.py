@@ -14,6 +14,7 @@ from tensordict.utils import NestedKey
 from torch import Tensor, nn
 from torchrl.objectives import LossModule, SoftUpdate
 
+from navformer_rl.modules.inputs import require_keys
 from navformer_rl.modules.models.cnn import ImageEncoder
 from navformer_rl.modules.models.config import AUTOCAST_DTYPES
 from navformer_rl.modules.models.dve import DualVisualEncoder
@@ -120,6 +121,34 @@ class BYOLLoss(LossModule):
         projection_dim / hidden_dim: MLP sizes (defaults 128 / 512, see ``docs/model.md``).
         augmentation: a ``BYOLAugmentation`` (default: a new one seeded with ``seed``).
         autocast_dtype: ``"bfloat16"`` / ``"float16"`` / None - autocast around the encoders and MLPs.
+
+    Training splits the parameters as §VI does: the encoders with the rest of the model (AdamW, also trained
+    by L_DT), the projectors and predictors that only this loss has with Adam; after each step
+    ``SoftUpdate.step()`` moves the EMA target.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.objectives import SoftUpdate
+        >>> from navformer_rl.modules import NavFormerConfig, NavFormerModel
+        >>> from navformer_rl.objectives import BYOLLoss, BYOLTauSchedule
+        >>> model = NavFormerModel(NavFormerConfig())
+        >>> byol = BYOLLoss(model.dve, seed=0)  # the model's own f_s and f_g
+        >>> updater = SoftUpdate(byol, eps=0.996)
+        >>> schedule = BYOLTauSchedule(updater, total_steps=100)
+        >>> model_ids = {id(p) for p in model.parameters()}
+        >>> heads = torch.optim.Adam([p for p in byol.parameters() if id(p) not in model_ids], lr=4e-4)
+        >>> pairs = TensorDict(
+        ...     {
+        ...         "pixels_static": torch.randint(0, 256, (4, 84, 84, 3), dtype=torch.uint8),
+        ...         "pixels_dynamic": torch.randint(0, 256, (4, 84, 84, 3), dtype=torch.uint8),
+        ...     },
+        ...     batch_size=[4],
+        ... )
+        >>> out = byol(pairs)
+        >>> sorted(out.keys())
+        ['byol_general', 'byol_static', 'loss_byol', 'projection_std_general', 'projection_std_static']
+        >>> out["loss_byol"].backward(); heads.step(); updater.step(); tau = schedule.step()
     """
 
     @dataclass
@@ -227,6 +256,28 @@ class BYOLLoss(LossModule):
                 self._reset_parameters(module)
         self.target_online_network_params.data.update_(self.online_network_params.data)
 
+    def check_inputs(self, tensordict: TensorDictBase) -> None:
+        """Refuse a batch without the image pairs this loss reads, or with images other than uint8
+        ``[B, H, W, 3]``, in one line naming the key (``MissingKeyError`` / ``ValueError``)."""
+        meanings = {
+            self.tensor_keys.pixels_dynamic: "uint8 [B, 84, 84, 3], o^d: the view with the other robots",
+            self.tensor_keys.pixels_static: "uint8 [B, 84, 84, 3], o^s: the same view without them",
+        }
+        required = {key: meanings[key] for key in self.in_keys}
+        require_keys(
+            tensordict,
+            required,
+            "BYOLLoss",
+            "rename it with loss.set_keys(pixels_static=..., pixels_dynamic=...)",
+        )
+        for key in required:
+            images = tensordict.get(key)
+            if images.dim() != 4 or images.shape[-1] != 3 or images.dtype != torch.uint8:
+                raise ValueError(
+                    f"BYOLLoss: {key!r} must be uint8 [B, H, W, 3] (one image per pair), got {images.dtype} "
+                    f"{list(images.shape)}"
+                )
+
     def make_views(self, tensordict: TensorDictBase) -> dict[str, tuple[Tensor, Tensor]]:
         """The two augmented views (``[B, 3, H, W]``, in the autocast dtype if any) of each encoder.
 
@@ -252,6 +303,7 @@ class BYOLLoss(LossModule):
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Compute ``loss_byol`` (eq. 8) and the detached per-encoder terms on a batch of image pairs."""
+        self.check_inputs(tensordict)
         views = self.make_views(tensordict)
         device_type = next(iter(views.values()))[0].device.type
         autocast = (

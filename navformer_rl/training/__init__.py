@@ -2,8 +2,8 @@
 
 One iteration (eq. 11)::
 
-    task, batch = cross_task.sample()            # 25 trajectories of D_e or 150 of D_ca, alternating
-    pairs       = ssl_batcher.sample()           # 512 (o^s, o^d) pairs of D_ssl     (unless SSL is ablated)
+    batch = cross_task.sample()                  # CrossTaskReplayBuffer: 25 trajectories of D_e or 150 of D_ca, in turn
+    pairs = ssl_batcher.sample()                 # 512 (o^s, o^d) pairs of D_ssl     (unless SSL is ablated)
     L = ActionMSELoss(batch)["loss_dt"] + BYOLLoss(pairs)["loss_byol"]
     L.backward(); AdamW.step() (NavFormer); Adam.step() (DVE: BYOL projector/predictor [+ encoders])
     SoftUpdate.step(); tau <- cosine schedule    # BYOL's EMA target

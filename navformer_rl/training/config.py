@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 
 
 ENCODER_TRAINING = ("joint", "frozen")
+ENCODER_OPTIMIZERS = ("adam", "adamw")
 LOGGER_BACKENDS = ("csv", "tensorboard", "none")
 MODEL_KEYS_SET_ELSEWHERE = {"detach_encoders": "encoder_training=frozen"}
 
@@ -160,14 +161,19 @@ class SSLConfig:
 
 @dataclass
 class OptimConfig:
-    """Optimisers (paper §VI): AdamW for NavFormer, Adam for the DVE (BYOL) parameters.
+    """Optimisers (paper §VI): AdamW for NavFormer's navigation network, Adam for the DVE (the visual
+    encoders f_s, f_g and BYOL's projectors and predictors). Both losses of eq. 11 reach the encoders under
+    ``encoder_training=joint``, whichever optimiser steps them.
 
     Attributes:
         iterations: training iterations (10,000).
-        lr / weight_decay: AdamW on the NavFormer parameters (2e-4 / 1e-4); includes the encoders when
-            ``encoder_training=joint``.
-        dve_lr / dve_weight_decay: Adam on the BYOL projectors and predictors, plus the encoders when
-            ``encoder_training=frozen`` (paper: "0.0004 for the learning rate and weight decay").
+        lr / weight_decay: AdamW on the navigation network: token embeddings, transformer and head
+            (2e-4 / 1e-4), plus the visual encoders with ``encoder_optimizer=adamw``.
+        dve_lr / dve_weight_decay: Adam on BYOL's projectors and predictors, plus the visual encoders with
+            ``encoder_optimizer=adam`` (paper: "0.0004 for the learning rate and weight decay").
+        encoder_optimizer: which optimiser steps the visual encoders: ``adam`` (with the DVE, §VI's split),
+            ``adamw`` (with the navigation network), or None: the ablation's, :func:`encoder_optimizer`
+            (``adam`` for NavFormer and its ablations, ``adamw`` for ``dt``, whose one encoder is no DVE).
         clip_grad_norm: max global gradient norm per optimiser, or None (the paper clips nothing).
         trajectory_chunks: split each trajectory batch into this many equal chunks, backpropagated one after
             the other (memory lever; the gradient equals the whole batch's exactly: each chunk's loss is
@@ -189,6 +195,7 @@ class OptimConfig:
     weight_decay: float = 1e-4
     dve_lr: float = 4e-4
     dve_weight_decay: float = 4e-4
+    encoder_optimizer: str | None = None
     clip_grad_norm: float | None = None
     trajectory_chunks: int = 1
     chunks_by_length: bool = False
@@ -282,6 +289,22 @@ def default_exp_name(ablation: str) -> str:
     return {"none": "navformer", "dt": "dt"}.get(ablation, f"navformer-{ablation}")
 
 
+def encoder_optimizer(cfg: TrainConfig) -> str:
+    """Which optimiser steps the visual encoders: ``optim.encoder_optimizer`` when set, else ``adamw`` for
+    ``ablation=dt`` (the DT baseline has one encoder and no DVE: AdamW trains it with the rest, §VII.A) and
+    ``adam`` for NavFormer and its Table IV ablations (§VI: "The training of the DVE ... The Adam optimizer
+    used 0.0004 for the learning rate and weight decay"; docs/deviations.md)."""
+    if cfg.optim.encoder_optimizer is not None:
+        return cfg.optim.encoder_optimizer
+    return "adamw" if cfg.ablation == "dt" else "adam"
+
+
+def with_encoder_optimizer(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with ``optim.encoder_optimizer`` resolved (:func:`encoder_optimizer`), as a run records it."""
+    optim = dataclasses.replace(cfg.optim, encoder_optimizer=encoder_optimizer(cfg))
+    return dataclasses.replace(cfg, optim=optim)
+
+
 def named_run(cfg: TrainConfig, resuming: bool) -> TrainConfig:
     """``cfg`` with ``logger.exp_name`` filled in when it is None: a resumed run keeps the name its folder's
     ``train_config.json`` recorded (its logs continue in the same folder), a new one takes
@@ -344,8 +367,14 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
             )
     for name in ("lr", "weight_decay", "dve_lr", "dve_weight_decay"):
         check_number(getattr(cfg.optim, name), f"optim.{name}", at_least=0)
-    if cfg.optim.lr == 0 or (cfg.uses_ssl and cfg.optim.dve_lr == 0):
+    adam_used = cfg.uses_ssl or encoder_optimizer(cfg) == "adam"
+    if cfg.optim.lr == 0 or (adam_used and cfg.optim.dve_lr == 0):
         raise ValueError("optim.lr / optim.dve_lr must be > 0")
+    if cfg.optim.encoder_optimizer not in (None, *ENCODER_OPTIMIZERS):
+        raise ValueError(
+            f"optim.encoder_optimizer={cfg.optim.encoder_optimizer!r}: expected null (the ablation's) or one "
+            f"of {list(ENCODER_OPTIMIZERS)}"
+        )
     if cfg.optim.clip_grad_norm is not None and not cfg.optim.clip_grad_norm > 0:
         raise ValueError(f"optim.clip_grad_norm={cfg.optim.clip_grad_norm!r}: expected None or a number > 0")
     check_int(cfg.logger.log_interval, "logger.log_interval")

@@ -39,6 +39,7 @@ import torch
 import torch.distributed as dist
 from tensordict import TensorDict
 from torch import nn
+from torchrl.data.replay_buffers import ImmutableDatasetWriter, TensorDictReplayBuffer
 
 from navformer_rl.data.samplers import TrajectoryDraw
 from navformer_rl.objectives.byol_augment import BYOLAugmentation
@@ -299,19 +300,31 @@ def session(device: str) -> Iterator[Distributed]:
 # -- the pieces a process trains with -------------------------------------------------------------------------
 
 
-class ShardedTrajectoryBatcher:
+class ShardedTrajectoryBatcher(TensorDictReplayBuffer):
     """A :class:`~navformer_rl.data.samplers.TrajectoryBatcher` that draws the global batch of its sampler and
     gathers this process's rows of it only (each row's window trimmed to the rows' longest).
 
-    ``sample()`` returns the keys and shapes of ``TrajectoryBatcher.sample()`` for ``n`` = this process's rows;
-    ``state_dict()`` / ``load_state_dict()`` are the sampler's, the same on every process.
+    A read-only TorchRL buffer on the batcher's storage and sampler (so it is a member of a
+    :class:`~navformer_rl.data.cross_task.CrossTaskReplayBuffer` as the batcher is). ``sample()`` returns the
+    keys and shapes of ``TrajectoryBatcher.sample()`` for ``n`` = this process's rows; ``state_dict()`` /
+    ``load_state_dict()`` are the sampler's, the same on every process.
     """
 
     def __init__(self, batcher: Any, distributed: Distributed) -> None:
+        super().__init__(
+            storage=batcher.storage,
+            sampler=batcher.sampler,
+            writer=ImmutableDatasetWriter(),
+            batch_size=batcher.sampler.num_trajectories,
+        )
         self.batcher = batcher
         self.rows = distributed.rows(batcher.sampler.num_trajectories)
 
-    def sample(self) -> TensorDict:
+    def sample(self, batch_size: int | None = None, return_info: bool = False) -> TensorDict:
+        if batch_size is not None or return_info:
+            raise ValueError(
+                "ShardedTrajectoryBatcher.sample() draws its sampler's global batch; call sample()"
+            )
         draw = self.batcher.sampler.draw()
         mask = draw.mask[self.rows]
         steps = int(mask.sum(1).max())

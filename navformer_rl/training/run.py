@@ -18,7 +18,7 @@ import torch
 
 from navformer_rl.training import checkpoint as ckpt
 from navformer_rl.training import distributed as dist
-from navformer_rl.training.config import TrainConfig, named_run, validate_config
+from navformer_rl.training.config import TrainConfig, named_run, validate_config, with_encoder_optimizer
 from navformer_rl.training.config_io import RUN_INFO_KEY
 from navformer_rl.training.datasets import check_datasets_fit_model, open_datasets, open_validation_datasets
 from navformer_rl.training.init_from import load_initial_weights, resolve_init_source
@@ -86,7 +86,7 @@ def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None)
     check_datasets_fit_model(cfg, datasets)
     validation_datasets = open_validation_datasets(cfg)
     check_datasets_fit_model(cfg, validation_datasets, section="validation")
-    cfg = named_run(cfg, resuming=latest is not None)
+    cfg = with_encoder_optimizer(named_run(cfg, resuming=latest is not None))
     trainer = Trainer(
         cfg, datasets=datasets, validation_datasets=validation_datasets, distributed=distributed
     )

@@ -22,7 +22,12 @@ from navformer_rl.data.prefetch import Prefetcher
 from navformer_rl.data.samplers import split_by_length
 from navformer_rl.tasks import DATASETS, TRAJECTORY_KINDS
 from navformer_rl.training import checkpoint as ckpt
-from navformer_rl.training.config import TrainConfig, model_config
+from navformer_rl.training.config import (
+    TrainConfig,
+    encoder_optimizer,
+    model_config,
+    with_encoder_optimizer,
+)
 from navformer_rl.training.distributed import (
     Distributed,
     ShardedAugmentation,
@@ -83,6 +88,16 @@ def _with_defaults(defaults: Mapping[str, Any], values: Mapping[str, Any]) -> di
     return merged
 
 
+def _recorded_encoder_optimizer(recorded: Mapping[str, Any]) -> str:
+    """The optimiser that stepped a recorded run's visual encoders: its ``optim.encoder_optimizer``, which a
+    run records resolved; a run recorded before the setting existed had them under AdamW with
+    ``encoder_training=joint`` and under Adam with ``frozen``."""
+    value = (recorded.get("optim") or {}).get("encoder_optimizer")
+    if value is not None:
+        return value
+    return "adam" if recorded.get("encoder_training") == "frozen" else "adamw"
+
+
 def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     """``values`` flattened to dotted keys (``model`` overrides kept whole), less :data:`RESUME_MAY_CHANGE`."""
     flat: dict[str, Any] = {}
@@ -108,10 +123,11 @@ class Trainer:
             (``make_navformer_actor``), what the DT loss runs.  dt_loss: ``ActionMSELoss`` (``ActionBinLoss``
             with ``model.action_bins``).  validation_loss: ``ActionMSELoss`` on the same actor (the validation rows).
         byol_loss: ``BYOLLoss`` or None (no SSL).
-        cross_task: ``CrossTaskSampler``.  pairs: D_ssl ``PairBatcher`` or None.
+        cross_task: ``CrossTaskReplayBuffer`` of the D_e / D_ca batchers.  pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
             (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
-        optimizers: ``{"navformer": AdamW, "dve": Adam}`` ("dve" absent without SSL).
+        optimizers: ``{"navformer": AdamW, "dve": Adam}`` (:meth:`parameter_groups`; "dve" absent when it
+            would own nothing: ``ablation=dt``).
         scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
         log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
@@ -135,11 +151,12 @@ class Trainer:
     ) -> None:
         from torchrl.objectives import SoftUpdate
 
-        from navformer_rl.data import CrossTaskSampler
+        from navformer_rl.data import CrossTaskReplayBuffer
         from navformer_rl.modules import NavFormerModel, make_navformer_actor
         from navformer_rl.objectives import ActionBinLoss, ActionMSELoss, BYOLLoss, BYOLTauSchedule
 
-        self.cfg = cfg
+        self.cfg = with_encoder_optimizer(cfg)
+        cfg = self.cfg
         self.distributed = distributed if distributed is not None else Distributed()
         self.run_info: dict[str, Any] = {**self.distributed.run_info(), "init_from": None}
         self.run_dir = Path(cfg.output_dir)
@@ -174,7 +191,7 @@ class Trainer:
                 )
             if self.pairs is not None:
                 self.pairs = ShardedPairBatcher(self.pairs, self.distributed)
-        self.cross_task = CrossTaskSampler(batchers["e"], batchers["ca"])
+        self.cross_task = CrossTaskReplayBuffer(batchers["e"], batchers["ca"])
         self.batches = Prefetcher(
             self._draw_batches, self._sampler_state, self._load_sampler_state, enabled=cfg.data.prefetch
         )
@@ -234,17 +251,24 @@ class Trainer:
         return [t for module in modules for t in (*module.parameters(), *module.buffers())]
 
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
-        """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint)."""
+        """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint, complete).
+
+        ``navformer`` (AdamW): the navigation network (token embeddings, transformer, head), plus the visual
+        encoders when :func:`~navformer_rl.training.config.encoder_optimizer` is ``adamw``. ``dve`` (Adam):
+        the visual encoders when it is ``adam`` (the paper's split, §VI), then BYOL's projectors and
+        predictors; absent when it would be empty. Which losses reach the encoders is ``encoder_training``'s.
+        """
         encoder_ids = {id(p) for p in self.model.dve.parameters()}
         model_params = [p for p in self.model.parameters() if p.requires_grad]
-        frozen = self.cfg.encoder_training == "frozen"
-        navformer = [p for p in model_params if not (frozen and id(p) in encoder_ids)]
-        groups = {"navformer": navformer}
+        encoders_under_adam = encoder_optimizer(self.cfg) == "adam"
+        groups = {
+            "navformer": [p for p in model_params if not (encoders_under_adam and id(p) in encoder_ids)]
+        }
+        dve = [p for p in model_params if id(p) in encoder_ids] if encoders_under_adam else []
         if self.byol_loss is not None:
             model_ids = {id(p) for p in model_params}
-            dve = [p for p in self.byol_loss.parameters() if id(p) not in model_ids]
-            if frozen:
-                dve = [p for p in model_params if id(p) in encoder_ids] + dve
+            dve += [p for p in self.byol_loss.parameters() if id(p) not in model_ids]
+        if dve:
             groups["dve"] = dve
         return groups
 
@@ -263,9 +287,9 @@ class Trainer:
     # -- batches --------------------------------------------------------------------------------------
     def _draw_batches(self) -> tuple[str, Any, Any]:
         """One iteration's ``(task, trajectory batch [N] with BATCH_KEYS, D_ssl pairs [B] or None)``."""
-        task, batch = self.cross_task.sample()
+        batch = self.cross_task.sample()
         pairs = self.pairs.sample() if self.pairs is not None else None
-        return task, batch.select(*BATCH_KEYS), pairs
+        return self.cross_task.task_of(batch), batch.select(*BATCH_KEYS), pairs
 
     def _sampler_state(self) -> dict[str, Any]:
         """The samplers' positions and RNG states (``cross_task`` and, with SSL, ``pairs``) for a checkpoint."""
@@ -348,6 +372,7 @@ class Trainer:
             total += float(losses["weighted_loss_byol"])
             metrics.update({k: float(losses[k]) for k in byol_out.keys()})
             metrics["tau"] = float(tau)
+        if "dve" in self.optimizers:
             metrics["lr_dve"] = self.optimizers["dve"].param_groups[0]["lr"]
         metrics["loss"] = total
         if not math.isfinite(total):
@@ -527,6 +552,7 @@ class Trainer:
             )
         # a key the checkpoint lacks came after it was written; the run had that key's default
         saved = _with_defaults(TrainConfig().to_dict(), header["train_config"])
+        saved["optim"]["encoder_optimizer"] = _recorded_encoder_optimizer(header["train_config"])
         before, now = _comparable(saved), _comparable(self.cfg.to_dict())
         changed = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
         if changed:

@@ -5,7 +5,7 @@ import threading
 import pytest
 import torch
 
-from navformer_rl.data import CrossTaskSampler, open_dataset
+from navformer_rl.data import CrossTaskReplayBuffer, open_dataset
 from navformer_rl.data.prefetch import Prefetcher
 
 
@@ -115,12 +115,12 @@ def test_bad_buffer_options_are_refused(e_dataset, monkeypatch):
 def test_prefetching_the_cross_task_batches_draws_the_same_ones(e_dataset, ca_dataset):
     def make(sets):
         e, ca = open_dataset(e_dataset), open_dataset(ca_dataset)
-        sampler = CrossTaskSampler(
+        sampler = CrossTaskReplayBuffer(
             e.trajectory_batcher(3, 30, seed=1, buffer_sets=sets),
             ca.trajectory_batcher(4, 30, seed=2, buffer_sets=sets),
         )
         return sampler, Prefetcher(
-            lambda: (lambda out: (out[0], out[1].clone()))(sampler.sample()),
+            lambda: (lambda batch: (sampler.task_of(batch), batch.clone()))(sampler.sample()),
             sampler.state_dict,
             sampler.load_state_dict,
             enabled=sets == 2,

@@ -1,4 +1,4 @@
-"""Trajectory / pair samplers and cross-task alternation, on synthetic datasets with known contents."""
+"""Trajectory / pair samplers, on synthetic datasets with known contents."""
 
 import io
 
@@ -6,7 +6,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from navformer_rl.data import CrossTaskSampler, open_dataset
+from navformer_rl.data import open_dataset
 from navformer_rl.data.samplers import EpochPermutation, split_by_length
 
 
@@ -151,42 +151,6 @@ def test_pairs_without_replacement_and_resume(ssl_dataset):
     with pytest.raises(ValueError, match="batch_size must be in"):
         ds.pair_batcher(batch_size=41)
     assert ds.pair_buffer(batch_size=8).sample()["pixels_static"].shape == (8, 84, 84, 3)
-
-
-def test_cross_task_alternation_and_ablations(e_dataset, ca_dataset):
-    e, ca = open_dataset(e_dataset, "e"), open_dataset(ca_dataset, "ca")
-    sampler = CrossTaskSampler(e.trajectory_batcher(3, seed=0), ca.trajectory_batcher(5, seed=0))
-    seq = []
-    for _ in range(6):
-        task, batch = sampler.sample()
-        seq.append((task, batch.shape[0], int(batch["task"][0, 0])))
-    assert seq == [("exploration", 3, 0), ("collision_avoidance", 5, 1)] * 3
-    only_ca = CrossTaskSampler(None, ca.trajectory_batcher(5, seed=0))
-    assert [only_ca.sample()[0] for _ in range(3)] == ["collision_avoidance"] * 3
-    only_e = CrossTaskSampler(e.trajectory_batcher(3, seed=0), None)
-    assert only_e.tasks == ["exploration"]
-    with pytest.raises(ValueError, match="at least one"):
-        CrossTaskSampler(None, None)
-
-
-def test_cross_task_resume(e_dataset, ca_dataset):
-    e, ca = open_dataset(e_dataset), open_dataset(ca_dataset)
-
-    def make():
-        return CrossTaskSampler(e.trajectory_batcher(3, seed=0), ca.trajectory_batcher(5, seed=1))
-
-    sampler = make()
-    for _ in range(3):
-        sampler.sample()
-    state = sampler.state_dict()
-    expected = [(t, b.clone()) for t, b in (sampler.sample() for _ in range(4))]
-    resumed = make()
-    resumed.load_state_dict(state)
-    got = [(t, b.clone()) for t, b in (resumed.sample() for _ in range(4))]
-    assert [t for t, _ in expected] == [t for t, _ in got] == ["collision_avoidance", "exploration"] * 2
-    assert all((x == y).all() for (_, x), (_, y) in zip(expected, got))
-    with pytest.raises(ValueError, match="lacks"):
-        make().load_state_dict({"iteration": 0, "exploration": {}})
 
 
 def test_batch_larger_than_dataset_is_refused_up_front(e_dataset):

@@ -10,7 +10,12 @@ import pytest
 
 from navformer_rl.cli.main import main
 from navformer_rl.evaluation.measures import RobotTrial
-from navformer_rl.evaluation.paired import paired_differences, paired_markdown, unseen_obstacle_differences
+from navformer_rl.evaluation.paired import (
+    paired_differences,
+    paired_markdown,
+    pooled_paired_differences,
+    unseen_obstacle_differences,
+)
 from navformer_rl.evaluation.tables import records_to_jsonl
 
 BASE = RobotTrial(
@@ -118,6 +123,66 @@ def test_cli_prints_and_writes_the_table(tmp_path, capsys):
     assert printed == out.read_text() and "SR navformer - dt (points)" in printed
     assert main(["evaluate", "compare", str(a), str(tmp_path / "missing")]) == 2
     assert "navformer evaluate: error:" in capsys.readouterr().err
+
+
+def test_models_with_several_seeds_pool_their_seeds_and_widen_with_their_spread(tmp_path):
+    """Known answers: A's seeds succeed on 100 % / 50 % / 0 % of robots (mean 50 %), B's two on 25 % each;
+    the pooled difference is their means' difference, and the two-level interval covers the seed spread
+    where one folder per side gives the point."""
+    n = 12
+    a_folders = [
+        write(tmp_path / f"a{i}", f"navformer_s{i}", trials([[ok, ok] for ok in pattern]))
+        for i, pattern in enumerate(([True] * n, [True, False] * (n // 2), [False] * n))
+    ]
+    b_folders = [
+        write(tmp_path / f"b{i}", f"dt_s{i}", trials([[ok, False] for ok in [True, False] * (n // 2)]))
+        for i in range(2)
+    ]
+    (name_a, name_b), rows = pooled_paired_differences(a_folders, b_folders, ("navformer", "dt"))
+    row = rows[-1]
+    assert (name_a, name_b, row.n_seeds, row.n_robot_trials) == ("navformer", "dt", (3, 2), 2 * n)
+    assert row.a["sr"] == pytest.approx(0.5) and row.b["sr"] == pytest.approx(0.25)
+    assert row.difference["sr"] == pytest.approx(0.25)
+    low, high = row.interval["sr"]
+    assert low < 0 < high  # one A seed is below B, one above: the seeds' spread reaches past zero
+    assert (
+        pooled_paired_differences(a_folders, b_folders, ("navformer", "dt"))[1][-1].interval == row.interval
+    )
+    # one seed a side: the ordinary paired comparison, labels from the folders
+    labels, single = pooled_paired_differences(a_folders[:1], b_folders[:1])
+    assert labels == ("navformer_s0", "dt_s0")
+    assert single[-1].interval == paired_differences(a_folders[0], b_folders[0])[1][-1].interval
+    assert pooled_paired_differences(a_folders, b_folders[:1])[0] == ("navformer_s0 + 2 seeds", "dt_s0")
+    table = paired_markdown(("navformer", "dt"), rows)
+    assert (
+        "mean over 3 seeds of navformer and 2 of dt" in table
+        and "resampling each side's training seeds" in table
+    )
+
+
+def test_pooled_comparisons_refuse_empty_repeated_or_mismatched_sides(tmp_path):
+    a = write(tmp_path / "a", "navformer", trials([[True]] * 6))
+    b = write(tmp_path / "b", "dt", trials([[True]] * 6))
+    other = write(tmp_path / "c", "dt", trials([[True]] * 6), digest="def")
+    with pytest.raises(ValueError, match="side B has no evaluation folder"):
+        pooled_paired_differences([a], [])
+    with pytest.raises(ValueError, match="side A names a folder twice"):
+        pooled_paired_differences([a, a], [b])
+    with pytest.raises(ValueError, match="ran different episode sets"):
+        pooled_paired_differences([a], [b, other])
+
+
+def test_cli_compares_two_groups_of_seeds(tmp_path, capsys):
+    a = [write(tmp_path / f"a{i}", f"nf{i}", trials([[True, i == 0]] * 6)) for i in range(2)]
+    b = [write(tmp_path / f"b{i}", f"dt{i}", trials([[False, True]] * 6)) for i in range(2)]
+    argv = ["evaluate", "compare", "--group", "navformer", *map(str, a), "--group", "dt", *map(str, b)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "SR navformer - dt (points)" in printed and "| all | 6 | 12 | 75.0 % | 50.0 % | +25.0" in printed
+    assert main(["evaluate", "compare", "--group", "navformer", str(a[0])]) == 2
+    assert "give it twice" in capsys.readouterr().err
+    assert main(["evaluate", "compare", str(a[0]), "--group", "x", str(b[0]), "--group", "y", str(b[1])]) == 2
+    assert "not both" in capsys.readouterr().err
 
 
 def table3_records(seen: list[bool], unseen: list[bool]) -> list[RobotTrial]:

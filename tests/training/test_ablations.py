@@ -49,29 +49,89 @@ def _ids(params):
     return {id(p) for p in params}
 
 
-@pytest.mark.parametrize("mode", ["joint", "frozen"])
-def test_optimisers_own_the_right_parameters(tiny_config, mode):
-    trainer = build_trainer(tiny_config(f"encoder_training={mode}", "optim.iterations=1"))
-    groups = {
+def _owners(trainer) -> dict[str, set[int]]:
+    return {
         name: {id(p) for g in opt.param_groups for p in g["params"]}
         for name, opt in trainer.optimizers.items()
     }
+
+
+@pytest.mark.parametrize(
+    ("overrides", "encoder_owner"),
+    [
+        ((), "dve"),  # the default: §VI's split, the encoders under Adam while both losses reach them
+        (("optim.encoder_optimizer=adam",), "dve"),
+        (("optim.encoder_optimizer=adamw",), "navformer"),
+        (("encoder_training=frozen",), "dve"),
+        (("encoder_training=frozen", "optim.encoder_optimizer=adamw"), "navformer"),
+    ],
+)
+def test_optimisers_own_the_right_parameters(tiny_config, overrides, encoder_owner):
+    trainer = build_trainer(tiny_config(*overrides, "optim.iterations=1"))
+    groups = _owners(trainer)
     encoders = _ids(p for _, enc in trainer.model.observation_encoders() for p in enc.parameters())
     model = _ids(trainer.model.parameters())
     heads = _ids(trainer.byol_loss.parameters()) - model  # BYOL projectors + predictors
     assert not groups["navformer"] & groups["dve"]
     assert groups["navformer"] | groups["dve"] == model | heads
-    owner = "navformer" if mode == "joint" else "dve"
-    assert encoders <= groups[owner]
+    assert encoders <= groups[encoder_owner]
     assert heads <= groups["dve"]
-    assert isinstance(trainer.optimizers["navformer"], torch.optim.AdamW)
-    assert type(trainer.optimizers["dve"]) is torch.optim.Adam
-    assert trainer.optimizers["dve"].param_groups[0]["weight_decay"] == 4e-4
+    assert groups["navformer"] - encoders == model - encoders  # embeddings, transformer, head: AdamW
+    navformer, dve = trainer.optimizers["navformer"], trainer.optimizers["dve"]
+    assert isinstance(navformer, torch.optim.AdamW)
+    assert (navformer.param_groups[0]["lr"], navformer.param_groups[0]["weight_decay"]) == (2e-4, 1e-4)
+    assert type(dve) is torch.optim.Adam
+    assert (dve.param_groups[0]["lr"], dve.param_groups[0]["weight_decay"]) == (4e-4, 4e-4)
+
+
+@pytest.mark.parametrize(
+    ("ablation", "dve_owns_encoders"), [("no_ssl", True), ("dt", False), ("no_fs", True)]
+)
+def test_the_ablations_encoder_optimiser(tiny_config, ablation, dve_owns_encoders):
+    """NavFormer's ablations keep §VI's split (no_ssl: an Adam of the encoders alone); DT, with one encoder
+    and no DVE, trains everything with AdamW and has no Adam."""
+    trainer = build_trainer(tiny_config(f"ablation={ablation}", "optim.iterations=1"))
+    groups = _owners(trainer)
+    encoders = _ids(p for _, enc in trainer.model.observation_encoders() for p in enc.parameters())
+    assert trainer.cfg.optim.encoder_optimizer == ("adam" if dve_owns_encoders else "adamw")
+    if dve_owns_encoders:
+        assert encoders <= groups["dve"] and not encoders & groups["navformer"]
+    else:
+        assert set(groups) == {"navformer"} and groups["navformer"] == _ids(trainer.model.parameters())
+    assert math.isfinite(trainer.step()["loss"])
+
+
+def test_both_losses_reach_the_encoders_under_the_split(tiny_config):
+    """eq. 11 with §VI's optimisers: L_DT and L_BYOL each give every encoder a gradient, and one iteration's
+    Adam step moves the encoders (Adam's state holds them)."""
+    trainer = build_trainer(tiny_config("optim.iterations=1"))
+    batch = trainer.cross_task.sample()
+    encoders = [p for _, enc in trainer.model.observation_encoders() for p in enc.parameters()]
+    batch = batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels")
+    for loss in (
+        lambda: trainer.dt_loss(batch)["loss_dt"],
+        lambda: trainer.byol_loss(trainer.pairs.sample())["loss_byol"],
+    ):
+        trainer.model.zero_grad(set_to_none=True)
+        loss().backward()
+        grads = [p.grad for p in encoders]
+        assert all(g is not None for g in grads) and sum(float(g.abs().sum()) for g in grads) > 0
+    before = [p.detach().clone() for p in encoders]
+    trainer.step()
+    assert all(not torch.equal(b, p) for b, p in zip(before, encoders, strict=True))
+    assert all(p in trainer.optimizers["dve"].state for p in encoders)
+
+
+def test_a_bad_encoder_optimiser_is_named(tiny_config):
+    with pytest.raises(
+        ValueError, match=r"optim.encoder_optimizer='sgd': expected null .* \['adam', 'adamw'\]"
+    ):
+        build_trainer(tiny_config("optim.encoder_optimizer=sgd"))
 
 
 def test_frozen_mode_keeps_the_dt_loss_out_of_the_encoders(tiny_config):
     trainer = build_trainer(tiny_config("encoder_training=frozen", "optim.iterations=1"))
-    _, batch = trainer.cross_task.sample()
+    batch = trainer.cross_task.sample()
     trainer.dt_loss(batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels"))[
         "loss_dt"
     ].backward()
@@ -88,6 +148,9 @@ def test_trajectory_chunks_give_the_whole_batch_gradient(tiny_config, tmp_path):
             tiny_config(
                 "model.dropout=0.0",
                 "ablation=no_ssl",
+                # AdamW's first step is ~lr * sign(gradient); Adam's coupled weight decay could flip the sign
+                # of a near-zero encoder gradient on float noise, hiding what this test compares
+                "optim.encoder_optimizer=adamw",
                 f"optim.trajectory_chunks={chunks}",
                 f"output_dir={tmp_path / str(chunks)}",
                 "optim.iterations=1",
@@ -105,7 +168,7 @@ def test_length_levers_give_the_whole_batch_gradient_without_the_padding(tiny_co
     """Known answer: with dropout off, a batch of trajectories of four lengths gives the same loss and
     gradients in one padded forward, in length-sorted chunks cropped to their own longest window
     (``optim.chunks_by_length``) and with the transformer run in length groups (``optim.length_groups``)."""
-    _, batch = build_trainer(
+    batch = build_trainer(
         tiny_config("optim.iterations=1", f"output_dir={tmp_path / 'draw'}")
     ).cross_task.sample()
     batch = batch.select("pixels", "action", "return_to_go", "step", "mask", "target_pixels").clone()
@@ -183,6 +246,9 @@ def test_the_binned_head_trains_chunked_like_whole_and_loads_back(tiny_config, t
                 "model.dropout=0.0",
                 "model.action_bins=5",
                 "ablation=no_ssl",
+                # AdamW's first step is ~lr * sign(gradient); Adam's coupled weight decay could flip the sign
+                # of a near-zero encoder gradient on float noise, hiding what this test compares
+                "optim.encoder_optimizer=adamw",
                 f"optim.trajectory_chunks={chunks}",
                 f"output_dir={tmp_path / str(chunks)}",
                 "optim.iterations=1",

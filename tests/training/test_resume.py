@@ -39,11 +39,12 @@ def weights(run_dir: Path, iteration: int) -> dict[str, torch.Tensor]:
     "encoder_training, extra",
     [
         ("joint", []),
+        ("joint", ["optim.encoder_optimizer=adamw"]),
         ("frozen", []),
         # float16 autocast on CPU is slow (~80 s here): checked with the slow tests
         pytest.param("joint", ["model.autocast_dtype=float16"], marks=pytest.mark.slow),
     ],
-    ids=["joint", "frozen", "joint-float16"],
+    ids=["joint", "joint-adamw", "frozen", "joint-float16"],
 )
 def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_training, extra):
     common = [f"encoder_training={encoder_training}", "optim.iterations=6", "checkpoint.keep_last=0", *extra]
@@ -74,8 +75,9 @@ def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_tra
     for key, value in ra["byol"].items():  # EMA target params, BYOL heads' BatchNorm statistics
         assert torch.equal(value, rb["byol"][key]), key
     # float16 autocast trains with loss scaling, whose state is part of the resume part
-    assert ("grad_scaler" in ra) == bool(extra)
-    if extra:
+    scaled = "model.autocast_dtype=float16" in extra
+    assert ("grad_scaler" in ra) == scaled
+    if scaled:
         assert ra["grad_scaler"] == rb["grad_scaler"] and ra["grad_scaler"]["scale"] > 0
     assert straight.metrics == {
         **resumed.metrics,
@@ -102,6 +104,29 @@ def test_drawing_batches_ahead_changes_nothing_but_the_wait(tiny_config, tmp_pat
     wa, wb = weights(plain.run_dir, 4), weights(ahead_dir, 4)
     assert all(torch.equal(wa[key], wb[key]) for key in wa)
     assert load_resume_state(plain.checkpoint)["cross_task"]["iteration"] == 4
+
+
+def test_a_checkpoint_with_the_former_sampler_state_resumes_the_same(tiny_config, tmp_path):
+    """Checkpoints written before CrossTaskReplayBuffer hold the CrossTaskSampler's layout, ``{"iteration",
+    <task>: the trajectory sampler's state}``: they resume on the batches an uninterrupted run draws."""
+    common = ["optim.iterations=4", "checkpoint.keep_last=0", "data.prefetch=false"]
+    plain = train(tiny_config(*common, f"output_dir={tmp_path / 'plain'}"))
+    old_dir = tmp_path / "old"
+    crash_after_checkpoint(tiny_config(*common, "checkpoint.interval=3", f"output_dir={old_dir}"))
+    resume_file = old_dir / "checkpoints" / "iter_000003" / "resume.pt"
+    state = torch.load(resume_file, weights_only=True)
+    cross_task = state["cross_task"]
+    assert cross_task["exploration"]["generator"] is None  # the batchers' samplers own their generators
+    state["cross_task"] = {"iteration": cross_task["iteration"]} | {
+        task: cross_task[task]["sampler"] for task in ("exploration", "collision_avoidance")
+    }
+    torch.save(state, resume_file)
+    resumed = train(tiny_config(*common, "checkpoint.interval=3", "resume=true", f"output_dir={old_dir}"))
+    assert resumed.iterations == 4
+    for name in ("loss", "loss_dt", "loss_byol"):
+        assert scalars(plain.run_dir, name) == scalars(old_dir, name), name
+    wa, wb = weights(plain.run_dir, 4), weights(old_dir, 4)
+    assert all(torch.equal(wa[key], wb[key]) for key in wa)
 
 
 @pytest.mark.parametrize("dtype, scaled", [(None, False), ("bfloat16", False), ("float16", True)])
@@ -212,6 +237,30 @@ def test_a_checkpoint_from_before_a_new_key_resumes_with_that_keys_default(tiny_
     train(tiny_config("optim.iterations=2", f"output_dir={other}", "ssl.loss_weight=0.5"))
     with pytest.raises(ValueError, match=r"differs in \['ssl.loss_weight'\]"):
         train(tiny_config("optim.iterations=3", f"output_dir={other}", "resume=true"))
+
+
+@pytest.mark.parametrize(("encoder_training", "legacy_optimizer"), [("joint", "adamw"), ("frozen", "adam")])
+def test_a_checkpoint_from_before_the_encoder_optimizer_key_resumes_with_its_own_optimiser(
+    tiny_config, tmp_path, encoder_training, legacy_optimizer
+):
+    """A run recorded before ``optim.encoder_optimizer`` existed had its encoders under AdamW (``joint``) or
+    Adam (``frozen``): it resumes with that optimiser named, and a resume with the other one is refused."""
+    import json
+
+    run = tmp_path / "run"
+    common = [f"encoder_training={encoder_training}", f"output_dir={run}"]
+    first = train(tiny_config(*common, "optim.iterations=2", f"optim.encoder_optimizer={legacy_optimizer}"))
+    header_path = first.checkpoint / "config.json"
+    header = json.loads(header_path.read_text())
+    del header["train_config"]["optim"]["encoder_optimizer"]  # as written before the key existed
+    header_path.write_text(json.dumps(header))
+    other = "adam" if legacy_optimizer == "adamw" else "adamw"
+    with pytest.raises(ValueError, match=r"differs in \['optim.encoder_optimizer'\]"):
+        train(tiny_config(*common, "optim.iterations=3", "resume=true", f"optim.encoder_optimizer={other}"))
+    resumed = tiny_config(
+        *common, "optim.iterations=3", "resume=true", f"optim.encoder_optimizer={legacy_optimizer}"
+    )
+    assert train(resumed).iterations == 3
 
 
 @pytest.mark.parametrize(

@@ -231,6 +231,18 @@ class CausalTransformer(nn.Module):
         step: Tensor,
         mask: Tensor | None,
     ) -> tuple[int, int]:
+        inputs = {
+            "target_embedding": target_embedding,
+            "return_to_go": return_to_go,
+            "action": action,
+            "step": step,
+        }
+        missing = [name for name, value in inputs.items() if value is None]
+        if missing:
+            raise ValueError(
+                f"CausalTransformer: {missing[0]} is None; every input but mask is required (target_embedding "
+                "[B, d], return_to_go [B, T, 1], action [B, T, A], step int64 [B, T])"
+            )
         first = observations[0]
         if first.dim() != 3:
             raise ValueError(f"{self.observation_names[0]}: expected [B, T, d], got {tuple(first.shape)}")
