@@ -1015,6 +1015,19 @@ def test_the_prose_of_results_md_quotes_the_records() -> None:
         f"DT {span(dt, '7.5')[:-2]} %, {span(dt, '12.5')[:-2]} %, {span(dt, '17.5')[:-2]} %)" in text
     )
     assert f"{100 * nf['7.5m-2r'].sr:.1f} % against its 80.8 % at 7.5m-2r" in text
+    vrw, fca = _summaries(T1["vrw"]), _summaries(T1["fca"])
+    setups = [setup for setup in nf if setup != "all"]
+    spans = {}
+    for name, summaries in (("FCA", fca), ("VRW", vrw)):
+        srs = [100 * summaries[setup].sr for setup in setups]
+        spans[name] = f"{int(min(srs) + 0.5)}-{int(max(srs) + 0.5)} %"
+    assert f"(FCA {spans['FCA']}, VRW {spans['VRW']} per setup;" in text
+    assert f"reaches {spans['FCA']} per setup ({100 * fca['all'].sr:.1f} % overall)" in text
+    assert f"VRW reaches {spans['VRW']} ({100 * vrw['all'].sr:.1f} %)" in text
+    for setup in setups:  # FCA above both learned policies, VRW below, in every setup
+        assert fca[setup].sr > max(nf[setup].sr, dt[setup].sr) and vrw[setup].sr < min(
+            nf[setup].sr, dt[setup].sr
+        )
     checkpoints = [
         _summaries(PAPER10K / "table1" / f"navformer_10k_s0_runb_it{i}")["all"].sr
         for i in ("05000", "06000", "07000")
