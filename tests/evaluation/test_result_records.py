@@ -1,5 +1,6 @@
 """The evaluation records kept in ``docs/results/`` stay readable by the evaluation tools and still give the
-numbers docs/results.md quotes from them."""
+numbers docs/results.md (its tables and sentences), docs/studies.md, the README's caption and the model cards
+quote from them."""
 
 from __future__ import annotations
 
