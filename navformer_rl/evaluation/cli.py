@@ -18,8 +18,8 @@ import json
 import os
 from pathlib import Path
 
-from navformer_rl.cli import args as cli_args
 from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.utils import cli_args
 from navformer_rl.utils.backends import add_backend_options, backend_problem
 
 
