@@ -348,7 +348,7 @@ def _generation(args: argparse.Namespace) -> tuple[int | None, ...]:
 
 def _run_evaluate(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes
-    from navformer_rl.evaluation.harness import METHODS, PolicySpec, evaluate
+    from navformer_rl.evaluation.harness import METHODS, EvaluateConfig, PolicySpec, evaluate
 
     if args.method is None:
         raise ValueError(f"--method is required: one of {', '.join(METHODS)}")
@@ -381,10 +381,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         episode_set = make_protocol_episodes(
             args.protocol, *_generation(args), workers=workers, setups=args.setups
         )
-    result = evaluate(
-        args.method,
-        episode_set,
-        args.out,
+    config = EvaluateConfig(
         checkpoint=args.checkpoint,
         workers=args.workers,
         label=args.label,
@@ -399,6 +396,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         ray_address=args.ray_address,
         context_steps=args.context_steps,
     )
+    result = evaluate(args.method, episode_set, args.out, config)
     print((result.out_dir / "summary.md").read_text(), end="")
     print(f"results in {result.out_dir}")
     return 0
