@@ -38,8 +38,8 @@ from tensordict.nn import TensorDictModule
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.modules.decoding.native import native_status
-from navformer_rl.modules.models import upgrade_state_dict
 from navformer_rl.objectives import ActionMSELoss
+from navformer_rl.training.checkpoint import upgrade_state_dict
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_PACKAGE = "navformer_reference_modules"

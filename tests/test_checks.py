@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from navformer_rl.cli import args as cli_args
+from navformer_rl.utils import cli_args
 from navformer_rl.utils.checks import check_int, check_number, check_seed, is_count, is_integer, is_real
 
 

@@ -18,8 +18,8 @@ import json
 import os
 from pathlib import Path
 
-from navformer_rl.cli import args as cli_args
 from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.utils import cli_args
 from navformer_rl.utils.backends import add_backend_options, backend_problem
 
 
@@ -363,7 +363,7 @@ def _generation(args: argparse.Namespace) -> tuple[int | None, ...]:
 
 def _run_evaluate(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes
-    from navformer_rl.evaluation.harness import METHODS, PolicySpec, evaluate
+    from navformer_rl.evaluation.harness import METHODS, EvaluateConfig, PolicySpec, evaluate
 
     if args.method is None:
         raise ValueError(f"--method is required: one of {', '.join(METHODS)}")
@@ -396,10 +396,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         episode_set = make_protocol_episodes(
             args.protocol, *_generation(args), workers=workers, setups=args.setups
         )
-    result = evaluate(
-        args.method,
-        episode_set,
-        args.out,
+    config = EvaluateConfig(
         checkpoint=args.checkpoint,
         workers=args.workers,
         label=args.label,
@@ -414,6 +411,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         ray_address=args.ray_address,
         context_steps=args.context_steps,
     )
+    result = evaluate(args.method, episode_set, args.out, config)
     print((result.out_dir / "summary.md").read_text(), end="")
     print(f"results in {result.out_dir}")
     return 0

@@ -178,8 +178,8 @@ class ExplorationExpert(_ExpertBase):
             nav.map.resolution,
             tuple(nav.map.origin),
             pose[:2],
-            cfg.reach + cfg.clearance_cap + cfg.robot_radius,
-            cfg.clearance_cap,
+            cfg.map_half_size,
+            cfg.clearance_range,
         )
         res = self.dwas[i].plan(pose, vel, carrot, clearance)
         return np.array([res.v, res.w])

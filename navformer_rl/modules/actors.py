@@ -27,8 +27,8 @@ from tensordict.utils import NestedKey
 
 from navformer_rl.modules.inputs import check_trajectory_steps, check_unmasked_padding, require_keys
 from navformer_rl.modules.models.dve import DualVisualEncoder
+from navformer_rl.modules.models.heads import ActionHead, BinnedActionHead
 from navformer_rl.modules.models.navformer import NavFormerModel
-from navformer_rl.modules.models.thsc import ActionHead, BinnedActionHead
 from navformer_rl.modules.models.transformer import HIDDEN_NAMES, CausalTransformer
 from navformer_rl.utils.length_groups import length_sorted_groups
 

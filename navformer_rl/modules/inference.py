@@ -229,20 +229,6 @@ class NavFormerPolicy(TensorDictModuleBase):
     def action_key(self) -> NestedKey:
         return self._keys["action"]
 
-    @classmethod
-    def from_pretrained(cls, name: str, **policy_options) -> NavFormerPolicy:
-        """The policy of the shipped weights ``name`` (``"navformer"``, ``"dt"``, ... or ``"pretrained:NAME"``;
-        ``navformer pretrained list``), on the CPU in eval mode; ``policy_options`` go to the constructor (e.g.
-        ``native=False``); without ``context_steps`` it attends to the window the weights were trained on
-        (``data.context_steps``), else to its whole context. Errors are one line: an unknown name lists the
-        shipped ones, a missing or corrupt file is named (docs/pretrained.md)."""
-        from navformer_rl.pretrained import load_pretrained, resolve_pretrained
-        from navformer_rl.training.checkpoint import training_context_steps
-
-        model, _ = load_pretrained(name)
-        policy_options.setdefault("context_steps", training_context_steps(resolve_pretrained(name)))
-        return cls(model, **policy_options)
-
     @property
     def device(self) -> torch.device:
         return next(self.model.parameters()).device

@@ -361,6 +361,35 @@ def load_policy_model(path: str | os.PathLike, expected_config: Any | None = Non
     return config, model
 
 
+RENAMED_PREFIXES = {
+    "static_encoder.": "dve.static_encoder.",
+    "general_encoder.": "dve.general_encoder.",
+    "return_embed.": "transformer.tokens.return_embed.",
+    "action_embed.": "transformer.tokens.action_embed.",
+    "timestep_embed.": "transformer.tokens.timestep_embed.",
+    "modality_embed.": "transformer.tokens.modality_embed.",
+    "embed_ln.": "transformer.tokens.embed_ln.",
+    "transformer.blocks.": "transformer.gpt.blocks.",
+    "transformer.ln_final.": "transformer.gpt.ln_final.",
+}
+"""State-dict names of the single-module model (checkpoints of ``navformer_rl.run/1`` written before the
+model was split into its parts) -> the names of the parts. The parameter order is the same, so the
+optimiser states of a resumed run still match."""
+
+
+def upgrade_state_dict(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """``state`` with the single-module model's names (``RENAMED_PREFIXES``) mapped to the current ones;
+    current names are kept as they are."""
+    upgraded = {}
+    for name, tensor in state.items():
+        for old, new in RENAMED_PREFIXES.items():
+            if name.startswith(old):
+                name = new + name[len(old) :]
+                break
+        upgraded[name] = tensor
+    return upgraded
+
+
 def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str | os.PathLike) -> None:
     """``model.load_state_dict(state)`` after checking that the keys and shapes match exactly.
 
@@ -372,8 +401,6 @@ def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str 
             by another version of the model code (a ResNet18 checkpoint from before its BatchNorm became
             GroupNorm carries running statistics the model no longer has).
     """
-    from navformer_rl.modules.models.navformer import upgrade_state_dict
-
     state = upgrade_state_dict(state)
     mismatch = state_dict_mismatch(model.state_dict(), state)
     if mismatch:

@@ -107,16 +107,14 @@ def test_pretrained_names_resolve_to_the_exact_weights(shipped, trained_run, mon
     assert all(torch.equal(policy.model.state_dict()[key], saved[key]) for key in saved)
     from navformer_rl.modules import NavFormerPolicy
 
-    by_name = NavFormerPolicy.from_pretrained("navformer", native=False)
+    by_name = load_pretrained_policy("navformer", native=False)
     assert isinstance(by_name, NavFormerPolicy) and by_name.native is False
     assert all(torch.equal(by_name.model.state_dict()[key], saved[key]) for key in saved)
 
 
 def test_weights_trained_on_short_windows_load_attending_to_them(trained_run, tmp_path, monkeypatch):
-    """Shipped weights trained with ``data.context_steps=W`` load attending to their last W steps, by either
-    loader; a ``context_steps`` option overrides it (None: the whole context)."""
-    from navformer_rl.modules import NavFormerPolicy
-
+    """Shipped weights trained with ``data.context_steps=W`` load attending to their last W steps (by the
+    short or the ``pretrained:`` name); a ``context_steps`` option overrides it (None: the whole context)."""
     source = tmp_path / "windowed"
     shutil.copytree(trained_run.checkpoint, source)
     header = json.loads((source / ckpt.CONFIG_FILENAME).read_text())
@@ -126,8 +124,8 @@ def test_weights_trained_on_short_windows_load_attending_to_them(trained_run, tm
     write_pretrained(source, "navformer_w4", out_dir=root)
     monkeypatch.setenv(PRETRAINED_DIR_ENV, str(root))
     assert load_pretrained_policy("navformer_w4").context_steps == 4
-    assert NavFormerPolicy.from_pretrained("pretrained:navformer_w4").context_steps == 4
-    assert NavFormerPolicy.from_pretrained("navformer_w4", context_steps=8).context_steps == 8
+    assert load_pretrained_policy("pretrained:navformer_w4").context_steps == 4
+    assert load_pretrained_policy("navformer_w4", context_steps=8).context_steps == 8
     assert load_pretrained_policy("navformer_w4", context_steps=None).context_steps is None
     card = (root / "navformer_w4" / "MODEL_CARD.md").read_text()
     assert (

@@ -9,8 +9,8 @@ from torch import Tensor
 
 from navformer_rl.modules.decoding.derived import DerivedCache
 from navformer_rl.modules.decoding.transformer_step import layer_norm_weights
+from navformer_rl.modules.models.heads import ObservationHead, THSCHead
 from navformer_rl.modules.models.navformer import NavFormerModel
-from navformer_rl.modules.models.thsc import ObservationHead, THSCHead
 from navformer_rl.modules.models.transformer import MODALITIES
 
 

@@ -56,7 +56,7 @@ class NavFormerConfig:
         action_bins: 0 (default) is the paper's head, ``tanh`` of a linear map trained with eq. 10's squared
             error. K >= 2: each action dimension as K logits over bins centred on ``linspace(-1, 1, K)``,
             trained with cross-entropy, the action read from the most probable bin
-            (:class:`~navformer_rl.modules.models.thsc.BinnedActionHead`): a state with two good turns gives
+            (:class:`~navformer_rl.modules.models.heads.BinnedActionHead`): a state with two good turns gives
             one of them, where the squared error's mean of the two may be no turn.
     """
 

@@ -1,6 +1,6 @@
 """``diagnosis.md``: the failure measures of one or more diagnoses of the same episodes as markdown tables.
 
-One column per diagnosis (its label); rows as in :mod:`~navformer_rl.evaluation.diagnose_measures`. The
+One column per diagnosis (its label); rows as in :mod:`~navformer_rl.evaluation.diagnose.measures`. The
 experts' command distribution and the teacher-forced turns get their own tables, for the diagnoses that
 measured them.
 """
@@ -11,8 +11,8 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from navformer_rl.evaluation.diagnose_actions import HALF_FIELD_OF_VIEW
-from navformer_rl.evaluation.diagnose_measures import (
+from navformer_rl.evaluation.diagnose.actions import HALF_FIELD_OF_VIEW
+from navformer_rl.evaluation.diagnose.measures import (
     APPROACH_WINDOW,
     ARRIVAL_WINDOW,
     LARGE_TURN,

@@ -1,4 +1,4 @@
-"""Failure measures over recorded robot-trials (:class:`~navformer_rl.evaluation.diagnose_trace.RobotSteps`).
+"""Failure measures over recorded robot-trials (:class:`~navformer_rl.evaluation.diagnose.trace.RobotSteps`).
 
 Every measure reads only a robot's *active* steps (up to and including its arrival) and only robots that
 are measured (Table III's obstacle robots are left out by the caller). Step ``t``'s action is the policy's
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from navformer_rl.evaluation.diagnose_trace import RobotSteps
+from navformer_rl.evaluation.diagnose.trace import RobotSteps
 
 STUCK_WINDOW = 50
 STUCK_DISPLACEMENT = 0.1

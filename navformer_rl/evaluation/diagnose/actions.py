@@ -5,11 +5,11 @@ a smaller, centred turn. Two signatures are measured here:
 
 - :func:`expert_command_statistics`: the distribution of the actions in D_e / D_ca (``action`` of every
   row, normalised), to set beside the policy's closed-loop commands
-  (:func:`~navformer_rl.evaluation.diagnose_measures.command_statistics`): a narrower ``|angular|``
+  (:func:`~navformer_rl.evaluation.diagnose.measures.command_statistics`): a narrower ``|angular|``
   distribution than the experts' is what averaging modes would give.
 - :func:`teacher_forced_turns`: on held-out expert trajectories (the windows ``navformer validate`` scores,
   :class:`~navformer_rl.training.validation.FixedTrajectoryBatches`), the model's predicted angular action at the
-  steps where the expert turns hard (``|a_angular| >`` :data:`~navformer_rl.evaluation.diagnose_measures.LARGE_TURN`):
+  steps where the expert turns hard (``|a_angular| >`` :data:`~navformer_rl.evaluation.diagnose.measures.LARGE_TURN`):
   ``magnitude_ratio`` = mean ``|predicted|`` / mean ``|expert|`` (1 = as hard as the expert, near 0 = the
   turn averaged away) and ``sign_agreement`` (the fraction turning the expert's way); and, with
   :func:`edge_of_view_turns`, the same steps' turns towards the target where it lies in the camera's cone
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from navformer_rl.envs.robots import JACKAL
-from navformer_rl.evaluation.diagnose_measures import (
+from navformer_rl.evaluation.diagnose.measures import (
     LARGE_TURN,
     OFF_CENTRE,
     SIGHTING_RANGES,
@@ -115,7 +115,7 @@ def edge_of_view_turns(
     max_range: float = SIGHTING_RANGES[-1],
 ) -> dict[str, Any]:
     """Turns towards the target at the steps whose target lies in the camera's cone between
-    :data:`~navformer_rl.evaluation.diagnose_measures.OFF_CENTRE` and :data:`HALF_FIELD_OF_VIEW` off the
+    :data:`~navformer_rl.evaluation.diagnose.measures.OFF_CENTRE` and :data:`HALF_FIELD_OF_VIEW` off the
     heading, within ``max_range`` metres (walls are not checked: some of these targets are hidden).
 
     Args:
