@@ -101,7 +101,8 @@ def paired_models(reference, config_changes: dict) -> tuple[torch.nn.Module, Nav
 
 
 def time_once(fn) -> float:
-    """The process CPU time of ``fn()`` in ms (with one thread, what the machine's other jobs inflate least)."""
+    """The process CPU time of ``fn()`` in ms (with one thread,
+    what the machine's other jobs inflate least)."""
     start = time.process_time()
     fn()
     return (time.process_time() - start) * 1e3

@@ -1,5 +1,5 @@
-"""navformer_rl.utils.checks: the shared value checks (bools refused, numpy scalars accepted and converted, messages
-naming the argument, the value and what was expected) and the CLI's seed type built on them."""
+"""navformer_rl.utils.checks: the shared value checks (bools refused, numpy scalars accepted and converted,
+messages naming the argument, the value and what was expected) and the CLI's seed type built on them."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""``navformer demo`` and ``navformer world-demo``: argument parsing over :func:`~navformer_rl.demo.pipeline.run_demo`
-and :func:`~navformer_rl.envs.demo.run_world_demo`."""
+"""``navformer demo`` and ``navformer world-demo``: argument parsing over
+:func:`~navformer_rl.demo.pipeline.run_demo` and :func:`~navformer_rl.envs.demo.run_world_demo`."""
 
 from __future__ import annotations
 

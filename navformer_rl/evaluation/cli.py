@@ -1,4 +1,5 @@
-"""``navformer evaluate``: run a method on an episode set; ``evaluate make-episodes`` / ``report`` / ``seeds``.
+"""``navformer evaluate``: run a method on an episode set; ``evaluate make-episodes`` / ``report`` /
+``seeds``.
 
 Examples::
 
@@ -177,7 +178,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         dest="seeds_x_scale",
         choices=("auto", "linear", "log"),
         default="auto",
-        help="--plot's x axis: auto (logarithmic when the largest X is at least 5x the smallest), linear, log",
+        help=(
+            "--plot's x axis: auto (logarithmic when the largest X is at least 5x the smallest), linear, log"
+        ),
     )
     _add_cluster_option(seeds, "trial")
     seeds.set_defaults(run=_run_seeds)
@@ -276,8 +279,10 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
     strip = commands.add_parser(
         "strip",
         help="evenly spaced frames of an evaluation video side by side in one PNG",
-        description="Write a frame strip of an evaluation video (videos/*.mp4): --frames evenly spaced frames, "
-        "first and last included, side by side and scaled to --width pixels, each labelled with its time.",
+        description=(
+            "Write a frame strip of an evaluation video (videos/*.mp4): --frames evenly spaced frames, "
+            "first and last included, side by side and scaled to --width pixels, each labelled with its time."
+        ),
     )
     strip.add_argument("strip_video", type=Path, metavar="VIDEO", help="an mp4 from an evaluation's videos/")
     strip.add_argument("--out", dest="strip_out", type=Path, required=True, help="the .png to write")
@@ -324,7 +329,9 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--setups",
         type=_setup_names,
-        help="with --protocol: only these of its setups, comma-separated (e.g. 7.5m-2r,12.5m-4r; default: all)",
+        help=(
+            "with --protocol: only these of its setups, comma-separated (e.g. 7.5m-2r,12.5m-4r; default: all)"
+        ),
     )
 
 
@@ -385,8 +392,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         if given:  # the file fixes them: silently ignoring them would run other episodes than asked for
             flags = ", ".join("--" + name.replace("_", "-") for name in given)
             raise ValueError(
-                f"{flags}: only with --protocol; the episode file {args.episodes} fixes its trials, seeds and "
-                "steps per trial (make another with `navformer evaluate make-episodes`)"
+                f"{flags}: only with --protocol; the episode file {args.episodes} fixes its trials, seeds "
+                "and steps per trial (make another with `navformer evaluate make-episodes`)"
             )
         episode_set = load_episode_set(args.episodes)
     else:

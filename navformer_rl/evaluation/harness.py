@@ -118,15 +118,15 @@ class EvaluateConfig:
     keywords."""
 
     checkpoint: str | os.PathLike | None = None
-    """For ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors`` (or ``pretrained:NAME``);
-    resolved once, at the start, to one checkpoint folder (a run dir: its latest), which ``run.json`` names (a
-    run still training with ``checkpoint.keep_last`` may delete that folder before the workers load it: they
-    then fail; evaluate a finished run or a copied checkpoint)."""
+    """For ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors`` (or
+    ``pretrained:NAME``); resolved once, at the start, to one checkpoint folder (a run dir: its latest), which
+    ``run.json`` names (a run still training with ``checkpoint.keep_last`` may delete that folder before the
+    workers load it: they then fail; evaluate a finished run or a copied checkpoint)."""
     workers: int = 1
     """Processes (>= 1; 1 runs in this process), or Ray tasks at once with ``backend="ray"``."""
     label: str | None = None
-    """Method name in tables (default the method; e.g. ``navformer-no_thsc`` for an ablation). A label naming a
-    training ablation must match the checkpoint's (ValueError before any episode runs, see
+    """Method name in tables (default the method; e.g. ``navformer-no_thsc`` for an ablation). A label naming
+    a training ablation must match the checkpoint's (ValueError before any episode runs, see
     :func:`label_ablation_problem`); other labels (``navformer-seed1``) are free."""
     seed: int = 0
     """Base seed of stochastic policies."""
@@ -157,9 +157,9 @@ class EvaluateConfig:
     """Where episodes run: ``local`` (``workers`` processes here) or ``ray`` (Ray tasks, ``pip install
     "navformer_rl[distributed]"``; the model on the CPU only); ValueError otherwise."""
     ray_address: str | None = None
-    """With ``ray``: the cluster to join (``auto``, ``ray://host:10001``; default ``$RAY_ADDRESS``, else a local
-    Ray instance with ``workers`` CPUs, shut down at the end). Every node needs navformer_rl installed and, for
-    ``navformer`` / ``dt``, the checkpoint at the same path."""
+    """With ``ray``: the cluster to join (``auto``, ``ray://host:10001``; default ``$RAY_ADDRESS``, else a
+    local Ray instance with ``workers`` CPUs, shut down at the end). Every node needs navformer_rl installed
+    and, for ``navformer`` / ``dt``, the checkpoint at the same path."""
     context_steps: int | None = None
     """``navformer`` / ``dt`` only: the timesteps the policy attends to (an inference option, not the paper's,
     ``NavFormerPolicy(context_steps=)``); None: the window the checkpoint was trained on
@@ -179,8 +179,8 @@ def evaluate(
     Args:
         method: one of :data:`METHODS` (ValueError listing them otherwise), or your own policy as a picklable
             zero-argument factory returning a ``TensorDictModuleBase`` that reads the ``MultiRobotNavEnv``
-            tensordict and writes ``("agents", "action")`` (a ``bind(env, seed)`` method, if present, is called
-            after every reset); its label defaults to the factory's name.
+            tensordict and writes ``("agents", "action")`` (a ``bind(env, seed)`` method, if present, is
+            called after every reset); its label defaults to the factory's name.
         episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
         out_dir: output folder (created; this run's files in it are overwritten, but a folder holding
             another label's finished results is refused with ``FileExistsError``).
@@ -213,8 +213,8 @@ def evaluate(
     model_device = _model_device(method, factory, cfg.device)
     if cfg.backend == "ray" and model_device not in (None, "cpu"):
         raise ValueError(
-            f"device={cfg.device!r} with backend='ray': Ray tasks run the model on the CPU; use device='cpu', "
-            "or the local backend for a GPU"
+            f"device={cfg.device!r} with backend='ray': Ray tasks run the model on the CPU; use "
+            "device='cpu', or the local backend for a GPU"
         )
     out_dir = Path(out_dir)
     with folder_lock(out_dir, LOCK_FILENAME, "evaluated"):  # one evaluation per folder at a time
@@ -375,7 +375,8 @@ def _resume_identity(
 
 
 def _with_transformer_step(spec: PolicySpec, description: dict[str, Any]) -> PolicySpec:
-    """``spec`` running the transformer step the policy described (native kernel or torch), when it names one."""
+    """``spec`` running the transformer step the policy described (native kernel or torch),
+    when it names one."""
     step = description.get("transformer_step")
     if step == "native":
         return dataclasses.replace(spec, native=True)
@@ -424,7 +425,8 @@ def _episode_set_entry(episode_set: EpisodeSet) -> dict[str, Any]:
 
 
 _TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
-"""The names ``durable.atomic_path`` gives its temporary files: ``.<stem>.<mkstemp's 8 characters>.tmp<suffix>``."""
+"""The names ``durable.atomic_path`` gives its temporary files:
+``.<stem>.<mkstemp's 8 characters>.tmp<suffix>``."""
 
 
 def _remove_temporaries(out_dir: Path) -> None:
@@ -486,8 +488,8 @@ def _remove_stale_outputs(out_dir: Path, tasks: list[EpisodeTask], outputs: list
         path.unlink(missing_ok=True)
     if stale:
         warnings.warn(
-            f"{out_dir}: removed {len(stale)} maps / videos / per-episode results of episodes this evaluation "
-            "does not hold (an earlier evaluation of other episodes in this folder)",
+            f"{out_dir}: removed {len(stale)} maps / videos / per-episode results of episodes this "
+            "evaluation does not hold (an earlier evaluation of other episodes in this folder)",
             stacklevel=3,
         )
 
@@ -547,7 +549,8 @@ def _store_partial(task: EpisodeTask, output: dict[str, Any]) -> None:
 
 
 def _load_partial(task: EpisodeTask) -> dict[str, Any] | None:
-    """The stored output of ``task`` when its key matches and its visuals still exist (non-empty), else None."""
+    """The stored output of ``task`` when its key matches and its visuals still exist (non-empty),
+    else None."""
     path = _partial_path(task)
     try:
         document = json.loads(path.read_text())

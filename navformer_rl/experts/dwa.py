@@ -66,7 +66,8 @@ class DWAConfig:
 
     @property
     def check_distance(self) -> float:
-        """Shortest path (m) a forward sample is checked along: what ``creep_speed`` covers in ``predict_time``."""
+        """Shortest path (m) a forward sample is checked along: what ``creep_speed`` covers in
+        ``predict_time``."""
         return self.creep_speed * self.predict_time
 
     @property
@@ -129,7 +130,8 @@ class DWAConfig:
 
     @property
     def reach(self) -> float:
-        """Farthest (m) a checked rollout ends from the robot (size a :class:`ClearanceMap` window with it)."""
+        """Farthest (m) a checked rollout ends from the robot
+        (size a :class:`ClearanceMap` window with it)."""
         return max(self.v_max * self.safety_horizon, self.check_distance)
 
 

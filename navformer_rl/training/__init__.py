@@ -2,7 +2,8 @@
 
 One iteration (eq. 11, :func:`~navformer_rl.training.step.train_step`)::
 
-    batch = cross_task.sample()                  # CrossTaskReplayBuffer: 25 trajectories of D_e or 150 of D_ca, in turn
+    batch = cross_task.sample()                  # CrossTaskReplayBuffer: 25 trajectories of D_e or 150
+                                                 # of D_ca, in turn
     pairs = ssl_batcher.sample()                 # 512 (o^s, o^d) pairs of D_ssl     (unless SSL is ablated)
     L = ActionMSELoss(batch)["loss_dt"] + BYOLLoss(pairs)["loss_byol"]
     L.backward(); AdamW.step() (navigation network); Adam.step() (DVE: encoders + BYOL projector/predictor)

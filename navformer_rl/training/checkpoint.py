@@ -16,8 +16,8 @@ Layout of a run directory::
   checkpoint whose weights it started from: ``{"checkpoint", "folder", "iteration", "weights_sha256"}``,
   or None).
 * The **resume part** (``resume.pt``) holds optimiser states, BYOL target parameters, RNG states (one per
-  process under ``rng_ranks`` in a data-parallel run), the iteration and the samplers' states. It only contains tensors and plain Python containers, so it loads
-  with ``torch.load(..., weights_only=True)``.
+  process under ``rng_ranks`` in a data-parallel run), the iteration and the samplers' states. It only
+  contains tensors and plain Python containers, so it loads with ``torch.load(..., weights_only=True)``.
 
 Atomicity: a checkpoint is written completely into a private temporary folder, flushed to disk, then
 renamed into place with ``os.replace``; only then is ``latest`` rewritten (temp file + ``os.replace``). A
@@ -201,7 +201,8 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
     ``checkpoints/latest`` pointer file (the checkpoint ``latest`` names); a checkpoint folder
     ``checkpoints/iter_XXXXXX``; or one of that folder's files (``model.safetensors``, ``config.json``,
     ``resume.pt``); or ``pretrained:NAME``, the folder of shipped weights
-    (:func:`~navformer_rl.training.pretrained_registry.resolve_pretrained`: its files checked against their sha256).
+    (:func:`~navformer_rl.training.pretrained_registry.resolve_pretrained`: its files checked against their
+    sha256).
 
     Raises:
         FileNotFoundError: ``path`` is none of these (the message lists the accepted forms), or it has
@@ -318,8 +319,8 @@ def read_model_config(path: str | os.PathLike) -> Any:
     """The ``NavFormerConfig`` a checkpoint's run part describes (from ``config.json``; weights not read).
 
     Raises:
-        FileNotFoundError / ValueError: as :func:`read_checkpoint_config`, or fields ``NavFormerConfig`` does not
-            know (written by another model version) or values it refuses.
+        FileNotFoundError / ValueError: as :func:`read_checkpoint_config`, or fields ``NavFormerConfig`` does
+            not know (written by another model version) or values it refuses.
     """
     from navformer_rl.modules import NavFormerConfig
 
@@ -405,8 +406,8 @@ def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str 
     mismatch = state_dict_mismatch(model.state_dict(), state)
     if mismatch:
         raise ValueError(
-            f"checkpoint {path} does not match NavFormerModel({model.config}): {mismatch} (written by another "
-            "version of the model code?)"
+            f"checkpoint {path} does not match NavFormerModel({model.config}): {mismatch} (written by "
+            "another version of the model code?)"
         )
     model.load_state_dict(state)
 

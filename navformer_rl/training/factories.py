@@ -2,8 +2,8 @@
 ``decision_transformer/utils.py``): the batchers, the model and its losses, the optimisers, the learner
 (what :func:`~navformer_rl.training.step.train_step` updates) and the logger.
 
-:func:`~navformer_rl.training.run.make_trainer` and the recipe (``recipes/navformer/navformer.py``) call them in
-this order after :func:`seed_everything`; the order is part of a seed's run (the model's and BYOL's heads'
+:func:`~navformer_rl.training.run.make_trainer` and the recipe (``recipes/navformer/navformer.py``) call them
+in this order after :func:`seed_everything`; the order is part of a seed's run (the model's and BYOL's heads'
 initial weights come from the generators it seeds).
 """
 
@@ -58,10 +58,10 @@ def context_steps(cfg: TrainConfig) -> int:
 def make_batchers(
     cfg: TrainConfig, datasets: dict[str, Any], *, device: torch.device, distributed: Distributed
 ) -> tuple[CrossTaskReplayBuffer, Any]:
-    """``(cross_task, pairs)``: the :class:`~navformer_rl.data.CrossTaskReplayBuffer` over the D_e / D_ca trajectory
-    batchers (alternating, paper §VI) and D_ssl's pair batcher (None without SSL). With several processes
-    every one draws the global batch and gathers its rows of it. With ``data.prefetch`` each batcher keeps two
-    buffer sets (one batch trains while the next is gathered)."""
+    """``(cross_task, pairs)``: the :class:`~navformer_rl.data.CrossTaskReplayBuffer` over the D_e / D_ca
+    trajectory batchers (alternating, paper §VI) and D_ssl's pair batcher (None without SSL). With several
+    processes every one draws the global batch and gathers its rows of it. With ``data.prefetch`` each batcher
+    keeps two buffer sets (one batch trains while the next is gathered)."""
     from navformer_rl.data import CrossTaskReplayBuffer
 
     buffers = {"buffer_sets": 2 if cfg.data.prefetch else 1, "pin_memory": device.type == "cuda"}
@@ -174,8 +174,8 @@ def parameter_groups(
 
 
 def make_optimizers(cfg: TrainConfig, parts: ModelAndLosses) -> dict[str, torch.optim.Optimizer]:
-    """``{"navformer": AdamW(optim.lr, optim.weight_decay), "dve": Adam(optim.dve_lr, optim.dve_weight_decay)}``
-    over :func:`parameter_groups` ("dve" absent when it would own nothing: ``ablation=dt``)."""
+    """``{"navformer": AdamW(lr, weight_decay), "dve": Adam(dve_lr, dve_weight_decay)}`` (the ``optim.*``
+    values) over :func:`parameter_groups` ("dve" absent when it would own nothing: ``ablation=dt``)."""
     groups = parameter_groups(cfg, parts.model, parts.byol_loss)
     optim = cfg.optim
     optimizers: dict[str, torch.optim.Optimizer] = {
@@ -191,8 +191,8 @@ def make_optimizers(cfg: TrainConfig, parts: ModelAndLosses) -> dict[str, torch.
 def make_learner(
     cfg: TrainConfig, parts: ModelAndLosses, optimizers: dict[str, torch.optim.Optimizer]
 ) -> Learner:
-    """What :func:`~navformer_rl.training.step.train_step` runs and updates: the losses, the optimisers, BYOL's
-    EMA and a loss scaler (enabled only under float16 autocast, whose gradients underflow)."""
+    """What :func:`~navformer_rl.training.step.train_step` runs and updates: the losses, the optimisers,
+    BYOL's EMA and a loss scaler (enabled only under float16 autocast, whose gradients underflow)."""
     device = next(parts.model.parameters()).device
     float16 = parts.model.config.autocast_dtype == "float16"
     return Learner(

@@ -52,7 +52,8 @@ class TrainResult:
     checkpoint: Path | None
 
     def summary(self) -> str:
-        """Three lines for the terminal: iterations and last losses, the run directory, the last checkpoint."""
+        """Three lines for the terminal: iterations and last losses, the run directory,
+        the last checkpoint."""
         losses = ", ".join(
             f"{k}={self.metrics[k]:.4g}" for k in ("loss", "loss_dt", "loss_byol") if k in self.metrics
         )
@@ -153,7 +154,8 @@ def start_run(run: PreparedRun, trainer: Trainer) -> Trainer:
         load_initial_weights(trainer, run.source)
     if trainer.iteration > cfg.optim.iterations:
         raise ValueError(
-            f"{run.latest} is at iteration {trainer.iteration}, beyond optim.iterations={cfg.optim.iterations}"
+            f"{run.latest} is at iteration {trainer.iteration}, "
+            f"beyond optim.iterations={cfg.optim.iterations}"
         )
     if distributed.is_main:
         run_dir = trainer.run_dir
@@ -249,8 +251,8 @@ def train_loop(trainer: Trainer) -> TrainResult:
     tqdm bar named after ``logger.exp_name``. ``timeit`` times the phases (``time/<phase>`` in the log rows).
 
     A Ctrl-C or SIGTERM (a scheduler's preemption) lets the iteration under way finish, saves a checkpoint
-    and then raises (``KeyboardInterrupt``, :class:`~navformer_rl.utils.interrupts.Terminated` for SIGTERM), so
-    ``resume=True`` loses nothing; a second one stops at once, back to the last checkpoint.
+    and then raises (``KeyboardInterrupt``, :class:`~navformer_rl.utils.interrupts.Terminated` for SIGTERM),
+    so ``resume=True`` loses nothing; a second one stops at once, back to the last checkpoint.
 
     Returns a :class:`TrainResult`. A resumed run produces the same subsequent losses and weights as an
     uninterrupted run.

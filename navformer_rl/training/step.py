@@ -35,7 +35,8 @@ BYOL loss already computed) and returns the detached L_DT and the BYOL loss as i
 
 @dataclass
 class Learner:
-    """What one iteration of eq. 11 runs and updates (:func:`~navformer_rl.training.factories.make_learner`)."""
+    """What one iteration of eq. 11 runs and updates
+    (:func:`~navformer_rl.training.factories.make_learner`)."""
 
     dt_loss: LossModule
     """L_DT (eq. 10) on the actor: ``ActionMSELoss`` (``ActionBinLoss`` with ``model.action_bins``)."""

@@ -63,7 +63,8 @@ RESUME_MAY_CHANGE = frozenset(
 
 
 def _with_defaults(defaults: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str, Any]:
-    """``values`` with every section key it lacks taken from ``defaults`` (``model`` overrides as they are)."""
+    """``values`` with every section key it lacks taken from ``defaults``
+    (``model`` overrides as they are)."""
     merged = dict(defaults)
     for key, value in values.items():
         if isinstance(value, Mapping) and isinstance(defaults.get(key), Mapping) and key != "model":
@@ -84,7 +85,8 @@ def _recorded_encoder_optimizer(recorded: Mapping[str, Any]) -> str:
 
 
 def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``values`` flattened to dotted keys (``model`` overrides kept whole), less :data:`RESUME_MAY_CHANGE`."""
+    """``values`` flattened to dotted keys (``model`` overrides kept whole), less
+    :data:`RESUME_MAY_CHANGE`."""
     flat: dict[str, Any] = {}
     for key, value in values.items():
         name = f"{prefix}{key}"
@@ -100,19 +102,20 @@ def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 class Trainer:
-    """The built training run: :func:`~navformer_rl.training.make_trainer` (or :func:`build_trainer`) makes it;
-    then ``step()`` per iteration.
+    """The built training run: :func:`~navformer_rl.training.make_trainer` (or :func:`build_trainer`) makes
+    it; then ``step()`` per iteration.
 
     Attributes:
         cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
         parts: :class:`~navformer_rl.training.factories.ModelAndLosses`; ``model``, ``actor``, ``dt_loss``,
             ``validation_loss``, ``byol_loss``, ``tau_schedule`` name its fields.
         learner: :class:`~navformer_rl.training.step.Learner`, what an iteration updates; ``optimizers``
-            (``{"navformer": AdamW, "dve": Adam}``, "dve" absent when it would own nothing: ``ablation=dt``) and
-            ``scaler`` (``torch.amp.GradScaler``, enabled only under float16 autocast) name its fields.
+            (``{"navformer": AdamW, "dve": Adam}``, "dve" absent when it would own nothing: ``ablation=dt``)
+            and ``scaler`` (``torch.amp.GradScaler``, enabled only under float16 autocast) name its fields.
         backward: how L reaches the gradients (:func:`~navformer_rl.training.step.make_backward`): None for
             one backward, else the trajectory-chunk / data-parallel wrapper.
-        cross_task: ``CrossTaskReplayBuffer`` of the D_e / D_ca batchers.  pairs: D_ssl ``PairBatcher`` or None.
+        cross_task: ``CrossTaskReplayBuffer`` of the D_e / D_ca batchers.
+        pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
             (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
         iteration: completed iterations.  logger: TorchRL logger or None.
@@ -166,7 +169,8 @@ class Trainer:
     scaler = property(lambda self: self.learner.scaler, doc="The float16 loss scaler.")
 
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
-        """Which parameters each optimiser owns (:func:`~navformer_rl.training.factories.parameter_groups`)."""
+        """Which parameters each optimiser owns
+        (:func:`~navformer_rl.training.factories.parameter_groups`)."""
         return parameter_groups(self.cfg, self.model, self.byol_loss)
 
     # -- batches --------------------------------------------------------------------------------------
@@ -177,7 +181,8 @@ class Trainer:
         return self.cross_task.task_of(batch), batch.select(*BATCH_KEYS), pairs
 
     def _sampler_state(self) -> dict[str, Any]:
-        """The samplers' positions and RNG states (``cross_task`` and, with SSL, ``pairs``) for a checkpoint."""
+        """The samplers' positions and RNG states (``cross_task`` and, with SSL,
+        ``pairs``) for a checkpoint."""
         state = {"cross_task": self.cross_task.state_dict()}
         if self.pairs is not None:
             state["pairs"] = self.pairs.state_dict()

@@ -49,8 +49,8 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
         given = [name for name, value in {**generation, "setups": setups}.items() if value is not None]
         if given:
             raise ValueError(
-                f"{', '.join(given)}: only with `protocol`; the episode file {cfg.episodes} fixes its trials, "
-                "seeds and steps per trial"
+                f"{', '.join(given)}: only with `protocol`; the episode file {cfg.episodes} fixes its "
+                "trials, seeds and steps per trial"
             )
         return load_episode_set(cfg.episodes)
     defaults = {

@@ -1,19 +1,23 @@
-"""NavFormer cross-task training recipe (paper §VI): ``python recipes/navformer/navformer.py [key=value ...]``.
+"""NavFormer cross-task training recipe (paper §VI):
+``python recipes/navformer/navformer.py [key=value ...]``.
 
-Laid out as TorchRL's ``sota-implementations/decision_transformer/dt.py``: the ``make_*`` calls, then the loop.
-Per iteration (:func:`~navformer_rl.training.step.train_step`): a batch of 25 D_e or 150 D_ca trajectories
-(alternating) -> ActionMSELoss (eq. 10), a batch of 512 D_ssl pairs -> BYOLLoss (eq. 8), one backward of
-L = L_BYOL + L_DT (eq. 11), the AdamW step of the navigation network and the Adam step of the DVE, BYOL's EMA
-update. The pieces and the loop are the library's (:mod:`navformer_rl.training`), so ``navformer train`` runs
-the same loop on the same YAML. The configuration is the packaged ``navformer_rl/config/train.yaml``
-(``config.yaml`` composes it); overrides go on the command line (hydra), e.g.::
+Laid out as TorchRL's ``sota-implementations/decision_transformer/dt.py``: the ``make_*`` calls, then the
+loop. Per iteration (:func:`~navformer_rl.training.step.train_step`): a batch of 25 D_e or 150 D_ca
+trajectories (alternating) -> ActionMSELoss (eq. 10), a batch of 512 D_ssl pairs -> BYOLLoss (eq. 8), one
+backward of L = L_BYOL + L_DT (eq. 11), the AdamW step of the navigation network and the Adam step of the DVE,
+BYOL's EMA update. The pieces and the loop are the library's (:mod:`navformer_rl.training`), so
+``navformer train`` runs the same loop on the same YAML. The configuration is the packaged
+``navformer_rl/config/train.yaml`` (``config.yaml`` composes it); overrides go on the command line (hydra),
+e.g.::
 
     python recipes/navformer/navformer.py data.exploration_path=/data/e data.collision_path=/data/ca \\
         data.ssl_path=/data/ssl ablation=no_thsc model.autocast_dtype=bfloat16
-    torchrun --nproc-per-node 2 recipes/navformer/navformer.py ... output_dir=/abs/runs/nf hydra.run.dir=/abs/runs/nf
+    torchrun --nproc-per-node 2 recipes/navformer/navformer.py ... output_dir=/abs/runs/nf \\
+        hydra.run.dir=/abs/runs/nf
 
-A mistake the user can fix is printed as one line, ``navformer.py: error: <message>``, with exit status 2, like
-``navformer train`` (``NAVFORMER_DEBUG=1`` shows the traceback); a refused run leaves no hydra folder behind.
+A mistake the user can fix is printed as one line, ``navformer.py: error: <message>``, with exit status 2,
+like ``navformer train`` (``NAVFORMER_DEBUG=1`` shows the traceback); a refused run leaves no hydra folder
+behind.
 """
 
 from __future__ import annotations
@@ -62,7 +66,8 @@ def main(cfg: DictConfig) -> None:
 
 def train(train_cfg: TrainConfig) -> TrainResult:
     """The library's :func:`navformer_rl.training.train`, spelled out: the ``make_*`` calls, then the loop."""
-    # every check, the datasets, the checkpoint to resume (resume=true) or the weights to start from (init_from=)
+    # every check, the datasets, the checkpoint to resume (resume=true) or the weights to start from
+    # (init_from=)
     run = prepare_run(train_cfg)
     cfg, device, distributed = run.cfg, run.device, run.distributed
     seed_everything(cfg.seed)

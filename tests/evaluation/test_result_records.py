@@ -204,7 +204,8 @@ TABLE3 = CONTEXT / "table3"
     [("navformer", -0.067), ("navformer_w16", 0.0), ("dt", 0.067), ("dt_w16", -0.017)],
 )
 def test_table3_records_give_the_quoted_unseen_minus_seen(record: str, expected: float) -> None:
-    """Table III's 120 episodes, gzip-compressed: the same Jackal among unseen against seen obstacle robots."""
+    """Table III's 120 episodes, gzip-compressed: the same Jackal among unseen against seen obstacle
+    robots."""
     from navformer_rl.evaluation.paired import unseen_obstacle_differences
 
     _, difference = unseen_obstacle_differences(TABLE3 / record, n_resamples=200)
@@ -511,7 +512,8 @@ def test_only_the_paper_scale_dt_gets_closer_while_its_target_is_hidden() -> Non
     learned = [value for record, value in hidden.items() if "frontier" not in record and "fca" not in record]
     assert len(learned) == 14 and max(abs(value) for value in learned) < 0.003
     assert hidden["expert/diagnosis/frontier"] > 0.02 and hidden["expert/diagnosis/fca"] > 0.05
-    # DT's paper-scale run is the one learned policy that closes in, by about a third of the exploration expert
+    # DT's paper-scale run is the one learned policy that closes in,
+    # by about a third of the exploration expert
     assert 0.005 < paper_dt < hidden["expert/diagnosis/frontier"] / 2
 
 
@@ -555,7 +557,8 @@ def test_run_b_at_5000_keeps_turning_as_its_context_fills() -> None:
 def test_run_b_on_table1_against_the_tenth_scale_weights(
     iteration: str, expected_sr: float, expected_cr: float, against_tenth: dict[str, tuple[float, float]]
 ) -> None:
-    """Iterations 5,000 and 10,000 (``pretrained:navformer``) paired with ``navformer_tenth`` and ``dt_tenth``."""
+    """Iterations 5,000 and 10,000 (``pretrained:navformer``) paired with ``navformer_tenth`` and
+    ``dt_tenth``."""
     record = PAPER10K / "table1" / f"navformer_10k_s0_runb_it{iteration}"
     (summary,) = summarize_seed_groups({"run B": [record]})
     assert summary.runs[0].metrics.n_trials == 540
@@ -591,8 +594,8 @@ def test_run_b_at_7000_on_table1() -> None:
 
 
 def test_navformer_against_dt_at_the_papers_scale_on_table1() -> None:
-    """Both final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``) on Table I:
-    DT is ahead in every setup and touches less."""
+    """Both final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``)
+    on Table I: DT is ahead in every setup and touches less."""
     navformer = PAPER10K / "table1" / "navformer_10k_s0_runb_it10000"
     dt = PAPER10K / "table1" / "dt_10k_s0_it10000"
     (summary,) = summarize_seed_groups({"DT": [dt]})
@@ -614,8 +617,8 @@ def test_navformer_against_dt_at_the_papers_scale_on_table1() -> None:
     [("navformer_10k_s0_runb_it10000", -0.0333), ("dt_10k_s0_it10000", -0.1000)],
 )
 def test_the_shipped_policies_on_table3(record: str, expected_sr_difference: float) -> None:
-    """The final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``): the same Jackal
-    among unseen against seen robots."""
+    """The final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``): the same
+    Jackal among unseen against seen robots."""
     from navformer_rl.evaluation.paired import unseen_obstacle_differences
 
     _, difference = unseen_obstacle_differences(PAPER10K / "table3" / record, n_resamples=200)

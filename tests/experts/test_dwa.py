@@ -1,8 +1,10 @@
 """DWA: limits, reaching a free-space goal, recovery when boxed in, slowly accelerating robots, the reference
-implementations' low limits (clearance and goal on three courses), the Jackal's and TurtleBot's plans of before.
+implementations' low limits (clearance and goal on three courses), the Jackal's and TurtleBot's plans of
+before.
 
-``fixtures/dwa_plans.json`` holds the plans of the planner before its low-acceleration changes (commit e821897)
-for the Jackal and the TurtleBot: seeded states and closed-loop drives in cluttered rooms (:func:`scene`).
+``fixtures/dwa_plans.json`` holds the plans of the planner before its low-acceleration changes (commit
+e821897) for the Jackal and the TurtleBot: seeded states and closed-loop drives in cluttered rooms
+(:func:`scene`).
 """
 
 import json
@@ -142,7 +144,8 @@ def test_slowly_accelerating_robot_leaves_rest_and_reaches_goal():
 
 
 def test_slowly_braking_robot_stops_before_the_wall():
-    """Goal beyond the wall: at 0.2 m/s^2 the robot needs 2.5 m to stop from full speed and must plan for it."""
+    """Goal beyond the wall: at 0.2 m/s^2 the robot needs 2.5 m to stop from full speed and must plan for
+    it."""
     occ = room(8.0)
     pose, min_clear, _ = drive(occ, (1.0, 4.0, 0.0), np.array([9.0, 4.0]), 300, SLOW)
     assert min_clear >= SLOW.robot_radius
@@ -165,7 +168,8 @@ def test_slowly_braking_robot_stops_before_the_wall():
     ],
 )
 def test_jackal_and_turtlebot_plans_are_unchanged(robot, pose, velocity, goal, expected):
-    """Commands of the planner before its thresholds followed the limits (both robots reach 0.05 m/s in a step)."""
+    """Commands of the planner before its thresholds followed the limits
+    (both robots reach 0.05 m/s in a step)."""
     cfg = DWAConfig(**robot)
     pose = np.array(pose)
     clear = ClearanceMap(room(6.0), RES, (0.0, 0.0), pose[:2], 3.0, cfg.clearance_cap)
@@ -184,7 +188,8 @@ SCATTERED += [(12, 13), (12, 12), (15, 15), (13, 13)]
 
 def time_bound(cfg: DWAConfig, distance: float, detour: float = 1.0) -> float:
     """Seconds to reach a goal ``distance`` away along a path ``detour`` times longer: the path at ``v_max``,
-    plus reaching and leaving ``v_max``, plus turning about at ``w_max``, plus reaching and leaving ``w_max``."""
+    plus reaching and leaving ``v_max``, plus turning about at ``w_max``, plus reaching and leaving
+    ``w_max``."""
     return (
         detour * distance / cfg.v_max
         + cfg.v_max / cfg.a_max
@@ -194,7 +199,8 @@ def time_bound(cfg: DWAConfig, distance: float, detour: float = 1.0) -> float:
 
 
 def drive_among_points(cfg, points, start, goal, seconds):
-    """Drive from ``start`` to within ``robot_radius`` of ``goal`` among point obstacles (grid cells of 0.1 m).
+    """Drive from ``start`` to within ``robot_radius`` of ``goal`` among point obstacles
+    (grid cells of 0.1 m).
 
     Checks the window's limits at every step. Returns ``(steps or None, the least centre-to-point distance,
     recovery steps)``."""
@@ -240,7 +246,8 @@ def test_reference_limits_turn_about_for_a_goal_behind_without_touching_the_poin
 
 
 def test_reference_limits_cross_a_scattered_field_with_clearance():
-    """The reported failure: the planner brushed a point closer than its radius, then never reached the goal."""
+    """The reported failure: the planner brushed a point closer than its radius,
+    then never reached the goal."""
     bound = time_bound(REFERENCE, math.hypot(10, 10), detour=3.0)  # takes 35.5 s here
     steps, least, _ = drive_among_points(REFERENCE, SCATTERED, (0.0, 0.0, math.pi / 8), (10.0, 10.0), bound)
     assert least >= REFERENCE.robot_radius

@@ -1,8 +1,8 @@
 """NavFormer's parts as TensorDict modules: composition, ablations, parts alone, old checkpoints, decoding.
 
 ``fixtures/pre_modules_checkpoints.tar.gz`` holds two checkpoints (``navformer``, ``dt``: d_embed 32, one
-block, 36 px images) written by ``navformer_rl.training.checkpoint.save_checkpoint`` with the single-module model of
-commit 7605c27 (state-dict names such as ``static_encoder.*``, ``transformer.blocks.*``), and in
+block, 36 px images) written by ``navformer_rl.training.checkpoint.save_checkpoint`` with the single-module
+model of commit 7605c27 (state-dict names such as ``static_encoder.*``, ``transformer.blocks.*``), and in
 ``expected.json`` that model's outputs on the inputs of ``fixture_batch`` (teacher-forced forward, windowed
 forward, ``IncrementalNavFormer`` torch path), its ``named_parameters`` order and the sums of the
 weights ``torch.manual_seed(0)`` gave it.
@@ -133,8 +133,8 @@ def test_a_seed_gives_the_weights_of_the_single_module_model(old_checkpoints, na
 
 @pytest.mark.parametrize("ablation", ["none", "dt", "resnet18"])
 def test_the_initialisation_order_is_the_parts_from_config_then_the_tables(ablation):
-    """``NavFormerModel(config)`` = DVE, CT and head built by their ``from_config`` (PyTorch's default inits, in
-    that order), then GPT-2's N(0, 0.02) for the embedding tables; the same seed gives the same weights."""
+    """``NavFormerModel(config)`` = DVE, CT and head built by their ``from_config`` (PyTorch's default inits,
+    in that order), then GPT-2's N(0, 0.02) for the embedding tables; the same seed gives the same weights."""
     from navformer_rl.modules.models import CausalTransformer, init_embedding_tables, make_head
 
     config = NavFormerConfig.ablation(ablation)

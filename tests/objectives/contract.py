@@ -64,7 +64,8 @@ class LossContract:
         raise NotImplementedError
 
     def trained(self, model: nn.Module) -> nn.Module:
-        """The part of ``model`` the loss trains (its layers are redrawn by ``reset_parameters_recursive``)."""
+        """The part of ``model`` the loss trains (its layers are redrawn by
+        ``reset_parameters_recursive``)."""
         return model
 
     def renamed(self, model: nn.Module, td: TensorDict) -> tuple[nn.Module, TensorDict, torch.Tensor]:

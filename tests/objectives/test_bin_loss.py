@@ -13,8 +13,8 @@ BINS = 11
 
 
 def bin_cross_entropy_by_hand(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """The two-hot target as hat functions on the bin centres (``1 - |x - c_k| / width``, clipped at 0: the two
-    nearest centres, weighted by closeness), its cross-entropy summed over the action dims, mean over the
+    """The two-hot target as hat functions on the bin centres (``1 - |x - c_k| / width``, clipped at 0: the
+    two nearest centres, weighted by closeness), its cross-entropy summed over the action dims, mean over the
     valid steps."""
     centres = torch.linspace(-1.0, 1.0, logits.shape[-1])
     width = 2.0 / (logits.shape[-1] - 1)

@@ -1,5 +1,5 @@
-"""BYOLLoss (eqs. 6-8): loss values, EMA target, tau schedule, shared encoders, augmentations, and TorchRL's loss
-contract (``TestBYOLLoss``)."""
+"""BYOLLoss (eqs. 6-8): loss values, EMA target, tau schedule, shared encoders, augmentations, and TorchRL's
+loss contract (``TestBYOLLoss``)."""
 
 import math
 
@@ -348,7 +348,8 @@ class TestBYOLLoss(LossContract):
 
 
 def test_bf16_autocast_gives_the_fp32_loss_to_bf16_precision_and_gradients():
-    """``autocast_dtype="bfloat16"`` (the CPU training lever) computes eq. 8 in bf16: close to fp32, finite grads."""
+    """``autocast_dtype="bfloat16"`` (the CPU training lever) computes eq. 8 in bf16: close to fp32,
+    finite grads."""
     _, fp32 = make_byol(seed=3)
     model, bf16 = make_byol(seed=3, autocast_dtype="bfloat16")
     batch = pairs(8, seed=1)

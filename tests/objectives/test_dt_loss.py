@@ -1,5 +1,5 @@
-"""ActionMSELoss (L_DT, eq. 10): hand-computed values, masking, keys, composition with the actor, and TorchRL's
-loss contract (``TestActionMSELoss``)."""
+"""ActionMSELoss (L_DT, eq. 10): hand-computed values, masking, keys, composition with the actor, and
+TorchRL's loss contract (``TestActionMSELoss``)."""
 
 import warnings
 

@@ -211,9 +211,9 @@ def recipe_config(*overrides: str) -> TrainConfig:
 
 
 def changed_overrides(node: dict, prefix: str = "") -> list[str]:
-    """``key=value`` for every leaf of a train.yaml mapping, each value changed from its default where its type
-    allows (bools flipped, ints + 1, floats halved in exponent notation, null paths set; strings and other
-    nulls kept)."""
+    """``key=value`` for every leaf of a train.yaml mapping, each value changed from its default where its
+    type allows (bools flipped, ints + 1, floats halved in exponent notation, null paths set; strings and
+    other nulls kept)."""
     items = []
     for key, value in node.items():
         name = f"{prefix}{key}"

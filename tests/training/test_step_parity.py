@@ -2,8 +2,8 @@
 give the losses and weights recorded with the trainer of commit e821897 (before ``train_step`` and the
 ``make_*`` factories), on the same tiny datasets and seeds.
 
-Bit-identical on the CPU they were recorded on (``RECORDED_ON``: torch's CPU capability); elsewhere the kernels
-may round differently, and the values are compared to 1e-4.
+Bit-identical on the CPU they were recorded on (``RECORDED_ON``: torch's CPU capability); elsewhere the
+kernels may round differently, and the values are compared to 1e-4.
 """
 
 from __future__ import annotations

@@ -68,7 +68,8 @@ def diagnose(
     """Record ``method`` on every episode of ``episode_set`` and write the diagnosis (module docstring).
 
     Args:
-        method: ``navformer``, ``dt``, ``vrw`` or ``fca`` (:data:`~navformer_rl.evaluation.policy_spec.METHODS`).
+        method: ``navformer``, ``dt``, ``vrw`` or ``fca``
+            (:data:`~navformer_rl.evaluation.policy_spec.METHODS`).
         episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
         out_dir: output folder (one diagnosis at a time: a second is refused while one runs).
         checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder, ``model.safetensors`` or

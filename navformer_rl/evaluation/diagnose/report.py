@@ -215,7 +215,8 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
     if forced:
         lines += [
             "",
-            f"## Teacher-forced turns on held-out expert trajectories (expert \\|angular\\| > {LARGE_TURN:g})",
+            "## Teacher-forced turns on held-out expert trajectories "
+            f"(expert \\|angular\\| > {LARGE_TURN:g})",
             "",
         ]
         rows = [
@@ -238,8 +239,8 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
         lines += [
             "",
             f"Teacher-forced, the target in the camera's cone {math.degrees(OFF_CENTRE):g}-"
-            f"{math.degrees(HALF_FIELD_OF_VIEW):g}° off the heading within {SIGHTING_RANGES[-1]:g} m (walls not "
-            "checked): turn towards it",
+            f"{math.degrees(HALF_FIELD_OF_VIEW):g}° off the heading within {SIGHTING_RANGES[-1]:g} m (walls "
+            "not checked): turn towards it",
             "",
         ]
         rows = [
@@ -256,8 +257,8 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
         lines += _table(["model, data", "steps", "expert", "predicted", "same sign"], rows)
         lines += [
             "",
-            f"Teacher-forced where the expert's angular action changes by more than {TURN_CHANGE:g} from the step "
-            "before (a model copying its previous action captures none of the change)",
+            f"Teacher-forced where the expert's angular action changes by more than {TURN_CHANGE:g} from the "
+            "step before (a model copying its previous action captures none of the change)",
             "",
         ]
         rows = [

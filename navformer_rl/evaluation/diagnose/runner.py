@@ -1,5 +1,6 @@
 """Running episodes with per-step recording: :class:`TraceRunner` plays an episode as the evaluation does
-(same env, policy recipe and seeds) and returns its :class:`~navformer_rl.evaluation.diagnose.trace.EpisodeTrace`.
+(same env, policy recipe and seeds) and returns its
+:class:`~navformer_rl.evaluation.diagnose.trace.EpisodeTrace`.
 
 ``_init_worker`` / ``_run_in_worker`` are what the diagnosis's spawned worker processes run.
 """

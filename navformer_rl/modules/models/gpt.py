@@ -1,4 +1,5 @@
-"""The causal transformer's N GPT-2 blocks (pre-LN) with an optional slot-addressed key/value cache (paper §IV.C)."""
+"""The causal transformer's N GPT-2 blocks (pre-LN) with an optional slot-addressed key/value cache
+(paper §IV.C)."""
 
 from __future__ import annotations
 
@@ -110,7 +111,8 @@ class CausalSelfAttention(nn.Module):
 
 
 class TransformerBlock(nn.Module):
-    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))`` with MLP = Linear(d, 4d) - GELU - Linear(4d, d).
+    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))``
+    with MLP = Linear(d, 4d) - GELU - Linear(4d, d).
 
     GELU is the exact (erf) one: GPT-2's tanh approximation differs by < 1e-3 and costs 2-3x more on CPU."""
 

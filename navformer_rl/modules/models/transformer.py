@@ -1,4 +1,5 @@
-"""``CausalTransformer`` (CT, paper §IV.C): the interleaved token sequence (eq. 5) through the GPT-2 blocks."""
+"""``CausalTransformer`` (CT, paper §IV.C): the interleaved token sequence
+(eq. 5) through the GPT-2 blocks."""
 
 from __future__ import annotations
 
@@ -105,7 +106,8 @@ class TokenEmbedding(nn.Module):
         return torch.stack(tokens, dim=-2)  # tps x [B, T, d] -> [B, T, tps, d]
 
     def prepare(self, tokens: Tensor) -> Tensor:
-        """LayerNorm then dropout on token embeddings ``[..., d]`` (per token, as in the DT reference code)."""
+        """LayerNorm then dropout on token embeddings ``[..., d]`` (per token,
+        as in the DT reference code)."""
         return self.embed_dropout(self.embed_ln(tokens))
 
 
@@ -153,9 +155,9 @@ class CausalTransformer(nn.Module):
 
     @classmethod
     def from_config(cls, config: NavFormerConfig) -> CausalTransformer:
-        """A fresh CT of ``config`` (observation tokens of the encoders ``config`` uses): the token embeddings,
-        then the GPT-2 blocks, each with PyTorch's default inits. ``NavFormerModel`` builds it this way and then
-        applies :func:`init_embedding_tables`; a CT used alone applies it too
+        """A fresh CT of ``config`` (observation tokens of the encoders ``config`` uses): the token
+        embeddings, then the GPT-2 blocks, each with PyTorch's default inits. ``NavFormerModel`` builds it
+        this way and then applies :func:`init_embedding_tables`; a CT used alone applies it too
         (``transformer.apply(init_embedding_tables)``)."""
         return cls(
             TokenEmbedding.from_config(config),
@@ -184,7 +186,8 @@ class CausalTransformer(nn.Module):
         general: Tensor | None = None,
         window_steps: int | None = None,
     ) -> tuple[Tensor, Tensor, Tensor]:
-        """-> ``(h_g [B, T, d], h_o [B, T, d], token hidden states [B, T, tps, d])`` (see the class docstring)."""
+        """-> ``(h_g [B, T, d], h_o [B, T, d], token hidden states [B, T, tps, d])``
+        (see the class docstring)."""
         given = {"static": static, "general": general}
         if tuple(name for name, value in given.items() if value is not None) != self.observation_names:
             raise ValueError(
@@ -239,8 +242,8 @@ class CausalTransformer(nn.Module):
         missing = [name for name, value in inputs.items() if value is None]
         if missing:
             raise ValueError(
-                f"CausalTransformer: {missing[0]} is None; every input but mask is required (target_embedding "
-                "[B, d], return_to_go [B, T, 1], action [B, T, A], step int64 [B, T])"
+                f"CausalTransformer: {missing[0]} is None; every input but mask is required "
+                "(target_embedding [B, d], return_to_go [B, T, 1], action [B, T, A], step int64 [B, T])"
             )
         first = observations[0]
         if first.dim() != 3:
