@@ -144,12 +144,14 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}"
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"python {platform.python_version()}"
     )
     print(f"steps per row: {args.steps} (after 10 warm-up steps), uniform random actions, seed {args.seed}\n")
     print(
         "| env | size (m) | robots | cameras | step CPU (ms) | renders in step CPU (ms) | env work CPU (ms) "
-        "| bare render CPU (ms) | overhead CPU vs bare | step wall (ms) | bare render wall (ms) | overhead wall |"
+        "| bare render CPU (ms) | overhead CPU vs bare | step wall (ms) | "
+        "bare render wall (ms) | overhead wall |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, bench in (("TargetNavEnv (gymnasium)", bench_gym), ("MultiRobotNavEnv (TorchRL)", bench_multi)):

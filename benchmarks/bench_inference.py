@@ -170,8 +170,8 @@ def main() -> None:
                 kv = kv_ms[paths[0]]
                 ratio = f"{kv / kv_ms[other]:.2f} ({kv_ms[other]:.3f} ms)" if other else "-"
                 print(
-                    f"| {batch} | {t} | {tps * t} | {kv:.3f} | {kv / batch:.3f} | {ratio} | {encoder_ms:.3f} | "
-                    f"{kv - encoder_ms:.3f} | {recompute_ms:.1f} | "
+                    f"| {batch} | {t} | {tps * t} | {kv:.3f} | {kv / batch:.3f} | {ratio} | {encoder_ms:.3f} "
+                    f"| {kv - encoder_ms:.3f} | {recompute_ms:.1f} | "
                     f"{recompute_ms / kv:.0f}x | {window_ms:.1f} | {window_ms / kv:.0f}x |"
                 )
 

@@ -38,8 +38,8 @@ from tensordict.nn import TensorDictModule
 
 from navformer_rl.modules import IncrementalNavFormer, NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.modules.decoding.native import native_status
-from navformer_rl.modules.models import upgrade_state_dict
 from navformer_rl.objectives import ActionMSELoss
+from navformer_rl.training.checkpoint import upgrade_state_dict
 
 REPO = Path(__file__).resolve().parents[1]
 REFERENCE_PACKAGE = "navformer_reference_modules"
@@ -101,7 +101,8 @@ def paired_models(reference, config_changes: dict) -> tuple[torch.nn.Module, Nav
 
 
 def time_once(fn) -> float:
-    """The process CPU time of ``fn()`` in ms (with one thread, what the machine's other jobs inflate least)."""
+    """The process CPU time of ``fn()`` in ms (with one thread,
+    what the machine's other jobs inflate least)."""
     start = time.process_time()
     fn()
     return (time.process_time() - start) * 1e3

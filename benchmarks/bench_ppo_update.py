@@ -47,7 +47,8 @@ def robot_steps(batch: int, method: str) -> TensorDict:
 
 
 def updater(method: str, reuse: bool, autocast_dtype: str | None = None):
-    """A function running one minibatch update of a fresh network; ``reuse=False``: the critic reruns the trunk."""
+    """A function running one minibatch update of a fresh network; ``reuse=False``:
+    the critic reruns the trunk."""
     torch.manual_seed(0)
     net = make_dsac() if method == "dsac" else make_matdn()
     if not reuse:
@@ -66,7 +67,8 @@ def main() -> None:
     args = parser.parse_args()
     print(f"torch threads: {torch.get_num_threads()}, batch {args.batch}, {args.rounds} rounds\n")
     print(
-        "| network | trunk once (make_loss) | trunk twice (reference) | ratio | once, bfloat16 autocast | ratio |"
+        "| network | trunk once (make_loss) | trunk twice (reference) | ratio | once, "
+        "bfloat16 autocast | ratio |"
     )
     print("|---|---|---|---|---|---|")
     for method in ("dsac", "matdn"):
@@ -86,7 +88,8 @@ def main() -> None:
                 times[name].append(1e3 * (time.perf_counter() - start))
         once, twice, bf16 = (statistics.median(times[name]) for name in ("once", "twice", "bf16"))
         print(
-            f"| {method} | {once:.0f} ms | {twice:.0f} ms | {once / twice:.2f}x | {bf16:.0f} ms | {bf16 / twice:.2f}x |"
+            f"| {method} | {once:.0f} ms | {twice:.0f} ms | {once / twice:.2f}x | "
+            f"{bf16:.0f} ms | {bf16 / twice:.2f}x |"
         )
 
 

@@ -1,4 +1,5 @@
-"""Replay sampling throughput (frames/s): our TrajectoryBatcher vs the numpy memmap floor vs torchrl SliceSampler.
+"""Replay sampling throughput (frames/s): our TrajectoryBatcher vs the numpy memmap floor vs torchrl
+SliceSampler.
 
 For each paper batch shape (25 x 98 frames from D_e, 150 x 63 from D_ca) a synthetic dataset with
 trajectories of exactly that length is written in the real on-disk format, so the three samplers deliver
@@ -95,7 +96,8 @@ def main() -> None:
     torch.set_num_threads(1)
     print(f"torch threads: {torch.get_num_threads()}, repeats: {args.repeats} (median)\n")
     print(
-        "| batch | ours (frames/s) | numpy memmap floor | torchrl SliceSampler | ours / numpy | ours / torchrl |"
+        "| batch | ours (frames/s) | numpy memmap floor | torchrl SliceSampler | "
+        "ours / numpy | ours / torchrl |"
     )
     print("|---|---|---|---|---|---|")
     try:

@@ -19,14 +19,14 @@ Configurations (levers are ``NavFormerConfig`` / ``BYOLLoss`` options the traini
 ``fp32`` (NCHW, one chunk), ``bf16`` (autocast bfloat16 + channels_last), ``bf16_mb`` (+ encoder
 micro-batches of ``--micro-batch``), ``bf16_mb_s2d`` (+ ``space_to_depth`` first convolution: the
 training default; it also takes the last convolution's weight gradient as an im2col matmul, which
-``bf16_mb_s2d_onednn_w`` leaves to oneDNN), ``bf16_mb_s2d_detach`` (+ ``detach_encoders``: the DT loss does not back-propagate
-into the encoders).
+``bf16_mb_s2d_onednn_w`` leaves to oneDNN), ``bf16_mb_s2d_detach`` (+ ``detach_encoders``: the DT loss does
+not back-propagate into the encoders).
 
 Usage: ``OMP_NUM_THREADS=2 python benchmarks/bench_train_step.py [--configs fp32 bf16_mb] [--repeats 3]``
-(``--device cuda`` on a GPU machine: everything, the matmul floors included, runs there; times are synchronised)
-(``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors, and
-``--malloc keep`` (default: ``navformer_rl.utils.allocator.keep_freed_memory``, as ``navformer train`` does) keeps
-freed big blocks for reuse; ``--malloc default`` measures glibc's own behaviour;
+(``--device cuda`` on a GPU machine: everything, the matmul floors included, runs there; times are
+synchronised) (``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` in the environment avoids page faults on big tensors,
+and ``--malloc keep`` (default: ``navformer_rl.utils.allocator.keep_freed_memory``, as ``navformer train``
+does) keeps freed big blocks for reuse; ``--malloc default`` measures glibc's own behaviour;
 ``--min-valid 0.5`` right-pads the trajectory batches, whose padded frames the encoders skip.)
 """
 
@@ -154,7 +154,8 @@ class Trainer:
 
 
 class CountFlops(TorchDispatchMode):
-    """``torch.utils.flop_counter``'s per-op formulas without its module tracker (which trips on TensorDictParams)."""
+    """``torch.utils.flop_counter``'s per-op formulas without its module tracker (which trips on
+    TensorDictParams)."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -193,7 +194,10 @@ def main() -> None:
         "--min-valid",
         type=float,
         default=1.0,
-        help="trajectories keep U[min_valid * T, T] valid steps (1.0: no padding); padded frames are not encoded",
+        help=(
+            "trajectories keep U[min_valid * T, T] valid steps (1.0: no padding); "
+            "padded frames are not encoded"
+        ),
     )
     parser.add_argument(
         "--malloc",
@@ -216,8 +220,11 @@ def main() -> None:
     frames_a, frames_b = args.batch_a[0] * args.batch_a[1], args.batch_b[0] * args.batch_b[1]
 
     fp32_floor, bf16_floor = matmul_gflops(torch.float32, device), matmul_gflops(torch.bfloat16, device)
-    print(f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}, "
-          f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}, malloc keeps freed memory: {malloc_kept}")  # fmt: skip
+    print(
+        f"# torch {torch.__version__}, device {device}, threads {torch.get_num_threads()}, "
+        f"load average {os.getloadavg()[0]:.2f}, "
+        f"GLIBC_TUNABLES={os.environ.get('GLIBC_TUNABLES', '')!r}, malloc keeps freed memory: {malloc_kept}"
+    )
     valid = (batch_a["mask"].float().mean().item(), batch_b["mask"].float().mean().item())
     print(f"# valid fraction of trajectory steps: A {valid[0]:.2f}, B {valid[1]:.2f}")
     print(f"# matmul floor (2048^3): fp32 {fp32_floor:.0f} GFLOP/s, bf16 {bf16_floor:.0f} GFLOP/s")
@@ -236,8 +243,8 @@ def main() -> None:
     paper_mean = (paper["A"] + paper["B"]) / 2
     print(
         f"# counted FLOPs per iteration: A {paper['A'] / 1e9:.0f} G, B {paper['B'] / 1e9:.0f} G, "
-        f"mean {paper_mean / 1e9:.0f} G; floors for the mean iteration: fp32 {paper_mean / fp32_floor / 1e9:.2f} s, "
-        f"bf16 {paper_mean / bf16_floor / 1e9:.2f} s"
+        f"mean {paper_mean / 1e9:.0f} G; floors for the mean iteration: fp32 "
+        f"{paper_mean / fp32_floor / 1e9:.2f} s, bf16 {paper_mean / bf16_floor / 1e9:.2f} s"
     )
     print(
         "| config | aug ms | A ms | B ms | mean s/iter | frames/s | GFLOP/s | fp32 / bf16 floor GFLOP/s "
@@ -267,7 +274,8 @@ def main() -> None:
         print(
             f"| {name} | {aug_ms:.0f} | {a_ms:.0f} | {b_ms:.0f} | {mean_s:.2f} | "
             f"{(frames_a + frames_b) / (2 * mean_s):.0f} | {gflops:.0f} | {fp32_now:.0f} / {bf16_now:.0f} | "
-            f"{100 * gflops / fp32_now:.0f} % | {100 * gflops / bf16_now:.0f} % | {mean_s * 1e4 / 3600:.1f} |",
+            f"{100 * gflops / fp32_now:.0f} % | {100 * gflops / bf16_now:.0f} % | "
+            f"{mean_s * 1e4 / 3600:.1f} |",
             flush=True,
         )
         del trainer

@@ -6,9 +6,9 @@ Success = the robot came within ``SUCCESS_RADIUS`` (1.5 m) of its target centre 
 
     OMP_NUM_THREADS=1 python benchmarks/expert_quality.py --episodes 100 --out benchmarks/experts.md
 
-Prints a markdown section ("## Expert quality") with the table, the machine and the command; with ``--out FILE``
-it also writes it into FILE (atomically), replacing only that section when FILE already has one and
-appending it otherwise, so the other sections of ``benchmarks/experts.md`` stay.
+Prints a markdown section ("## Expert quality") with the table, the machine and the command; with
+``--out FILE`` it also writes it into FILE (atomically), replacing only that section when FILE already has one
+and appending it otherwise, so the other sections of ``benchmarks/experts.md`` stay.
 """
 
 from __future__ import annotations
@@ -178,8 +178,9 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         SECTION_HEADING,
         "",
-        f"Seeded episodes (world seeds {args.seed}..{args.seed + args.episodes - 1}), no rendering, success = within "
-        f"{SUCCESS_RADIUS} m of the target within {MAX_EPISODE_STEPS} steps. Team episodes use 3 + k mod 7 robots.",
+        f"Seeded episodes (world seeds {args.seed}..{args.seed + args.episodes - 1}), no rendering, success "
+        f"= within {SUCCESS_RADIUS} m of the target within {MAX_EPISODE_STEPS} steps. Team "
+        "episodes use 3 + k mod 7 robots.",
         "",
         "| setting | episodes | all robots succeed | robots succeed | episodes with robot-robot collision "
         "| episodes with wall contact | median steps (successes) | planner ms / robot-step (median) |",
@@ -197,8 +198,9 @@ def main(argv: list[str] | None = None) -> None:
             lines.append(f"- {key}: failed seeds {r['failed_seeds']}")
     lines += [
         "",
-        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs (shared with other "
-        f"jobs), Python {platform.python_version()}, numpy {np.__version__}. Wall time {elapsed / 60:.1f} min.",
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs (shared with "
+        f"other jobs), Python {platform.python_version()}, "
+        f"numpy {np.__version__}. Wall time {elapsed / 60:.1f} min.",
         "",
         "Command: `OMP_NUM_THREADS=1 python "
         + " ".join(["benchmarks/expert_quality.py", *sys.argv[1:]])

@@ -46,7 +46,8 @@ def make_env(env_seed: int, size: float, robots: int, max_steps: int):
 
 
 def make_policy(checkpoint: str | None) -> NavFormerPolicy:
-    """The trained model of ``checkpoint`` (any path ``load_policy_model`` takes), or an untrained seeded one."""
+    """The trained model of ``checkpoint`` (any path ``load_policy_model`` takes),
+    or an untrained seeded one."""
     if checkpoint is not None:
         _, model = load_policy_model(checkpoint)
     else:
@@ -86,7 +87,8 @@ def main(argv: list[str] | None = None) -> None:
                 reached = batch["next", "agents", "reward"].sum().item()
                 contacts = batch["next", "agents", "collision"].sum().item()
                 print(
-                    f"batch {tuple(batch.shape)}: robots reached their target {reached:.0f}, contact steps {contacts}"
+                    f"batch {tuple(batch.shape)}: robots reached their target {reached:.0f}, "
+                    f"contact steps {contacts}"
                 )
                 buffer.extend(batch.reshape(-1))
     finally:

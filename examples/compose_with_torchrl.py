@@ -1,4 +1,5 @@
-"""Compose navformer_rl with plain TorchRL: replay buffers, the cross-task buffer, modules, losses, a Collector.
+"""Compose navformer_rl with plain TorchRL: replay buffers, the cross-task buffer, modules, losses, a
+Collector.
 
 Every piece is a TorchRL object, so each can be swapped for your own:
 
@@ -7,8 +8,8 @@ Every piece is a TorchRL object, so each can be swapped for your own:
    whole trajectories, flat ``[N * T]`` samples); D_ca in a plain ``TensorDictReplayBuffer`` on a
    ``LazyTensorStorage`` with TorchRL's ``SliceSampler(traj_key="episode", pad_output=True)``; D_ssl through
    ``dataset.pair_buffer(B)``.
-2. **The cross-task buffer** of paper §VI, ``CrossTaskReplayBuffer`` (a ``ReplayBufferEnsemble``): D_e and D_ca
-   in turn, each sample a trajectory batch ``[N]`` with ``[N, T]`` steps, its task in ``("index",
+2. **The cross-task buffer** of paper §VI, ``CrossTaskReplayBuffer`` (a ``ReplayBufferEnsemble``): D_e and
+   D_ca in turn, each sample a trajectory batch ``[N]`` with ``[N, T]`` steps, its task in ``("index",
    "buffer_ids")``.
 3. **NavFormer from its TensorDict modules** with a swapped head: ``dve_module``, ``transformer_module`` and
    ``head_module`` around an ``ActionHead`` of your own (h_g gating h_o) in a ``TensorDictSequential``.
@@ -69,7 +70,8 @@ class GatedHead(ActionHead):
 
 
 def make_buffers(root: Path) -> tuple[CrossTaskReplayBuffer, TensorDictReplayBuffer]:
-    """The cross-task buffer over D_e and D_ca, and the D_ssl pair buffer (tiny synthetic folders in ``root``)."""
+    """The cross-task buffer over D_e and D_ca, and the D_ssl pair buffer
+    (tiny synthetic folders in ``root``)."""
     e = open_dataset(make_synthetic_dataset(root / "e", "e", 8, min_len=6, max_len=16, seed=1))
     ca = open_dataset(make_synthetic_dataset(root / "ca", "ca", 12, min_len=4, max_len=12, seed=2))
     ssl = open_dataset(make_synthetic_dataset(root / "ssl", "ssl", 32, seed=3))
@@ -148,7 +150,8 @@ def main() -> None:
             for batch in collector:
                 actions = batch["agents", "action"]
                 print(
-                    f"collected {tuple(batch.shape)}: actions {tuple(actions.shape)} in [{actions.min():.2f}, {actions.max():.2f}]"
+                    f"collected {tuple(batch.shape)}: "
+                    f"actions {tuple(actions.shape)} in [{actions.min():.2f}, {actions.max():.2f}]"
                 )
     finally:
         collector.shutdown()

@@ -75,7 +75,8 @@ def main() -> None:
         for s in result.summaries:
             m = s.metrics
             print(
-                f"{s.method:>18} {s.setup}: SR {m.sr:.0%}  SPL {m.spl:.3f}  CR {m.cr:.3f}  ({m.n_robot_trials} robot-trials)"
+                f"{s.method:>18} {s.setup}: SR {m.sr:.0%}  SPL {m.spl:.3f}  CR {m.cr:.3f}  "
+                f"({m.n_robot_trials} robot-trials)"
             )
 
 

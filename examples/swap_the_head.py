@@ -1,4 +1,5 @@
-"""Swap NavFormer's THSC head for your own head, train it with the L_DT loss module, then drive a robot with it.
+"""Swap NavFormer's THSC head for your own head, train it with the L_DT loss module, then drive a robot with
+it.
 
 Your head is an ``ActionHead`` subclass (``reads`` names the causal transformer's outputs it takes: here h_g
 and h_o, through a small MLP). Put in ``model.head``, it is composed by ``make_navformer_actor`` like the

@@ -1,10 +1,11 @@
 """Train NavFormer with our TorchRL pieces in your own loop (no recipe, no CLI).
 
 Builds tiny synthetic datasets in the real on-disk format (swap in folders from ``navformer collect``), then
-wires the pieces by hand: trajectory batchers alternating D_e / D_ca (``CrossTaskReplayBuffer``), the model's DVE,
-causal transformer and head as TensorDict modules (``make_navformer_actor``), the DT loss (eq. 10, ``ActionMSELoss``), BYOL on D_ssl
-(eqs. 6-8, ``BYOLLoss`` + TorchRL ``SoftUpdate``), summed as in eq. 11. Then scores the model on held-out
-trajectories (eq. 10 in eval mode on fixed windows: ``FixedTrajectoryBatches`` + ``teacher_forced_loss``).
+wires the pieces by hand: trajectory batchers alternating D_e / D_ca (``CrossTaskReplayBuffer``), the model's
+DVE, causal transformer and head as TensorDict modules (``make_navformer_actor``), the DT loss (eq. 10,
+``ActionMSELoss``), BYOL on D_ssl (eqs. 6-8, ``BYOLLoss`` + TorchRL ``SoftUpdate``), summed as in eq. 11. Then
+scores the model on held-out trajectories (eq. 10 in eval mode on fixed windows: ``FixedTrajectoryBatches`` +
+``teacher_forced_loss``).
 
 Run: ``.venv/bin/python examples/train_with_torchrl_pieces.py --iterations 20``
 """

@@ -155,8 +155,8 @@ def label_ablation(label: str) -> str | None:
     A label names one when it is ``navformer`` followed by ``-`` or ``_`` and then, as one of its
     ``-``-separated words, the ablation's exact name: ``navformer-no_thsc``, ``navformer_resnet18`` and
     ``navformer-no_fs-seed1`` name ``no_thsc``, ``resnet18`` and ``no_fs``; ``navformer``,
-    ``navformer-seed1``, ``navformer-byol_w0.1``, ``dt-no_thsc`` and ``vrw`` name none. The baseline ``dt`` and
-    ``none`` are not Table IV rows.
+    ``navformer-seed1``, ``navformer-byol_w0.1``, ``dt-no_thsc`` and ``vrw`` name none. The baseline ``dt``
+    and ``none`` are not Table IV rows.
     """
     match = re.fullmatch(r"navformer[-_](.+)", label.lower())
     if match is None:

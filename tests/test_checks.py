@@ -1,5 +1,5 @@
-"""navformer_rl.utils.checks: the shared value checks (bools refused, numpy scalars accepted and converted, messages
-naming the argument, the value and what was expected) and the CLI's seed type built on them."""
+"""navformer_rl.utils.checks: the shared value checks (bools refused, numpy scalars accepted and converted,
+messages naming the argument, the value and what was expected) and the CLI's seed type built on them."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from navformer_rl.cli import args as cli_args
+from navformer_rl.utils import cli_args
 from navformer_rl.utils.checks import check_int, check_number, check_seed, is_count, is_integer, is_real
 
 

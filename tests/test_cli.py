@@ -39,19 +39,22 @@ def test_run_sh_without_arguments_prints_its_usage():
 
 
 def test_help_and_argument_errors_do_not_import_torch():
-    """``navformer --help``, ``navformer train --help``, argument errors and bad training settings answer before
-    torch loads."""
+    """``navformer --help``, ``navformer train --help``, argument errors and bad training settings answer
+    before torch loads."""
     script = (
         "import contextlib, io, sys\n"
         "import navformer_rl.cli as cli\n"
-        "for argv in (['--help'], ['train', '--help'], ['evaluate', '--help'], ['collect', 'e', '--n', '0'],\n"
-        "             ['train', 'ablation=bogus'], ['train', 'model.d_embed=x'], ['train', '--print-config']):\n"
+        "for argv in (['--help'], ['train', '--help'], ['evaluate', '--help'], "
+        "['collect', 'e', '--n', '0'],\n"
+        "             ['train', 'ablation=bogus'], ['train', 'model.d_embed=x'], "
+        "['train', '--print-config']):\n"
         "    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
         "        try:\n"
         "            cli.main(argv)\n"
         "        except SystemExit:\n"
         "            pass\n"
-        "print(sorted(name for name in ('torch', 'torchrl', 'tensordict', 'pybullet') if name in sys.modules))\n"
+        "print(sorted(name for name in ('torch', 'torchrl', 'tensordict', 'pybullet') "
+        "if name in sys.modules))\n"
     )
     done = subprocess.run(
         [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=REPO
@@ -63,8 +66,10 @@ def test_help_and_argument_errors_do_not_import_torch():
 @pytest.mark.parametrize(
     ("argv", "flag"),
     [
-        (["evaluate", "--method", "vrw", "--protocol", "smoke", "--trials-per-setup", "-3"], "--trials-per-setup"),
-        (["evaluate", "--method", "vrw", "--protocol", "smoke", "--trials-per-world", "0"], "--trials-per-world"),
+        (["evaluate", "--method", "vrw", "--protocol", "smoke", "--trials-per-setup", "-3"],
+         "--trials-per-setup"),
+        (["evaluate", "--method", "vrw", "--protocol", "smoke", "--trials-per-world", "0"],
+         "--trials-per-world"),
         (["evaluate", "--method", "vrw", "--protocol", "smoke", "--max-steps", "0"], "--max-steps"),
         (["evaluate", "--method", "vrw", "--protocol", "smoke", "--workers", "0"], "--workers"),
         (["evaluate", "--method", "vrw", "--protocol", "smoke", "--videos", "-1"], "--videos"),

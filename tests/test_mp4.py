@@ -19,6 +19,11 @@ def _frames(count: int, height: int, width: int) -> list[np.ndarray]:
     return frames
 
 
+def _ffmpeg(video: Mp4Writer):
+    """The ffmpeg process behind a started writer (``write_frames``' ``Popen``, read from its frame)."""
+    return video._encoder.gi_frame.f_locals["p"]
+
+
 def _decode(path) -> tuple[dict, list[np.ndarray]]:
     reader = imageio_ffmpeg.read_frames(str(path))
     meta = next(reader)
@@ -83,8 +88,8 @@ def test_a_failed_encoder_leaves_no_file(tmp_path, when):
     video = Mp4Writer(path, fps=5, threads=1)
     frames = _frames(3, 40, 60)
     video.write(frames[0])
-    video._process.kill()  # ffmpeg dies (disk full, OOM killer, ...)
-    video._process.wait()
+    _ffmpeg(video).kill()  # ffmpeg dies (disk full, OOM killer, ...)
+    _ffmpeg(video).wait()
     with pytest.raises(OSError, match="ffmpeg"):
         if when == "write":
             for _ in range(200):  # until the pipe's buffer is full and the broken pipe shows
@@ -106,10 +111,10 @@ def test_a_dropped_writer_stops_its_encoder_and_leaves_no_file(tmp_path):
 
     video = Mp4Writer(tmp_path / "clip.mp4", fps=5, threads=1)
     video.write(_frames(1, 20, 20)[0])
-    process = video._process
+    process = _ffmpeg(video)
     del video
     gc.collect()
-    assert process.poll() is not None  # killed, not left waiting for frames (it would write later)
+    assert process.wait(timeout=30) < 0  # killed, not left to finish its file (it would write later)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -124,4 +129,17 @@ def test_a_missing_encoder_is_a_named_error(tmp_path, monkeypatch):
     monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", missing)
     with pytest.raises(VideoEncoderError, match="no ffmpeg binary .* IMAGEIO_FFMPEG_EXE"):
         Mp4Writer(tmp_path / "clip.mp4", fps=5)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_without_every_frame_is_refused(tmp_path, monkeypatch):
+    """``write_frames`` does not report ffmpeg's exit status: the finished file's frames are counted."""
+    from navformer_rl.utils.mp4 import VideoEncoderError
+
+    monkeypatch.setattr(imageio_ffmpeg, "count_frames_and_secs", lambda path: (2, 0.4))
+    video = Mp4Writer(tmp_path / "clip.mp4", fps=5, threads=1)
+    for frame in _frames(3, 20, 20):
+        video.write(frame)
+    with pytest.raises(VideoEncoderError, match="2 of the 3 frames"):
+        video.close()
     assert list(tmp_path.iterdir()) == []

@@ -1,5 +1,6 @@
 """recipes/paper_scale/run_queue.sh: the queue of long jobs runs each job once, in order, skips a failed one,
-stops on STOP, leaves a job killed by a signal to the next start, and the committed study queue is well formed."""
+stops on STOP, leaves a job killed by a signal to the next start, and the committed study queue is well
+formed."""
 
 from __future__ import annotations
 

@@ -107,7 +107,8 @@ class ActorCriticNet(nn.Module):
 
 class Float32Head(nn.Module):
     """``head`` on float32 features with autocast off: under an autocast update (``optim.autocast_dtype``)
-    only the trunk runs in low precision; the action distribution, its log-probs and the values stay float32."""
+    only the trunk runs in low precision; the action distribution, its log-probs and the values stay
+    float32."""
 
     def __init__(self, head: nn.Module) -> None:
         super().__init__()

@@ -14,9 +14,9 @@ def is_dt_config(config) -> bool:
 
 def load_dt_policy(checkpoint: str | os.PathLike):
     """``(NavFormerPolicy, NavFormerConfig)`` from a DT checkpoint (any path
-    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...).
-    The policy attends to the window the checkpoint was trained on (``data.context_steps``) when set, else to
-    the whole context.
+    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights
+    file, ...). The policy attends to the window the checkpoint was trained on (``data.context_steps``) when
+    set, else to the whole context.
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.
@@ -28,8 +28,8 @@ def load_dt_policy(checkpoint: str | os.PathLike):
     config, model = load_policy_model(checkpoint)
     if not is_dt_config(config):
         raise ValueError(
-            f"checkpoint {checkpoint} holds a NavFormer model (use_static_encoder={config.use_static_encoder}, "
-            f"thsc={config.thsc}), not the DT baseline (NavFormerConfig.dt_baseline()); evaluate it with "
-            "--method navformer"
+            f"checkpoint {checkpoint} holds a NavFormer model "
+            f"(use_static_encoder={config.use_static_encoder}, thsc={config.thsc}), not the DT baseline "
+            "(NavFormerConfig.dt_baseline()); evaluate it with --method navformer"
         )
     return NavFormerPolicy(model, context_steps=training_context_steps(checkpoint)), config

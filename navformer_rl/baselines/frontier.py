@@ -1,4 +1,5 @@
-"""The exploration expert of D_e (paper §V) as an evaluation policy: what NavFormer imitates, run closed-loop."""
+"""The exploration expert of D_e (paper §V) as an evaluation policy: what NavFormer imitates,
+run closed-loop."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ from navformer_rl.baselines.expert_policy import ExpertPolicy
 
 
 class FrontierPolicy(ExpertPolicy):
-    """:class:`navformer_rl.experts.policies.ExplorationExpert` for ``MultiRobotNavEnv``, every robot on its own.
+    """:class:`navformer_rl.experts.policies.ExplorationExpert` for ``MultiRobotNavEnv``, every robot on its
+    own.
 
     Each robot explores with frontier exploration on its own lidar map (A*, DWA) and drives to its target
     once the camera-visibility test sees it, exactly as when it collected D_e; it does not know where its

@@ -9,9 +9,10 @@ from navformer_rl.baselines.dt import is_dt_config
 
 def load_navformer_policy(checkpoint: str | os.PathLike):
     """``(NavFormerPolicy, NavFormerConfig)`` from a NavFormer checkpoint (any path
-    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file, ...). The policy conditions on R-hat_1 = 1 and uses the KV cache;
-    it attends to the window the checkpoint was trained on when that was shorter than the model's context
-    (``data.context_steps``), else to the whole context.
+    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights
+    file, ...). The policy conditions on R-hat_1 = 1 and uses the KV cache; it attends to the window the
+    checkpoint was trained on when that was shorter than the model's context (``data.context_steps``), else to
+    the whole context.
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.

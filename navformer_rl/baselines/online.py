@@ -67,7 +67,8 @@ def checkpoint_model_config(method: str, config: Any) -> dict[str, Any]:
 
 def load_online_net(checkpoint: str | os.PathLike, method: str):
     """``(ActorCriticNet in eval mode on the CPU, model config)`` from a PPO checkpoint (any path
-    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights file).
+    ``navformer_rl.training.checkpoint.resolve_checkpoint`` accepts: run dir, checkpoint folder, weights
+    file).
 
     Raises:
         FileNotFoundError: nothing at ``checkpoint``.

@@ -3,9 +3,9 @@
 
 Each subcommand is a thin layer over a library function; its parser lives next to that function
 (``register(subparsers)`` in ``navformer_rl.data.cli``, ``navformer_rl.training.cli``,
-``navformer_rl.training.validate_cli``, ``navformer_rl.training.average_cli``, ``navformer_rl.evaluation.cli``,
-``navformer_rl.demo.cli``, ``navformer_rl.pretrained.cli``, ``navformer_rl.export.cli``). Heavy imports happen
-only when a subcommand runs.
+``navformer_rl.training.validate_cli``, ``navformer_rl.training.average_cli``,
+``navformer_rl.evaluation.cli``, ``navformer_rl.demo.cli``, ``navformer_rl.pretrained.cli``,
+``navformer_rl.export.cli``). Heavy imports happen only when a subcommand runs.
 
 Errors a user can fix (bad values, missing files) are printed as one line and exit with status 2;
 set ``NAVFORMER_DEBUG=1`` to see the traceback. Ctrl-C and SIGTERM stop a command the same way (its

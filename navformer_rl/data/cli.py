@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from navformer_rl.cli import args as cli_args
+from navformer_rl.utils import cli_args
 from navformer_rl.utils.backends import add_backend_options, backend_problem, session
 
 KINDS = ("e", "ca", "ssl", "all")

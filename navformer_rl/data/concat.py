@@ -40,9 +40,10 @@ def _offsets(sizes: Sequence[int]) -> torch.Tensor:
 class ConcatNavDataset:
     """Trajectory datasets of one kind read as one: the trajectories of ``parts`` in order.
 
-    Trajectory ``k`` of part ``p`` is trajectory ``n_0 + ... + n_{p-1} + k``; its rows and target image stay in
-    the part's files (batches shift their ``episode`` and ``target_id`` columns to the concatenation's ids). ``ValueError`` (one line naming the folders) unless there are at least two parts, all
-    of one trajectory kind (D_e or D_ca) and one schema version.
+    Trajectory ``k`` of part ``p`` is trajectory ``n_0 + ... + n_{p-1} + k``; its rows and target image stay
+    in the part's files (batches shift their ``episode`` and ``target_id`` columns to the concatenation's
+    ids). ``ValueError`` (one line naming the folders) unless there are at least two parts, all of one
+    trajectory kind (D_e or D_ca) and one schema version.
 
     Attributes:
         parts: the :class:`~navformer_rl.data.dataset.NavDataset` s (each may be a ``head`` view).
@@ -60,12 +61,13 @@ class ConcatNavDataset:
         for part in parts:
             if not part.kind.is_trajectory:
                 raise ValueError(
-                    f"{part.root} is a {part.kind.value!r} dataset; only trajectory datasets ('e', 'ca') concatenate"
+                    f"{part.root} is a {part.kind.value!r} dataset; "
+                    "only trajectory datasets ('e', 'ca') concatenate"
                 )
             if part.kind is not first.kind:
                 raise ValueError(
-                    f"{part.root} holds a {part.kind.value!r} dataset, {first.root} a {first.kind.value!r} one: "
-                    "concatenated folders must be of one kind"
+                    f"{part.root} holds a {part.kind.value!r} dataset, {first.root} a {first.kind.value!r} "
+                    "one: concatenated folders must be of one kind"
                 )
             version = part.metadata.get("schema_version")
             if version != first.metadata.get("schema_version"):
@@ -121,8 +123,8 @@ class ConcatNavDataset:
         buffer_sets: int = 1,
         pin_memory: bool = False,
     ) -> ConcatTrajectoryBatcher:
-        """:meth:`NavDataset.trajectory_batcher <navformer_rl.data.dataset.NavDataset.trajectory_batcher>` over
-        the concatenation: the same keys, shapes and options."""
+        """:meth:`NavDataset.trajectory_batcher <navformer_rl.data.dataset.NavDataset.trajectory_batcher>`
+        over the concatenation: the same keys, shapes and options."""
         if not 1 <= num_trajectories <= self.num_trajectories:
             raise ValueError(
                 f"{num_trajectories} trajectories per batch requested from {self}, which holds "
@@ -151,9 +153,10 @@ def _gather_parts(
     pin_memory: bool,
     shifts: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """``cat(sources)[index]`` without concatenating: each part's rows gathered from it, written into the first
-    ``len(index)`` rows of ``buffer`` (or a new tensor). ``offsets``: int64 ``[P + 1]`` part starts;
-    ``shifts``: int64 ``[P]`` added to the values gathered from each part (ids local to a part made global)."""
+    """``cat(sources)[index]`` without concatenating: each part's rows gathered from it, written into the
+    first ``len(index)`` rows of ``buffer`` (or a new tensor). ``offsets``: int64 ``[P + 1]`` part starts;
+    ``shifts``: int64 ``[P]`` added to the values gathered from each part (ids local to a part made
+    global)."""
     n = index.numel()
     template = sources[0]
     if buffer is None:
@@ -257,7 +260,8 @@ class ConcatTrajectoryBatcher(TrajectoryBatcher):
     def _gather_rows(
         self, key: tuple[str, ...], index: torch.Tensor, buffer: torch.Tensor | None
     ) -> torch.Tensor:
-        """Rows ``index`` of the concatenation's column ``key``, gathered part by part (ids shifted to global)."""
+        """Rows ``index`` of the concatenation's column ``key``, gathered part by part
+        (ids shifted to global)."""
         return _gather_parts(
             self._part_sources[key], self._row_offsets, index, buffer, self.pin_memory, self._shifts.get(key)
         )

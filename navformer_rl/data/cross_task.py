@@ -44,8 +44,8 @@ class CrossTaskReplayBuffer(ReplayBufferEnsemble):
 
     - a batch of batch size ``[N]`` with a ``mask`` ``[N, T]`` (:class:`~navformer_rl.data.samplers.
       TrajectoryBatcher`) is taken as it is;
-    - a flat ``[N * T]`` sample (``trajectory_buffer``, ``SliceSampler``) is reshaped to ``[N, T]``, N being the
-      member's batch size for a :class:`~navformer_rl.data.samplers.TrajectorySampler`, ``num_slices`` (or
+    - a flat ``[N * T]`` sample (``trajectory_buffer``, ``SliceSampler``) is reshaped to ``[N, T]``, N being
+      the member's batch size for a :class:`~navformer_rl.data.samplers.TrajectorySampler`, ``num_slices`` (or
       batch size / ``slice_len``) for a ``SliceSampler``; an ``[N, T]`` sample is taken as reshaped;
     - then the root batch becomes ``[N]``, ``target_pixels`` given per step is kept once per trajectory
       (step 0), TorchRL's ``("collector", "mask")`` (``SliceSampler(pad_output=True)``) is copied to ``mask``
@@ -79,7 +79,8 @@ class CrossTaskReplayBuffer(ReplayBufferEnsemble):
         exploration torch.Size([2]) 5 2
         collision_avoidance torch.Size([3]) 5 3
         exploration torch.Size([2]) 5 2
-        >>> state = buffer.state_dict()  # save it with the checkpoint; load_state_dict(state) resumes the draws
+        >>> # save the state with the checkpoint; load_state_dict(state) resumes the draws
+        >>> state = buffer.state_dict()
         >>> buffer[1] is buffer.buffer("collision_avoidance")
         True
     """
@@ -96,13 +97,14 @@ class CrossTaskReplayBuffer(ReplayBufferEnsemble):
         ]
         if not members:
             raise ValueError(
-                "CrossTaskReplayBuffer needs at least one of exploration= / collision_avoidance= (a replay buffer)"
+                "CrossTaskReplayBuffer needs at least one of exploration= / "
+                "collision_avoidance= (a replay buffer)"
             )
         for name, buffer in members:
             if not isinstance(buffer, ReplayBuffer):
                 raise TypeError(
-                    f"CrossTaskReplayBuffer({name}=...): expected a TorchRL ReplayBuffer holding trajectories "
-                    f"(e.g. dataset.trajectory_batcher(N)), got {type(buffer).__name__}"
+                    f"CrossTaskReplayBuffer({name}=...): expected a TorchRL ReplayBuffer holding "
+                    f"trajectories (e.g. dataset.trajectory_batcher(N)), got {type(buffer).__name__}"
                 )
             _trajectory_sampler(name, buffer)  # refuses a member that draws no trajectories
         self._tasks = tuple(name for name, _ in members)

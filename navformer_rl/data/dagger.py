@@ -76,9 +76,9 @@ def _cached_policy(
     found = file_sha256(Path(folder) / WEIGHTS_FILENAME)
     if found != weights_sha256:
         raise ValueError(
-            f"{Path(folder) / WEIGHTS_FILENAME} changed since the collection started (sha256 {found[:12]}..., "
-            f"the dataset's settings record {weights_sha256[:12]}...): restore those weights, or collect into "
-            "a new folder"
+            f"{Path(folder) / WEIGHTS_FILENAME} changed since the collection started (sha256 "
+            f"{found[:12]}..., the dataset's settings record {weights_sha256[:12]}...): restore those "
+            "weights, or collect into a new folder"
         )
     _, model = load_policy_model(folder)
     return NavFormerPolicy(

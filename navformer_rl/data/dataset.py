@@ -52,7 +52,8 @@ _DAMAGED = (
 
 
 class AttachTargetPixels(Transform):
-    """Replay-buffer transform writing ``target_pixels`` (uint8 ``[..., 84, 84, 3]``) looked up by ``target_id``."""
+    """Replay-buffer transform writing ``target_pixels``
+    (uint8 ``[..., 84, 84, 3]``) looked up by ``target_id``."""
 
     def __init__(self, targets: torch.Tensor):
         super().__init__(in_keys=["target_id"], out_keys=["target_pixels"])
@@ -102,8 +103,8 @@ class DatasetReferenceCheckpointer(StorageCheckpointerBase):
         differ = [k for k in ("rows", "metadata_sha256", "subset") if saved.get(k) != self.reference.get(k)]
         if differ:
             raise ValueError(
-                f"{file} was dumped over the dataset {saved.get('dataset')!r}, which differs from this buffer's "
-                f"{self.reference['dataset']!r} in {differ}: load it into a buffer over that dataset"
+                f"{file} was dumped over the dataset {saved.get('dataset')!r}, which differs from this "
+                f"buffer's {self.reference['dataset']!r} in {differ}: load it into a buffer over that dataset"
             )
 
 
@@ -165,8 +166,9 @@ class NavDataset:
         The buffer is read-only (``ImmutableDatasetWriter``, as TorchRL's offline-dataset buffers): the
         rows are the dataset's memmap, and a ``extend`` would write into the files on disk. To mix in new
         data, copy the rows into a buffer of your own. ``dumps`` / ``loads`` save and restore the sampler
-        state with a reference to the dataset instead of its rows (:class:`DatasetReferenceCheckpointer`). Trajectory datasets get ``target_pixels`` per row
-        (``AttachTargetPixels``) unless ``transform=`` is given.
+        state with a reference to the dataset instead of its rows (:class:`DatasetReferenceCheckpointer`).
+        Trajectory datasets get ``target_pixels`` per row (``AttachTargetPixels``) unless ``transform=`` is
+        given.
         """
         kwargs.setdefault("writer", ImmutableDatasetWriter())
         kwargs.setdefault("checkpointer", DatasetReferenceCheckpointer(self))
@@ -257,7 +259,10 @@ class NavDataset:
             raise ValueError(f"{self.root} is a {self.kind.value!r} dataset, expected {kind.value!r}")
 
     def __repr__(self) -> str:
-        return f"NavDataset(root={str(self.root)!r}, kind={self.kind.value!r}, rows={len(self)}, trajectories={self.num_trajectories})"
+        return (
+            f"NavDataset(root={str(self.root)!r}, kind={self.kind.value!r}, rows={len(self)}, "
+            f"trajectories={self.num_trajectories})"
+        )
 
 
 def open_dataset(path: str | Path, kind: DatasetKind | str | None = None, verify: bool = False) -> NavDataset:
@@ -268,8 +273,8 @@ def open_dataset(path: str | Path, kind: DatasetKind | str | None = None, verify
     (or has a malformed ``content_hashes``), an unknown schema version, an unfinished collection, a wrong
     ``kind``, a memmap whose file size, dtype or shape differs from the schema and the recorded counts, rows
     whose trajectories / target ids do not match the recorded number of trajectories, or trajectory rows
-    whose small columns are impossible (:func:`~navformer_rl.data.integrity.trajectory_content_problem`: steps,
-    task, actions, rewards, return-to-go; milliseconds per 100k rows, the pixels are not read).
+    whose small columns are impossible (:func:`~navformer_rl.data.integrity.trajectory_content_problem`:
+    steps, task, actions, rewards, return-to-go; milliseconds per 100k rows, the pixels are not read).
 
     ``verify=True`` also reads every memmap file and compares its sha256 with the one ``metadata.json``
     recorded at collection (about 1.1-1.6 s per GB, so off by default: paper-scale pixels are many GB); a
@@ -283,7 +288,8 @@ def open_dataset(path: str | Path, kind: DatasetKind | str | None = None, verify
     version = metadata.get("schema_version")
     if version != SCHEMA_VERSION:
         raise ValueError(
-            f"{root}: schema_version {version!r} is not supported; this navformer_rl reads schema {SCHEMA_VERSION}"
+            f"{root}: schema_version {version!r} is not supported; "
+            f"this navformer_rl reads schema {SCHEMA_VERSION}"
         )
     try:
         found = DatasetKind.parse(metadata.get("kind"))

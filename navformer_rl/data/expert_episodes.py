@@ -201,8 +201,8 @@ def exploration_world(settings: ExplorationSettings, unit: int, k: int):
 
 
 def collision_avoidance_world(settings: CollisionAvoidanceSettings, unit: int):
-    """``(world, rng)`` of D_ca unit ``unit``: a world of ``settings.worlds`` (the paper's: the arena) with the
-    ego robot plus a drawn number of others."""
+    """``(world, rng)`` of D_ca unit ``unit``: a world of ``settings.worlds`` (the paper's: the arena) with
+    the ego robot plus a drawn number of others."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.world import WorldConfig, generate_world
 
@@ -371,9 +371,9 @@ def ssl_layouts(
 
 
 def ssl_world(settings: SSLSettings, unit: int) -> tuple[WorldSpec, int, np.random.Generator]:
-    """``(world, n_drawn, rng)`` of D_ssl unit ``unit``: a world of ``settings.worlds`` (the paper's: a maze of
-    a size drawn from ``settings.world_sizes``), the robot count drawn from ``settings.robots`` (before :func:`ssl_layouts`
-    fits it to the maze) and the unit's numpy Generator, which then places the robots."""
+    """``(world, n_drawn, rng)`` of D_ssl unit ``unit``: a world of ``settings.worlds`` (the paper's: a maze
+    of a size drawn from ``settings.world_sizes``), the robot count drawn from ``settings.robots`` (before
+    :func:`ssl_layouts` fits it to the maze) and the unit's numpy Generator, which then places the robots."""
     from navformer_rl.envs.robots import get_robot_spec
     from navformer_rl.envs.world import WorldConfig, generate_world
 

@@ -1,4 +1,5 @@
-"""Integrity checks of dataset files: content hashes of memmap files, and the content rules of trajectory rows.
+"""Integrity checks of dataset files: content hashes of memmap files, and the content rules of trajectory
+rows.
 
 Used by :mod:`navformer_rl.data.writer` (shards on resume and consolidation, ``metadata.json`` at
 finalize) and :func:`navformer_rl.data.dataset.open_dataset` (the cheap row checks at every open, the hashes

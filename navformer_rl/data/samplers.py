@@ -14,8 +14,8 @@ Two layers:
   over the dataset's rows), so it composes where TorchRL takes a buffer, e.g. in
   :class:`~navformer_rl.data.cross_task.CrossTaskReplayBuffer`.
 
-Randomness: one ``torch.Generator`` per sampler; ``state_dict()``/``load_state_dict()`` capture it together with
-the epoch permutation and cursor, so a resumed run draws exactly the batches an uninterrupted run would.
+Randomness: one ``torch.Generator`` per sampler; ``state_dict()``/``load_state_dict()`` capture it together
+with the epoch permutation and cursor, so a resumed run draws exactly the batches an uninterrupted run would.
 """
 
 from __future__ import annotations
@@ -38,7 +38,8 @@ from navformer_rl.data.schema import TRAJECTORY_FIELDS, FieldSpec
 from navformer_rl.utils.length_groups import length_sorted_groups
 
 DEFAULT_CONTEXT_STEPS = 256
-"""The target token + 4 tokens per step, the last step's action dropped: 1 + 4 * 256 - 1 = 1024 tokens (§IV.C)."""
+"""The target token + 4 tokens per step, the last step's action dropped: 1 + 4 * 256 - 1 = 1024 tokens
+(§IV.C)."""
 
 
 class EpochPermutation:
@@ -166,10 +167,13 @@ class TrajectorySampler(Sampler):
         >>> step = torch.cat([torch.arange(4), torch.arange(2), torch.arange(5)])
         >>> rows = TensorDict({"episode": episode, "target_id": episode, "step": step}, batch_size=[11])
         >>> buffer = TensorDictReplayBuffer(
-        ...     storage=LazyTensorStorage(11), sampler=TrajectorySampler(3, context_steps=4, seed=0), batch_size=3
+        ...     storage=LazyTensorStorage(11),
+        ...     sampler=TrajectorySampler(3, context_steps=4, seed=0),
+        ...     batch_size=3,
         ... )
         >>> _ = buffer.extend(rows)
-        >>> batch = buffer.sample().reshape(3, -1)  # flat [N * T] -> [N, T]: every trajectory, cropped to 4 steps
+        >>> # flat [N * T] -> [N, T]: every trajectory, cropped to 4 steps
+        >>> batch = buffer.sample().reshape(3, -1)
         >>> batch["step"].shape, batch["mask"].sum(1).sort().values.tolist()
         (torch.Size([3, 4]), [2, 4, 4])
     """
@@ -301,7 +305,8 @@ def _check_buffer_options(buffer_sets: int, pin_memory: bool) -> None:
 
 
 def _rows_as_gathered(rows: TensorDict) -> TensorDict:
-    """The collate function of a :class:`TrajectoryBatcher`'s storage reads: its storages return TensorDicts."""
+    """The collate function of a :class:`TrajectoryBatcher`'s storage reads:
+    its storages return TensorDicts."""
     return rows
 
 
@@ -315,8 +320,8 @@ class TrajectoryBatcher(TensorDictReplayBuffer):
     int64 ``[N]``. T is the longest window in the batch. (The root batch size is ``[N]`` because the target
     image is per trajectory.)
 
-    As a ``TensorDictReplayBuffer`` its storage is a ``TensorStorage`` over the dataset's rows, its sampler the
-    :class:`TrajectorySampler` and its writer TorchRL's ``ImmutableDatasetWriter`` (``extend`` raises: the
+    As a ``TensorDictReplayBuffer`` its storage is a ``TensorStorage`` over the dataset's rows, its sampler
+    the :class:`TrajectorySampler` and its writer TorchRL's ``ImmutableDatasetWriter`` (``extend`` raises: the
     rows are the dataset's files); ``sample(batch_size)`` takes the number of trajectories (at most the
     sampler's ``num_trajectories``, the default), and ``state_dict()`` / ``load_state_dict()`` hold the
     sampler's state (positions and generator), not the rows.
@@ -389,7 +394,8 @@ class TrajectoryBatcher(TensorDictReplayBuffer):
     def _buffer(
         self, buffers: dict[tuple[str, ...], torch.Tensor], key: tuple[str, ...], n_rows: int, N: int
     ) -> torch.Tensor | None:
-        """The reusable buffer of ``key`` in ``buffers`` with at least ``n_rows`` rows (None without reuse)."""
+        """The reusable buffer of ``key`` in ``buffers`` with at least ``n_rows`` rows
+        (None without reuse)."""
         if not self.reuse_buffers:
             return None
         buffer = buffers.get(key)
@@ -413,8 +419,8 @@ class TrajectoryBatcher(TensorDictReplayBuffer):
         """
         if batch_size is not None and not 1 <= batch_size <= self.sampler.num_trajectories:
             raise ValueError(
-                f"sample(batch_size={batch_size!r}): expected 1 to {self.sampler.num_trajectories} trajectories "
-                "(the sampler's num_trajectories, which sizes the reused buffers)"
+                f"sample(batch_size={batch_size!r}): expected 1 to {self.sampler.num_trajectories} "
+                "trajectories (the sampler's num_trajectories, which sizes the reused buffers)"
             )
         draw = self.sampler.draw(batch_size)
         batch = self.gather(draw)
@@ -463,7 +469,8 @@ class TrajectoryBatcher(TensorDictReplayBuffer):
 
 
 PER_TRAJECTORY_KEYS = ("target_pixels", "trajectory")
-"""The keys of a :class:`TrajectoryBatcher` batch with one value per trajectory (``[N, ...]``, no time axis)."""
+"""The keys of a :class:`TrajectoryBatcher` batch with one value per trajectory (``[N, ...]``,
+no time axis)."""
 
 
 def split_by_length(batch: TensorDict, parts: int) -> list[TensorDict]:

@@ -161,8 +161,8 @@ def trajectory_rows(
 ) -> TensorDict:
     """Rows of one trajectory of length T in the trajectory schema.
 
-    ``pixels`` uint8 ``[T, 84, 84, 3]`` (o_t, observed before ``action[t]``), ``action`` ``[T, 2]`` in [-1, 1],
-    ``reward`` ``[T]`` (reward after step t), ``collision`` bool ``[T]``, ``pose`` ``[T, 3]``,
+    ``pixels`` uint8 ``[T, 84, 84, 3]`` (o_t, observed before ``action[t]``), ``action`` ``[T, 2]``
+    in [-1, 1], ``reward`` ``[T]`` (reward after step t), ``collision`` bool ``[T]``, ``pose`` ``[T, 3]``,
     ``target_position`` ``[2]``. The last step is ``terminated`` when ``succeeded`` and ``truncated``
     otherwise; ``return_to_go`` follows eq. (3). Returns a ``TensorDict`` with batch size ``[T]``.
     """
@@ -235,7 +235,8 @@ def ssl_rows(
 
 
 def check_rows(td: TensorDict, fields: dict[tuple[str, ...], FieldSpec], where: str) -> None:
-    """Raise ``ValueError`` naming ``where`` if ``td`` lacks a key of ``fields`` or has a wrong dtype/shape."""
+    """Raise ``ValueError`` naming ``where`` if ``td`` lacks a key of ``fields`` or has a wrong
+    dtype/shape."""
     if td.batch_dims != 1:
         raise ValueError(f"{where}: expected a flat TensorDict [rows], got batch size {tuple(td.batch_size)}")
     for key, spec in fields.items():

@@ -4,8 +4,9 @@ They go through the same writer as collection (shards, consolidation, metadata),
 them like real data. The structure lets a model overfit them:
 
 * trajectory kinds: the frame ``o_t`` is grey with a white vertical stripe at column ``x_t``; the target image
-  is a coloured disc of palette colour ``c``. The action is ``a_t = (2 x_t / 76 - 1, 2 c / 4 - 1)``: the linear
-  part is a function of the frame, the angular part of the target image only. The last step has reward 1.
+  is a coloured disc of palette colour ``c``. The action is ``a_t = (2 x_t / 76 - 1, 2 c / 4 - 1)``: the
+  linear part is a function of the frame, the angular part of the target image only. The last step has
+  reward 1.
 * ``ssl``: ``pixels_static`` are horizontal colour bands fixed per world; ``pixels_dynamic`` is the same image
   with 1-3 dark squares ("robots") drawn on top.
 """

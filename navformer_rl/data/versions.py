@@ -7,9 +7,10 @@
 Bump a number when its code changes the data it makes; moves, renames and comments change nothing.
 :data:`DAGGER_VERSIONS` apply only to DAgger collections (a trained policy in the loop), so a plain
 collection records exactly the numbers of :data:`KIND_VERSIONS`.
-``tests/data/test_data_versions.py`` collects a tiny dataset of each kind and compares its signature (counts and
-integer columns exactly, floats and images within tolerances) with ``tests/data/data_versions_signature.json``,
-recorded next to these numbers, so a change in the data without a bump fails.
+``tests/data/test_data_versions.py`` collects a tiny dataset of each kind and compares its signature (counts
+and integer columns exactly, floats and images within tolerances) with
+``tests/data/data_versions_signature.json``, recorded next to these numbers, so a change in the data without a
+bump fails.
 """
 
 from __future__ import annotations

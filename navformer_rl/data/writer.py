@@ -118,8 +118,9 @@ def code_change(old: dict[str, Any], header: dict[str, Any]) -> str | None:
 
 
 def folder_lock(root: str | Path) -> contextlib.AbstractContextManager[Path]:
-    """Hold ``root/.collect.lock`` while collecting into ``root`` (:func:`navformer_rl.utils.durable.folder_lock`:
-    a second live collection gets :class:`~navformer_rl.utils.durable.FolderLockedError` naming the holder's pid; a killed one's lock is
+    """Hold ``root/.collect.lock`` while collecting into ``root``
+    (:func:`navformer_rl.utils.durable.folder_lock`: a second live collection gets
+    :class:`~navformer_rl.utils.durable.FolderLockedError` naming the holder's pid; a killed one's lock is
     taken over with a warning)."""
     return durable_folder_lock(root, LOCK_FILE, "collected")
 
@@ -651,8 +652,8 @@ def check_memmap_files(folder: Path, fields: dict[tuple[str, ...], FieldSpec], n
         actual = file.stat().st_size
         if actual != expected:
             raise ValueError(
-                f"{file} has {actual} bytes, expected {expected} ({n_rows} rows of {spec.dtype} {spec.shape}); "
-                "the file is truncated or does not belong to this dataset"
+                f"{file} has {actual} bytes, expected {expected} ({n_rows} rows of {spec.dtype} "
+                f"{spec.shape}); the file is truncated or does not belong to this dataset"
             )
 
 

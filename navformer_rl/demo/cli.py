@@ -1,14 +1,14 @@
-"""``navformer demo`` and ``navformer world-demo``: argument parsing over :func:`~navformer_rl.demo.pipeline.run_demo`
-and :func:`~navformer_rl.envs.demo.run_world_demo`."""
+"""``navformer demo`` and ``navformer world-demo``: argument parsing over
+:func:`~navformer_rl.demo.pipeline.run_demo` and :func:`~navformer_rl.envs.demo.run_world_demo`."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from navformer_rl.cli import args as cli_args
 from navformer_rl.demo.config import BASELINES, TRAINED_METHODS, DemoConfig
 from navformer_rl.demo.pipeline import run_demo
+from navformer_rl.utils import cli_args
 
 
 def _demo_config_from_args(args: argparse.Namespace) -> DemoConfig:

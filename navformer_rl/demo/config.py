@@ -13,7 +13,8 @@ from navformer_rl.utils.durable import atomic_write_text
 
 BASELINES = ("vrw", "fca")
 HELD_OUT_SEED_OFFSET = 1000
-"""The held-out D_e / D_ca are collected with ``seed + HELD_OUT_SEED_OFFSET``: mazes the training never saw."""
+"""The held-out D_e / D_ca are collected with ``seed + HELD_OUT_SEED_OFFSET``:
+mazes the training never saw."""
 TRAINED_METHODS = ("navformer", "dt")
 STAGE_TIMES_FILENAME = "stage_times.json"
 """File of the run folder keeping the seconds that computed each stage's result (:class:`StageTimes`)."""
@@ -37,7 +38,8 @@ class DemoConfig:
         max_steps: steps per evaluation trial (paper: 500).
         videos_per_setup: episodes recorded as mp4 per setup and method.
         shipped: shipped weights (``pretrained:NAME``) evaluated on the same episodes beside the methods
-            trained here, when this installation ships them (``navformer pretrained list``); others are skipped.
+            trained here, when this installation ships them (``navformer pretrained list``); others are
+            skipped.
     """
 
     out_dir: Path = Path("runs/demo")
@@ -63,7 +65,8 @@ class DemoConfig:
 
     @staticmethod
     def preset(name: str, **overrides) -> DemoConfig:
-        """``default`` (8-15 minutes on 2 CPU cores, README.md) or ``quick`` (a few minutes: a smoke check)."""
+        """``default`` (8-15 minutes on 2 CPU cores, README.md) or ``quick`` (a few minutes:
+        a smoke check)."""
         presets = {
             "default": {},
             "quick": {

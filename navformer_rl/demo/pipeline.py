@@ -109,7 +109,7 @@ def train_stage(cfg: DemoConfig, data: dict[str, Path], method: str, progress: b
 def evaluate_stage(cfg: DemoConfig, train_dirs: dict[str, Path], progress: bool = True) -> list[Path]:
     """Stage 3: every method on one fixed episode set; returns the evaluation folders."""
     from navformer_rl.evaluation.episodes import make_protocol_episodes, save_episode_set
-    from navformer_rl.evaluation.harness import evaluate
+    from navformer_rl.evaluation.harness import EvaluateConfig, evaluate
 
     eval_dir = cfg.out_dir / "eval"
     episodes = make_protocol_episodes(
@@ -121,30 +121,17 @@ def evaluate_stage(cfg: DemoConfig, train_dirs: dict[str, Path], progress: bool 
         workers=cfg.workers,
     )
     save_episode_set(episodes, eval_dir / "episode_set.json")
+    common = EvaluateConfig(
+        workers=cfg.workers, seed=cfg.seed, videos_per_setup=cfg.videos_per_setup, progress=progress
+    )
     folders = []
     for method in cfg.methods:
-        result = evaluate(
-            method,
-            episodes,
-            eval_dir / method,
-            checkpoint=train_dirs.get(method),
-            workers=cfg.workers,
-            seed=cfg.seed,
-            videos_per_setup=cfg.videos_per_setup,
-            progress=progress,
-        )
+        result = evaluate(method, episodes, eval_dir / method, common, checkpoint=train_dirs.get(method))
         folders.append(result.out_dir)
     for name, method in shipped_weights(cfg).items():
+        pretrained = f"pretrained:{name}"
         result = evaluate(
-            method,
-            episodes,
-            eval_dir / f"pretrained_{name}",
-            checkpoint=f"pretrained:{name}",
-            label=f"pretrained:{name}",
-            workers=cfg.workers,
-            seed=cfg.seed,
-            videos_per_setup=cfg.videos_per_setup,
-            progress=progress,
+            method, episodes, eval_dir / f"pretrained_{name}", common, checkpoint=pretrained, label=pretrained
         )
         folders.append(result.out_dir)
     return folders

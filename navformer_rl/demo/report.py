@@ -43,8 +43,8 @@ def _dataset_section(data: dict[str, Path], report_dir: Path) -> list[str]:
     lines.append("")
     if any(name.startswith("held_out_") for name in data):
         lines.append(
-            "`held_out_e` / `held_out_ca` come from other mazes (another collection seed). The models never train "
-            "on them; they measure how well the action loss carries over to new mazes (see Training).\n"
+            "`held_out_e` / `held_out_ca` come from other mazes (another collection seed). The models never "
+            "train on them; they measure how well the action loss carries over to new mazes (see Training).\n"
         )
     for name, sheet in sheets:
         caption = (
@@ -223,9 +223,9 @@ def video_captions(eval_dirs: Sequence[Path], report_dir: Path) -> list[str]:
         return []
     return [
         "### What the videos show\n",
-        "Each video shows every robot's camera beside the top-down map of one episode; below, what happens in "
-        "it, from the episode's records (`episodes.jsonl`: reaching the 1.5 m target disc, steps in contact "
-        "with a wall or a robot).\n",
+        "Each video shows every robot's camera beside the top-down map of one episode; below, what happens "
+        "in it, from the episode's records (`episodes.jsonl`: reaching the 1.5 m target disc, steps in "
+        "contact with a wall or a robot).\n",
         *lines,
         "",
     ]
@@ -257,8 +257,8 @@ def _shipped_note(eval_dirs: Sequence[Path]) -> list[str]:
         header = read_checkpoint_config(f"pretrained:{name}")
         described.append(f"`pretrained:{name}` ({header['iteration']:,} training iterations)")
     return [
-        f"{', '.join(described)}: the shipped weights (their data, training and results with intervals are on "
-        "their model cards, `navformer_rl/pretrained/weights/<name>/MODEL_CARD.md`, docs/pretrained.md), "
+        f"{', '.join(described)}: the shipped weights (their data, training and results with intervals are "
+        "on their model cards, `navformer_rl/pretrained/weights/<name>/MODEL_CARD.md`, docs/pretrained.md), "
         "evaluated on the same episodes: a longer-trained policy beside what the demo's small training "
         "reaches.\n"
     ]

@@ -81,7 +81,8 @@ def run_world_demo(
 def _frame(
     world, paths, sim: Simulator, cameras: np.ndarray, found: np.ndarray, t: int, steps: int, px_per_m: float
 ):
-    """uint8 RGB frame: a title bar, the top-down map on the left, the cameras in a 2-column grid on the right."""
+    """uint8 RGB frame: a title bar, the top-down map on the left,
+    the cameras in a 2-column grid on the right."""
     topdown = draw_topdown(world, [np.array(p) for p in paths], sim.poses, sim.robot_specs, px_per_m=px_per_m)
     n = len(cameras)
     cols = 1 if n <= 3 else 2
@@ -103,7 +104,10 @@ def _frame(
         cv2.putText(grid, label, (x + 4, y + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, color, 1, cv2.LINE_AA)
     body = np.concatenate([topdown, grid], axis=1)
     bar = np.full((28, body.shape[1], 3), 255, dtype=np.uint8)
-    title = f"seed {world.seed} | {world.size:g} m maze | step {t}/{steps} ({t * CONTROL_DT:.1f} s) | found {int(found.sum())}/{len(found)}"
+    title = (
+        f"seed {world.seed} | {world.size:g} m maze | step {t}/{steps} ({t * CONTROL_DT:.1f} s) | "
+        f"found {int(found.sum())}/{len(found)}"
+    )
     cv2.putText(bar, title, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (20, 20, 20), 1, cv2.LINE_AA)
     frame = np.concatenate([bar, body], axis=0)
     return frame[: frame.shape[0] // 2 * 2, : frame.shape[1] // 2 * 2]  # even sides for video codecs

@@ -41,7 +41,8 @@ WALL_HEIGHT = 2.4
 MIN_DOOR = 1.2
 """Narrowest doorway in metres: a Jackal (0.6 m) with 0.3 m to spare on each side."""
 MIN_GAP = 1.3
-"""Metres free-standing furniture keeps from every other box (wall-standing furniture from other furniture)."""
+"""Metres free-standing furniture keeps from every other box
+(wall-standing furniture from other furniture)."""
 PLANNER_MARGIN = 0.15
 """The free space must stay connected for a disc of ``robot_radius + PLANNER_MARGIN`` as well."""
 MAX_TRIES = 100
@@ -217,8 +218,9 @@ class _Layout:
             self.keepouts.append(zone if axis == "x" else (zone[1], zone[0], zone[3], zone[2]))
 
     def fits(self, parts: Sequence[Rect], gap: float, wall_gap: float) -> bool:
-        """True when ``parts`` lie inside the building, their bounding box grown by ``gap`` meets no furniture,
-        they meet no keep-out zone, and grown by ``wall_gap`` (0: touching is fine) they meet no wall."""
+        """True when ``parts`` lie inside the building, their bounding box grown by ``gap`` meets no
+        furniture, they meet no keep-out zone, and grown by ``wall_gap`` (0: touching is fine) they meet no
+        wall."""
         box = _bbox(parts)
         x0, y0, x1, y1 = self.inner
         if box[0] < x0 - 1e-6 or box[1] < y0 - 1e-6 or box[2] > x1 + 1e-6 or box[3] > y1 + 1e-6:
@@ -336,7 +338,8 @@ def _table_with_chairs(
 
 
 def _at_wall(group: Group) -> Group:
-    """``group`` shifted so that its back (lowest local ``y``) is at ``y = 0`` and its left end at ``x = 0``."""
+    """``group`` shifted so that its back (lowest local ``y``) is at ``y = 0`` and its left end at
+    ``x = 0``."""
     bx = _bbox([r for r, _ in group])
     return [((r[0] - bx[0], r[1] - bx[1], r[2] - bx[0], r[3] - bx[1]), role) for r, role in group]
 

@@ -1,4 +1,5 @@
-"""TorchRL ``MultiRobotNavEnv``: every robot is controlled (paper §VII.A: all robots of a trial run the policy).
+"""TorchRL ``MultiRobotNavEnv``: every robot is controlled (paper §VII.A: all robots of a trial run the
+policy).
 
 Per-robot entries live under the group key ``"agents"`` with the robot dimension first (TorchRL's
 MARL convention); privileged state for experts and metrics lives under ``"privileged"``; the root
@@ -22,7 +23,8 @@ Keys (A robots):
 - ``("privileged", k)``: ``pose`` float32 ``[A, 3]``, ``velocity`` ``[A, 2]``, ``target_position``
   ``[A, 2]``, ``success`` bool ``[A, 1]``, ``path_length`` float32 ``[A, 1]`` (metres driven),
   ``shortest_path_length`` float32 ``[A, 1]`` (geodesic from the start to the 1.5 m success region; the
-  evaluation harness's SPL uses the paper's start-to-target length, see ``docs/evaluation.md``), ``collisions`` int64 ``[A, 1]`` (steps in collision so far).
+  evaluation harness's SPL uses the paper's start-to-target length, see ``docs/evaluation.md``),
+  ``collisions`` int64 ``[A, 1]`` (steps in collision so far).
 - root ``done``, ``terminated``, ``truncated``: bool ``[1]``.
 """
 
@@ -102,8 +104,8 @@ class MultiRobotNavEnv(EnvBase):
 
     ``env.world`` (:class:`WorldSpec`) and ``env.simulator`` (:class:`Simulator`) expose the current
     episode; ``env.set_next_episode(EpisodeSpec | WorldSpec)`` makes the next reset replay a fixed
-    world, starts and targets (evaluation); its ``world.config.robot_radius`` must cover every robot (ValueError
-    naming both radii otherwise).
+    world, starts and targets (evaluation); its ``world.config.robot_radius`` must cover every robot
+    (ValueError naming both radii otherwise).
 
     ``step`` raises RuntimeError before the first reset, after a reset that failed while building the
     simulator (e.g. starts that overlap a wall), and once the episode has ended (root ``done``: every robot
@@ -266,8 +268,8 @@ class MultiRobotNavEnv(EnvBase):
             raise RuntimeError("call reset() before step()")
         if self._ended:
             raise RuntimeError(
-                f"the episode ended (every robot succeeded, or max_steps={self.max_steps} steps were taken; root "
-                "'done' was True); call reset() before stepping again (TorchRL's rollout(..., "
+                f"the episode ended (every robot succeeded, or max_steps={self.max_steps} steps were taken; "
+                "root 'done' was True); call reset() before stepping again (TorchRL's rollout(..., "
                 "break_when_any_done=False), step_and_maybe_reset and the collectors do)"
             )
         action = tensordict.get(_ACTION_KEY, None)

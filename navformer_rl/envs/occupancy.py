@@ -1,7 +1,8 @@
 """Occupancy grid of a world and exact shortest paths on it (pure numpy + scipy).
 
-Cell ``(row, col)`` covers ``x in [ox + col*res, ox + (col+1)*res)`` and ``y in [oy + row*res, oy + (row+1)*res)``
-with ``(ox, oy) = origin``: rows follow +y, columns follow +x (flip rows to draw it as an image).
+Cell ``(row, col)`` covers ``x in [ox + col*res, ox + (col+1)*res)`` and
+``y in [oy + row*res, oy + (row+1)*res)`` with ``(ox, oy) = origin``: rows follow +y, columns follow +x (flip
+rows to draw it as an image).
 
 Shortest paths use the grid of free cells of the map inflated by a clearance (a disc robot of that radius
 fits at every free cell centre). ``reach=1`` (the default) is the 8-connected grid: a diagonal move is allowed
@@ -161,14 +162,16 @@ class OccupancyMap:
         return np.stack([row, col], axis=-1).astype(np.int64)
 
     def cell_to_world(self, cells: np.ndarray) -> np.ndarray:
-        """Cells ``int [..., 2]`` ``(row, col)`` -> float64 ``[..., 2]`` world ``(x, y)`` of the cell centres."""
+        """Cells ``int [..., 2]`` ``(row, col)`` -> float64 ``[..., 2]`` world ``(x, y)`` of the cell
+        centres."""
         cells = np.asarray(cells)
         x = self.origin[0] + (cells[..., 1] + 0.5) * self.resolution
         y = self.origin[1] + (cells[..., 0] + 0.5) * self.resolution
         return np.stack([x, y], axis=-1)
 
     def _checked_cell(self, xy, what: str) -> tuple[int, int]:
-        """Cell of a finite point inside the map (boundary points go to the edge cell); ValueError otherwise."""
+        """Cell of a finite point inside the map (boundary points go to the edge cell);
+        ValueError otherwise."""
         flat = np.asarray(xy, dtype=np.float64).reshape(-1)
         if flat.shape != (2,):
             raise ValueError(f"{what} must be an (x, y) pair, got {xy!r}")
@@ -228,7 +231,8 @@ class OccupancyMap:
 
     # ------------------------------------------------------------------ shortest paths
     def _graph(self, clearance: float, reach: int = 1) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
-        """(adjacency csr ``[n, n]``, node index int64 ``[H, W]`` (-1 blocked), nearest-free indices ``[2, H, W]``)."""
+        """(adjacency csr ``[n, n]``, node index int64 ``[H, W]`` (-1 blocked),
+        nearest-free indices ``[2, H, W]``)."""
         reach = check_int(reach, "reach")  # 1 = the 8-connected grid
         key = (round(float(clearance), 9), reach)
         if key in self._graphs:

@@ -36,8 +36,8 @@ def policy_transforms(env: EnvBase, policy: Any = None) -> list[Transform]:
     if step_key is not None and step_key not in keys:
         if not isinstance(step_key, str):
             raise ValueError(
-                f"the policy reads {step_key!r}, which the env does not write; StepCounter writes a root key: "
-                "set the policy's step_count key to one (policy.set_keys(step_count='step_count'))"
+                f"the policy reads {step_key!r}, which the env does not write; StepCounter writes a root "
+                "key: set the policy's step_count key to one (policy.set_keys(step_count='step_count'))"
             )
         transforms.append(StepCounter(step_count_key=step_key))
     if init_key not in keys:

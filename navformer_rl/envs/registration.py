@@ -8,8 +8,8 @@ ENV_ID = "navformer_rl/TargetNav-v0"
 
 
 def register_envs() -> None:
-    """Register ``navformer_rl/TargetNav-v0`` once (idempotent), with ``max_episode_steps=500`` (paper §VII.A):
-    ``gym.make(ENV_ID)`` truncates with gymnasium's ``TimeLimit`` at 500 steps and reports
+    """Register ``navformer_rl/TargetNav-v0`` once (idempotent), with ``max_episode_steps=500`` (paper
+    §VII.A): ``gym.make(ENV_ID)`` truncates with gymnasium's ``TimeLimit`` at 500 steps and reports
     ``env.spec.max_episode_steps``; ``gym.make(ENV_ID, max_episode_steps=N)`` truncates at ``N`` instead."""
     if ENV_ID not in gym.registry:
         gym.register(

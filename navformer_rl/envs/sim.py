@@ -144,7 +144,8 @@ def _contact_kind(px: float, py: float, r2: float, boxes: list, discs: list) -> 
 
 
 def _clearance(px: float, py: float, radius: float, boxes: list, discs: list) -> float:
-    """Free distance between a disc of ``radius`` at ``(px, py)`` and the nearest box or disc (``inf`` if none)."""
+    """Free distance between a disc of ``radius`` at ``(px, py)`` and the nearest box or disc
+    (``inf`` if none)."""
     best = math.inf
     for cx, cy, hx, hy in boxes:
         dx = max(abs(px - cx) - hx, 0.0)
@@ -202,7 +203,8 @@ class Simulator:
             raise ValueError("a Simulator needs at least one robot spec")
         if poses is None and self.n_robots != world.n_robots:
             raise ValueError(
-                f"{self.n_robots} robot specs but the world has {world.n_robots} starts; pass poses explicitly"
+                f"{self.n_robots} robot specs but the world has {world.n_robots} starts; "
+                "pass poses explicitly"
             )
         self.world = world
         self.dt = check_number(dt, "dt", greater_than=0.0, unit="seconds per step")
@@ -289,8 +291,8 @@ class Simulator:
             x, y = new[i, :2]
             if not (r - 1e-3 <= x <= size - r + 1e-3 and r - 1e-3 <= y <= size - r + 1e-3):
                 raise ValueError(
-                    f"pose {new[i].tolist()} of robot {i} is outside the world: its disc (radius {r} m) must lie "
-                    f"within [0, {size}]^2, i.e. {r} <= x, y <= {size - r}"
+                    f"pose {new[i].tolist()} of robot {i} is outside the world: its disc (radius {r} m) must "
+                    f"lie within [0, {size}]^2, i.e. {r} <= x, y <= {size - r}"
                 )
         self._poses = new
         self._velocities[idx] = 0.0

@@ -55,8 +55,8 @@ class TargetNavEnv(gym.Env):
             copy, so one policy object passed to several envs (e.g. ``gym.make_vec(..., obstacle_policy=p)``)
             is never shared between them; ``env.obstacle_policy`` is that copy.
         max_episode_steps: truncation horizon (500 in the paper) of an env built directly. Through
-            ``gym.make`` this argument cannot be given (``gym.make(id, max_episode_steps=N)`` is gymnasium's own,
-            registered default 500): gymnasium's ``TimeLimit`` wrapper then truncates, see
+            ``gym.make`` this argument cannot be given (``gym.make(id, max_episode_steps=N)`` is gymnasium's
+            own, registered default 500): gymnasium's ``TimeLimit`` wrapper then truncates, see
             :attr:`max_episode_steps`.
         render_mode: ``None`` or ``"rgb_array"`` (top-down map with trajectories beside the camera view).
         episodes_per_world: resets that reuse the same world with fresh starts before a new world is drawn
@@ -114,7 +114,8 @@ class TargetNavEnv(gym.Env):
             obstacle_policy = GoalSeekingPolicy()
         elif not isinstance(obstacle_policy, ObstaclePolicy):
             raise ValueError(
-                f"obstacle_policy must have reset(world, sim, rng) and act(sim, indices), got {obstacle_policy!r}"
+                "obstacle_policy must have reset(world, sim, rng) and act(sim, indices), "
+                f"got {obstacle_policy!r}"
             )
         else:  # its own copy: a policy keeps per-episode state (targets, plans) of the env it drives
             obstacle_policy = copy.deepcopy(obstacle_policy)
@@ -132,10 +133,10 @@ class TargetNavEnv(gym.Env):
     def max_episode_steps(self) -> int | None:
         """The step count at which the env itself truncates an episode (``None``: never by itself).
 
-        Built directly: the ``max_episode_steps`` argument. Made by ``gym.make`` (which sets :attr:`spec`): the
-        spec's ``max_episode_steps``, which gymnasium >= 1.0 leaves ``None`` on the unwrapped env because its
-        ``TimeLimit`` wrapper truncates (at ``gym.make(id, max_episode_steps=N)``'s ``N``, registered default
-        500, none for ``N = -1``), so the env never cuts a longer horizon short.
+        Built directly: the ``max_episode_steps`` argument. Made by ``gym.make`` (which sets :attr:`spec`):
+        the spec's ``max_episode_steps``, which gymnasium >= 1.0 leaves ``None`` on the unwrapped env because
+        its ``TimeLimit`` wrapper truncates (at ``gym.make(id, max_episode_steps=N)``'s ``N``, registered
+        default 500, none for ``N = -1``), so the env never cuts a longer horizon short.
         """
         if self.spec is not None:
             return self.spec.max_episode_steps

@@ -48,7 +48,8 @@ TARGET_HALF_EXTENT: dict[str, float] = {"sphere": 0.25, "box": 0.20}
 """Known target shapes: sphere of radius 0.25 m, cube of side 0.40 m (both resting on the floor)."""
 
 WORLD_KINDS = ("maze", "arena", *FURNISHED_FOOTPRINTS)
-"""Generated kinds: training mazes and arenas, and Table II's furnished worlds (``furnished.FURNISHED_KINDS``)."""
+"""Generated kinds: training mazes and arenas, and Table II's furnished worlds
+(``furnished.FURNISHED_KINDS``)."""
 OCCUPANCY_RESOLUTION = 0.05
 
 
@@ -145,7 +146,8 @@ class WorldConfig:
             )
         if side is None and not MIN_WORLD_SIZE <= self.size <= MAX_WORLD_SIZE:
             raise ValueError(
-                f"world size {self.size!r} m is outside the supported range [{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}] m"
+                f"world size {self.size!r} m is outside the supported range "
+                f"[{MIN_WORLD_SIZE}, {MAX_WORLD_SIZE}] m"
             )
         if not isinstance(self.kind, str) or self.kind not in WORLD_KINDS:
             raise ValueError(f"unknown world kind {self.kind!r}; expected one of {WORLD_KINDS}")
@@ -214,8 +216,8 @@ class WorldConfig:
 
     @property
     def cells_per_side(self) -> int:
-        """Maze cells per side: ``max(2, round(size / cell_size))``; Python's ``round`` sends a half to the even
-        count (6.25 m -> 2 cells, 8.75 m -> 4, 11.25 m -> 4, 13.75 m -> 6 with 2.5 m cells)."""
+        """Maze cells per side: ``max(2, round(size / cell_size))``; Python's ``round`` sends a half to the
+        even count (6.25 m -> 2 cells, 8.75 m -> 4, 11.25 m -> 4, 13.75 m -> 6 with 2.5 m cells)."""
         return max(2, round(self.size / self.cell_size))
 
 
@@ -279,9 +281,9 @@ class WorldSpec:
         goal_radius: float = 0.0,
         reach: int = 1,
     ) -> float:
-        """Shortest collision-free path in metres from ``start_xy`` to ``targets[target_index]`` on the true map
-        inflated by ``clearance`` (see :meth:`OccupancyMap.shortest_path_length`); the goal is the free cell
-        nearest to the (solid) target, or with ``goal_radius`` the first cell within that radius of it.
+        """Shortest collision-free path in metres from ``start_xy`` to ``targets[target_index]`` on the true
+        map inflated by ``clearance`` (see :meth:`OccupancyMap.shortest_path_length`); the goal is the free
+        cell nearest to the (solid) target, or with ``goal_radius`` the first cell within that radius of it.
         ``reach``: 1 = the 8-connected grid (up to 8.2 % longer than the straight line in free space), 5 =
         what the evaluation's SPL uses (0.49 %)."""
         if not 0 <= target_index < len(self.targets):
@@ -439,9 +441,10 @@ def sample_free_positions(
 ) -> np.ndarray:
     """Sample ``n`` positions float64 ``[n, 2]`` (free cell centres) in the largest free component of
     ``inflate(clearance)`` (in any of its components with ``largest_only=False``: for worlds whose free space
-    is connected at a smaller clearance, e.g. furnished rooms behind doorways narrower than ``2 * clearance``),
-    pairwise more than ``min_separation`` apart and more than ``avoid_separation`` from every row of ``avoid``
-    (float ``[K, 2]``). Raises ValueError when they do not fit (after ``max_tries`` draws)."""
+    is connected at a smaller clearance, e.g. furnished rooms behind doorways narrower than
+    ``2 * clearance``), pairwise more than ``min_separation`` apart and more than ``avoid_separation`` from
+    every row of ``avoid`` (float ``[K, 2]``). Raises ValueError when they do not fit (after ``max_tries``
+    draws)."""
     cells = _free_cells(occupancy, clearance) if largest_only else np.argwhere(~occupancy.inflate(clearance))
     centres = occupancy.cell_to_world(cells)
     if avoid is not None and len(centres):
@@ -522,10 +525,11 @@ def _bodies_overlap(a: _Body, b: _Body) -> bool:
 
 
 def check_targets(size: float, walls: np.ndarray, targets: Sequence[TargetSpec]) -> None:
-    """ValueError unless every target is a known (shape, colour), the pairs are distinct, each ``position`` is a
-    finite ``(x, y)`` whose solid body (sphere or cube, ``half_extent``) lies within ``[0, size]^2`` and
+    """ValueError unless every target is a known (shape, colour), the pairs are distinct, each ``position`` is
+    a finite ``(x, y)`` whose solid body (sphere or cube, ``half_extent``) lies within ``[0, size]^2`` and
     overlaps no wall box of ``walls`` float ``[W, 4]`` and no other target (touching is fine). Looser than
-    :func:`generate_world`'s placement (0.9 m from walls, 2 m apart), which hand-made layouts need not meet."""
+    :func:`generate_world`'s placement (0.9 m from walls, 2 m apart), which hand-made layouts need not
+    meet."""
     for t in targets:
         if t.shape not in TARGET_HALF_EXTENT or t.color not in TARGET_RGBA:
             raise ValueError(
@@ -695,7 +699,8 @@ def _place_targets_and_starts(
     wall_map: OccupancyMap,
     style: SceneStyle | None,
 ) -> WorldSpec:
-    """The :class:`WorldSpec` of ``walls``: reachable distinct targets, then starts (see :func:`generate_world`)."""
+    """The :class:`WorldSpec` of ``walls``: reachable distinct targets, then starts (see
+    :func:`generate_world`)."""
     furnished = style is not None  # free space connected at robot_radius: every room may hold a target
     pairs = [(s, c) for s in dict.fromkeys(config.target_shapes) for c in dict.fromkeys(config.target_colors)]
     chosen = rng.permutation(len(pairs))[: config.n_robots]

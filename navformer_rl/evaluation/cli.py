@@ -1,4 +1,5 @@
-"""``navformer evaluate``: run a method on an episode set; ``evaluate make-episodes`` / ``report`` / ``seeds``.
+"""``navformer evaluate``: run a method on an episode set; ``evaluate make-episodes`` / ``report`` /
+``seeds``.
 
 Examples::
 
@@ -18,8 +19,8 @@ import json
 import os
 from pathlib import Path
 
-from navformer_rl.cli import args as cli_args
 from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.utils import cli_args
 from navformer_rl.utils.backends import add_backend_options, backend_problem
 
 
@@ -177,7 +178,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         dest="seeds_x_scale",
         choices=("auto", "linear", "log"),
         default="auto",
-        help="--plot's x axis: auto (logarithmic when the largest X is at least 5x the smallest), linear, log",
+        help=(
+            "--plot's x axis: auto (logarithmic when the largest X is at least 5x the smallest), linear, log"
+        ),
     )
     _add_cluster_option(seeds, "trial")
     seeds.set_defaults(run=_run_seeds)
@@ -276,9 +279,11 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
     strip = commands.add_parser(
         "strip",
         help="evenly spaced frames of an evaluation video side by side in one PNG",
-        description="Write a frame strip of an evaluation video (videos/*.mp4): --frames evenly spaced frames, "
-        "first and last included, side by side and scaled to --width pixels, each labelled with its step and "
-        "its time in the trial (frame i is step i, 0.2 s per step; not the video's playback time).",
+        description=(
+            "Write a frame strip of an evaluation video (videos/*.mp4): --frames evenly spaced frames, "
+            "first and last included, side by side and scaled to --width pixels, each labelled with its step "
+            "and its time in the trial (frame i is step i, 0.2 s per step; not the video's playback time)."
+        ),
     )
     strip.add_argument("strip_video", type=Path, metavar="VIDEO", help="an mp4 from an evaluation's videos/")
     strip.add_argument("--out", dest="strip_out", type=Path, required=True, help="the .png to write")
@@ -325,7 +330,9 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--setups",
         type=_setup_names,
-        help="with --protocol: only these of its setups, comma-separated (e.g. 7.5m-2r,12.5m-4r; default: all)",
+        help=(
+            "with --protocol: only these of its setups, comma-separated (e.g. 7.5m-2r,12.5m-4r; default: all)"
+        ),
     )
 
 
@@ -364,7 +371,7 @@ def _generation(args: argparse.Namespace) -> tuple[int | None, ...]:
 
 def _run_evaluate(args: argparse.Namespace) -> int:
     from navformer_rl.evaluation.episodes import load_episode_set, make_protocol_episodes
-    from navformer_rl.evaluation.harness import METHODS, PolicySpec, evaluate
+    from navformer_rl.evaluation.harness import METHODS, EvaluateConfig, PolicySpec, evaluate
 
     if args.method is None:
         raise ValueError(f"--method is required: one of {', '.join(METHODS)}")
@@ -386,8 +393,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         if given:  # the file fixes them: silently ignoring them would run other episodes than asked for
             flags = ", ".join("--" + name.replace("_", "-") for name in given)
             raise ValueError(
-                f"{flags}: only with --protocol; the episode file {args.episodes} fixes its trials, seeds and "
-                "steps per trial (make another with `navformer evaluate make-episodes`)"
+                f"{flags}: only with --protocol; the episode file {args.episodes} fixes its trials, seeds "
+                "and steps per trial (make another with `navformer evaluate make-episodes`)"
             )
         episode_set = load_episode_set(args.episodes)
     else:
@@ -397,10 +404,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         episode_set = make_protocol_episodes(
             args.protocol, *_generation(args), workers=workers, setups=args.setups
         )
-    result = evaluate(
-        args.method,
-        episode_set,
-        args.out,
+    config = EvaluateConfig(
         checkpoint=args.checkpoint,
         workers=args.workers,
         label=args.label,
@@ -415,6 +419,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         ray_address=args.ray_address,
         context_steps=args.context_steps,
     )
+    result = evaluate(args.method, episode_set, args.out, config)
     print((result.out_dir / "summary.md").read_text(), end="")
     print(f"results in {result.out_dir}")
     return 0

@@ -98,15 +98,16 @@ def table1_setups() -> list[Setup]:
 def table2_setups() -> list[Setup]:
     """Table II: three Jackal robots, every robot measured, in each furnished world kind (setup = kind)."""
     return [
-        Setup(kind, float(max(FURNISHED_FOOTPRINTS[kind])), ("jackal",) * TABLE2_ROBOTS, (True,) * TABLE2_ROBOTS,
-              kind)
+        Setup(kind, float(max(FURNISHED_FOOTPRINTS[kind])), ("jackal",) * TABLE2_ROBOTS,
+              (True,) * TABLE2_ROBOTS, kind)
         for kind in FURNISHED_FOOTPRINTS
     ]  # fmt: skip
 
 
 SEEN_SUFFIX = "-seen"
 UNSEEN_SUFFIX = "-unseen"
-"""Table III's setup names end in these; an unseen setup replays its seen setup's mazes, starts and targets."""
+"""Table III's setup names end in these; an unseen setup replays its seen setup's mazes,
+starts and targets."""
 
 
 def table3_setups() -> list[Setup]:
@@ -247,7 +248,8 @@ class Episode:
         return episode
 
     def world_spec(self):
-        """The :class:`~navformer_rl.envs.world.EpisodeSpec` to hand to ``MultiRobotNavEnv.set_next_episode``."""
+        """The :class:`~navformer_rl.envs.world.EpisodeSpec` to hand to
+        ``MultiRobotNavEnv.set_next_episode``."""
         from navformer_rl.envs.world import EpisodeSpec, TargetSpec
 
         return EpisodeSpec(
@@ -263,7 +265,8 @@ class Episode:
         )
 
     def check_world(self, world) -> None:
-        """ValueError if the regenerated ``world`` (a ``WorldSpec``) has other walls than when the set was made."""
+        """ValueError if the regenerated ``world`` (a ``WorldSpec``) has other walls than when the set was
+        made."""
         if walls_digest(world.walls) != self.walls_sha256:
             raise ValueError(
                 f"episode {self.episode_id}: the world generator now makes a different maze for seed "
@@ -390,7 +393,8 @@ def make_protocol_episodes(
         unknown = [name for name in setups if name not in names]
         if unknown or not setups:
             raise ValueError(
-                f"setups {list(setups)!r}: expected a non-empty list of setups of protocol {protocol!r}: {names}"
+                f"setups {list(setups)!r}: "
+                f"expected a non-empty list of setups of protocol {protocol!r}: {names}"
             )
         chosen = [s for s in chosen if s.name in setups]
     return make_episode_set(
@@ -451,8 +455,8 @@ def load_episode_set(path: str | os.PathLike) -> EpisodeSet:
         raise ValueError(f"{path} is missing episode-set field {error}") from None
     if stored_hash != episode_set.content_hash():
         raise ValueError(
-            f"{path} is corrupt or was edited: its content hash does not match (stored {str(stored_hash)[:12]}..., "
-            f"computed {episode_set.content_hash()[:12]}...)"
+            f"{path} is corrupt or was edited: its content hash does not match (stored "
+            f"{str(stored_hash)[:12]}..., computed {episode_set.content_hash()[:12]}...)"
         )
     ids = [e.episode_id for e in episode_set.episodes]
     if len(set(ids)) != len(ids):

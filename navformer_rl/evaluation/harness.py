@@ -79,6 +79,7 @@ from navformer_rl.utils.mp4 import ffmpeg_executable
 __all__ = [
     "LOCK_FILENAME",
     "PARTIAL_DIRNAME",
+    "EvaluateConfig",
     "EvaluationResult",
     "evaluate",
     # re-exported for the CLI, the report, recipes and tests
@@ -110,132 +111,147 @@ class EvaluationResult:
     """Wall-clock seconds that computed these results (``run.json`` ``seconds``), reused episodes included."""
 
 
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """How :func:`evaluate` runs: every option, documented once (CleanRL's ``Args``). ``navformer evaluate``,
+    the evaluation recipe and the demo build one; ``evaluate(..., **options)`` takes the same fields as
+    keywords."""
+
+    checkpoint: str | os.PathLike | None = None
+    """For ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors`` (or
+    ``pretrained:NAME``); resolved once, at the start, to one checkpoint folder (a run dir: its latest), which
+    ``run.json`` names (a run still training with ``checkpoint.keep_last`` may delete that folder before the
+    workers load it: they then fail; evaluate a finished run or a copied checkpoint)."""
+    workers: int = 1
+    """Processes (>= 1; 1 runs in this process), or Ray tasks at once with ``backend="ray"``."""
+    label: str | None = None
+    """Method name in tables (default the method; e.g. ``navformer-no_thsc`` for an ablation). A label naming
+    a training ablation must match the checkpoint's (ValueError before any episode runs, see
+    :func:`label_ablation_problem`); other labels (``navformer-seed1``) are free."""
+    seed: int = 0
+    """Base seed of stochastic policies."""
+    maps_per_setup: int = 2
+    """How many episodes per setup (the first ones) get a top-down map PNG."""
+    videos_per_setup: int = 1
+    """How many episodes per setup (the first ones) get an mp4 video."""
+    video_fps: float = 10.0
+    """Frames per second of the videos (one frame per 0.2 s step)."""
+    confidence: float = 0.95
+    """Level of the intervals."""
+    cluster: str = "trial"
+    """What the intervals resample: whole trials (``"trial"``, intervals for these mazes) or whole mazes
+    (``"world"``, also the variation between mazes; needs 6 mazes per setup at 95 %), see
+    :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`."""
+    device: str = "cpu"
+    """Where ``navformer`` / ``dt`` run their model in every worker: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``
+    (ValueError for a device torch cannot use here). Episodes still simulate and render on the CPU; results on
+    a GPU differ from the CPU's in the last float bits, so resuming reuses only episodes computed on the same
+    kind of device. The other methods have no model to place (an unusable device is refused for them too)."""
+    progress: bool = True
+    """Show a tqdm progress bar."""
+    resume: bool = True
+    """Reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with the same
+    method (your own policy: the same factory), label, checkpoint weights, seed, trial length, video_fps and
+    package version (an interrupted run picks up where it stopped); False recomputes everything."""
+    backend: str = "local"
+    """Where episodes run: ``local`` (``workers`` processes here) or ``ray`` (Ray tasks, ``pip install
+    "navformer_rl[distributed]"``; the model on the CPU only); ValueError otherwise."""
+    ray_address: str | None = None
+    """With ``ray``: the cluster to join (``auto``, ``ray://host:10001``; default ``$RAY_ADDRESS``, else a
+    local Ray instance with ``workers`` CPUs, shut down at the end). Every node needs navformer_rl installed
+    and, for ``navformer`` / ``dt``, the checkpoint at the same path."""
+    context_steps: int | None = None
+    """``navformer`` / ``dt`` only: the timesteps the policy attends to (an inference option, not the paper's,
+    ``NavFormerPolicy(context_steps=)``); None: the window the checkpoint was trained on
+    (``data.context_steps``) when set, else the model's whole context. Recorded in ``run.json`` when not the
+    whole; results of another context are never reused."""
+
+
 def evaluate(
     method: str | Callable[[], Any],
     episode_set: EpisodeSet | str | os.PathLike,
     out_dir: str | os.PathLike,
-    *,
-    checkpoint: str | os.PathLike | None = None,
-    workers: int = 1,
-    label: str | None = None,
-    seed: int = 0,
-    maps_per_setup: int = 2,
-    videos_per_setup: int = 1,
-    video_fps: float = 10.0,
-    confidence: float = 0.95,
-    cluster: str = "trial",
-    device: str = "cpu",
-    progress: bool = True,
-    resume: bool = True,
-    backend: str = "local",
-    ray_address: str | None = None,
-    context_steps: int | None = None,
+    config: EvaluateConfig | None = None,
+    **options: Any,
 ) -> EvaluationResult:
     """Run ``method`` on every episode of ``episode_set`` and write the outputs (module docstring).
 
     Args:
         method: one of :data:`METHODS` (ValueError listing them otherwise), or your own policy as a picklable
             zero-argument factory returning a ``TensorDictModuleBase`` that reads the ``MultiRobotNavEnv``
-            tensordict and writes ``("agents", "action")`` (a ``bind(env, seed)`` method, if present, is called
-            after every reset); its label defaults to the factory's name.
+            tensordict and writes ``("agents", "action")`` (a ``bind(env, seed)`` method, if present, is
+            called after every reset); its label defaults to the factory's name.
         episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
         out_dir: output folder (created; this run's files in it are overwritten, but a folder holding
             another label's finished results is refused with ``FileExistsError``).
-        checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder or ``model.safetensors``; resolved
-            once, at the start, to one checkpoint folder (a run dir: its latest), which ``run.json`` names
-            (a run still training with ``checkpoint.keep_last`` may delete that folder before the workers
-            load it: they then fail; evaluate a finished run or a copied checkpoint).
-        workers: processes (>= 1; 1 runs in this process), or Ray tasks at once with ``backend="ray"``.
-        label: method name in tables (default ``method``; e.g. ``navformer-no_thsc`` for an ablation). A
-            label naming a training ablation must match the checkpoint's (ValueError before any episode
-            runs, see :func:`label_ablation_problem`); other labels (``navformer-seed1``) are free.
-        seed: base seed of stochastic policies.
-        maps_per_setup, videos_per_setup: how many episodes per setup (the first ones) get a top-down map
-            PNG / an mp4 video.
-        video_fps: frames per second of the videos (one frame per 0.2 s step).
-        confidence: level of the intervals.
-        cluster: what the intervals resample: whole trials (``"trial"``, intervals for these mazes) or whole
-            mazes (``"world"``, also the variation between mazes; needs 6 mazes per setup at 95 %), see
-            :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS`.
-        device: where ``navformer`` / ``dt`` run their model in every worker: ``cpu`` (default), ``cuda``,
-            ``cuda:N`` or ``auto`` (ValueError for a device torch cannot use here). Episodes still simulate
-            and render on the CPU; results on a GPU differ from the CPU's in the last float bits, so resuming
-            reuses only episodes computed on the same kind of device. The other methods have no model to place
-            (an unusable device is refused for them too).
-        progress: show a tqdm progress bar.
-        resume: reuse the per-episode results already in ``out_dir/per_episode/`` that were computed with
-            the same method (your own policy: the same factory), label, checkpoint weights, seed, trial length, video_fps and package version (an
-            interrupted run picks up where it stopped); False recomputes everything.
-        backend: where episodes run: ``local`` (default: ``workers`` processes here) or ``ray`` (Ray tasks,
-            ``pip install "navformer_rl[distributed]"``; the model on the CPU only); ValueError otherwise.
-        ray_address: with ``ray``: the cluster to join (``auto``, ``ray://host:10001``; default
-            ``$RAY_ADDRESS``, else a local Ray instance with ``workers`` CPUs, shut down at the end). Every
-            node needs navformer_rl installed and, for ``navformer`` / ``dt``, the checkpoint at the same
-            path.
-        context_steps: ``navformer`` / ``dt`` only: the timesteps the policy attends to (an inference
-            option, not the paper's, ``NavFormerPolicy(context_steps=)``); None (default): the window the
-            checkpoint was trained on (``data.context_steps``) when set, else the model's whole context.
-            Recorded in ``run.json`` when not the whole; results of another context are never reused.
+        config: the :class:`EvaluateConfig` (default: its defaults).
+        options: :class:`EvaluateConfig` fields as keywords, replacing ``config``'s (TypeError for another
+            name).
     """
+    cfg = _evaluate_config(config, options)
     invoked = time.perf_counter()
     episode_set = _checked_episode_set(episode_set)
-    workers = _check_options(workers, maps_per_setup, videos_per_setup, video_fps, confidence, cluster)
-    check_backend(backend)
+    workers = _check_options(
+        cfg.workers, cfg.maps_per_setup, cfg.videos_per_setup, cfg.video_fps, cfg.confidence, cfg.cluster
+    )
+    check_backend(cfg.backend)
     if callable(method):
         factory, method = method, getattr(method, "__name__", "custom")
     else:
         factory = None
-    checkpoint = _resolved_checkpoint(method, factory, checkpoint)
+    checkpoint = _resolved_checkpoint(method, factory, cfg.checkpoint)
     spec = PolicySpec(
         method,
         None if checkpoint is None else str(checkpoint),
-        int(seed),
+        int(cfg.seed),
         factory,
-        device,
-        context_steps=context_steps,
+        cfg.device,
+        context_steps=cfg.context_steps,
     )
-    label = label or method
+    label = cfg.label or method
     description = spec.validate(label)
-    model_device = _model_device(method, factory, device)
-    if backend == "ray" and model_device not in (None, "cpu"):
+    model_device = _model_device(method, factory, cfg.device)
+    if cfg.backend == "ray" and model_device not in (None, "cpu"):
         raise ValueError(
-            f"device={device!r} with backend='ray': Ray tasks run the model on the CPU; use device='cpu', "
-            "or the local backend for a GPU"
+            f"device={cfg.device!r} with backend='ray': Ray tasks run the model on the CPU; use "
+            "device='cpu', or the local backend for a GPU"
         )
     out_dir = Path(out_dir)
     with folder_lock(out_dir, LOCK_FILENAME, "evaluated"):  # one evaluation per folder at a time
         _prepare_folder(out_dir, label, episode_set)
         identity = _resume_identity(
-            method, label, int(seed), episode_set.max_steps, description, model_device
+            method, label, int(cfg.seed), episode_set.max_steps, description, model_device
         )
         spec = _with_transformer_step(spec, description)
         tasks = _make_tasks(
-            episode_set, out_dir, label, maps_per_setup, videos_per_setup, video_fps, identity
+            episode_set, out_dir, label, cfg.maps_per_setup, cfg.videos_per_setup, cfg.video_fps, identity
         )
         outputs, computed = _run_tasks(
             tasks,
             spec,
             episode_set.max_steps,
-            video_fps,
+            cfg.video_fps,
             workers,
-            progress,
+            cfg.progress,
             label,
-            resume,
-            backend,
-            ray_address,
+            cfg.resume,
+            cfg.backend,
+            cfg.ray_address,
         )
         _remove_stale_outputs(out_dir, tasks, outputs)
-        records, summaries, files = _write_results(out_dir, label, episode_set, outputs, confidence, cluster)
+        records, summaries, files = _write_results(
+            out_dir, label, episode_set, outputs, cfg.confidence, cfg.cluster
+        )
         run = {
             "method": method,
             "label": label,
             "checkpoint": spec.checkpoint,
-            "seed": int(seed),
+            "seed": int(cfg.seed),
             "workers": workers,
-            "backend": backend,
+            "backend": cfg.backend,
             "episode_set": _episode_set_entry(episode_set),
-            "confidence": confidence,
-            "cluster": cluster,
+            "confidence": cfg.confidence,
+            "cluster": cfg.cluster,
             "device": model_device,
             **_timing(outputs, computed, time.perf_counter() - invoked),
             "package_version": __version__,
@@ -251,6 +267,18 @@ def evaluate(
             episodes_computed=computed,
             seconds=run["seconds"],
         )
+
+
+def _evaluate_config(config: EvaluateConfig | None, options: dict[str, Any]) -> EvaluateConfig:
+    """``config`` (default: the defaults) with ``options`` replacing its fields (TypeError naming an unknown
+    one, as for an unknown keyword argument)."""
+    fields = {f.name for f in dataclasses.fields(EvaluateConfig)}
+    unknown = sorted(set(options) - fields)
+    if unknown:
+        raise TypeError(
+            f"evaluate() got unexpected keyword arguments {unknown}; expected EvaluateConfig fields"
+        )
+    return dataclasses.replace(config or EvaluateConfig(), **options)
 
 
 def _checked_episode_set(episode_set: EpisodeSet | str | os.PathLike) -> EpisodeSet:
@@ -347,7 +375,8 @@ def _resume_identity(
 
 
 def _with_transformer_step(spec: PolicySpec, description: dict[str, Any]) -> PolicySpec:
-    """``spec`` running the transformer step the policy described (native kernel or torch), when it names one."""
+    """``spec`` running the transformer step the policy described (native kernel or torch),
+    when it names one."""
     step = description.get("transformer_step")
     if step == "native":
         return dataclasses.replace(spec, native=True)
@@ -396,7 +425,8 @@ def _episode_set_entry(episode_set: EpisodeSet) -> dict[str, Any]:
 
 
 _TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?$")
-"""The names ``durable.atomic_path`` gives its temporary files: ``.<stem>.<mkstemp's 8 characters>.tmp<suffix>``."""
+"""The names ``durable.atomic_path`` gives its temporary files:
+``.<stem>.<mkstemp's 8 characters>.tmp<suffix>``."""
 
 
 def _remove_temporaries(out_dir: Path) -> None:
@@ -458,8 +488,8 @@ def _remove_stale_outputs(out_dir: Path, tasks: list[EpisodeTask], outputs: list
         path.unlink(missing_ok=True)
     if stale:
         warnings.warn(
-            f"{out_dir}: removed {len(stale)} maps / videos / per-episode results of episodes this evaluation "
-            "does not hold (an earlier evaluation of other episodes in this folder)",
+            f"{out_dir}: removed {len(stale)} maps / videos / per-episode results of episodes this "
+            "evaluation does not hold (an earlier evaluation of other episodes in this folder)",
             stacklevel=3,
         )
 
@@ -519,7 +549,8 @@ def _store_partial(task: EpisodeTask, output: dict[str, Any]) -> None:
 
 
 def _load_partial(task: EpisodeTask) -> dict[str, Any] | None:
-    """The stored output of ``task`` when its key matches and its visuals still exist (non-empty), else None."""
+    """The stored output of ``task`` when its key matches and its visuals still exist (non-empty),
+    else None."""
     path = _partial_path(task)
     try:
         document = json.loads(path.read_text())

@@ -9,14 +9,15 @@ Definitions (``i`` runs over the ``N_tau`` robot-trials):
   :data:`~navformer_rl.constants.SUCCESS_RADIUS` (1.5 m) of its target before the trial ended.
 - **SPL** (eq. 12, Anderson et al. 2018) = ``(1 / N_tau) * sum_i S_i * l_i / max(p_i, l_i)`` with
   ``l_i`` the shortest collision-free path length on the true map from the robot's start to its target
-  position (a grid path with straight moves of up to 5 cells, within 0.49 % of the straight line in free space, on the
-  map inflated by the robot radius: :data:`navformer_rl.evaluation.episodes.SHORTEST_PATH_REACH`,
+  position (a grid path with straight moves of up to 5 cells, within 0.49 % of the straight line in free
+  space, on the map inflated by the robot radius:
+  :data:`navformer_rl.evaluation.episodes.SHORTEST_PATH_REACH`,
   :meth:`navformer_rl.envs.occupancy.OccupancyMap.shortest_path_length`) and ``p_i`` the path the robot
-  actually drove over the steps it was active: the harness sums the arc length ``|v_t| * dt`` of each
-  executed unicycle step (the env's own ``path_length`` counter); :class:`TrialTracker` falls back to the
-  straight-line displacement ``||xy_t - xy_{t-1}||`` of the real pose when no step lengths are given.
-  Failed robot-trials contribute 0; a successful robot that stopped inside the 1.5 m disc with
-  ``p_i < l_i`` contributes exactly 1 (the ``max`` caps the ratio).
+  actually drove over the steps it was active: the harness sums the arc length ``|v_t| * dt`` of each executed
+  unicycle step (the env's own ``path_length`` counter); :class:`TrialTracker` falls back to the straight-line
+  displacement ``||xy_t - xy_{t-1}||`` of the real pose when no step lengths are given. Failed robot-trials
+  contribute 0; a successful robot that stopped inside the 1.5 m disc with ``p_i < l_i`` contributes exactly 1
+  (the ``max`` caps the ratio).
 - **CR** = ``(1 / N_tau) * sum_i N_c,i / N_e,i`` with ``N_c,i`` the number of steps on which robot ``i``
   was in contact (wall, target or robot: its motion was cut short, or after the step its disc is within
   :data:`~navformer_rl.envs.sim.CONTACT_EPS` = 1 mm of one, so a robot that is driven into counts too) and
@@ -241,10 +242,10 @@ class RobotTrial:
 
     ``steps`` is ``N_e``, ``collisions`` is ``N_c``, ``path_length`` is ``p`` and ``shortest_path`` is ``l``
     (metres); ``shortest_path_to_disc`` is the shortest path to the 1.5 m success disc instead of the target
-    (kept for reference, not used by SPL); ``success_step`` is the 1-based step of success or ``None``; ``final_distance`` is the
-    Euclidean distance to the target at the robot's last active step. ``measured`` is False for robots
-    that only play dynamic obstacles (paper Table III, unseen obstacles): they are recorded but left out
-    of the aggregates.
+    (kept for reference, not used by SPL); ``success_step`` is the 1-based step of success or ``None``;
+    ``final_distance`` is the Euclidean distance to the target at the robot's last active step. ``measured``
+    is False for robots that only play dynamic obstacles (paper Table III, unseen obstacles): they are
+    recorded but left out of the aggregates.
     """
 
     method: str

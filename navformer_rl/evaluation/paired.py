@@ -6,9 +6,10 @@ one is usually hard for the other. :func:`paired_differences` matches the robot-
 folders by ``(episode_id, robot)`` and, per setup and pooled (``all``), gives the mean difference ``A - B`` of
 success (SR, in points of the rate), SPL and CR with a cluster-bootstrap interval: whole trials (or whole
 mazes, ``cluster="world"``) are resampled with replacement, each resample's statistic being the mean of the
-per-robot differences of the drawn clusters (:func:`~navformer_rl.evaluation.measures.bootstrap_mean_interval`,
-seeded). An interval that excludes zero says the difference holds on these episodes beyond the trial-to-trial
-noise; it does not cover the spread between training seeds (``navformer evaluate seeds``).
+per-robot differences of the drawn clusters
+(:func:`~navformer_rl.evaluation.measures.bootstrap_mean_interval`, seeded). An interval that excludes zero
+says the difference holds on these episodes beyond the trial-to-trial noise; it does not cover the spread
+between training seeds (``navformer evaluate seeds``).
 
 :func:`pooled_paired_differences` compares two *models* trained with several seeds each (one evaluation
 folder per seed, all on one episode set): each robot-trial's value is its mean over a side's seeds, and the
@@ -49,7 +50,8 @@ PAIRED_METRICS: tuple[str, ...] = ("sr", "spl", "cr")
 class PairedDifference:
     """``A - B`` on one setup (or ``all``): each metric's mean for A and B over the paired robot-trials (and
     over each side's ``n_seeds`` training seeds), the mean difference and its ``(low, high)`` interval
-    (``(nan, nan)`` with fewer clusters than :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`)."""
+    (``(nan, nan)`` with fewer clusters than
+    :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`)."""
 
     setup: str
     n_robot_trials: int
@@ -84,8 +86,9 @@ def _paired(
         if missing:
             episode, robot = missing[0]
             raise ValueError(
-                f"{name} has robot {robot} of episode {episode!r} (and {len(missing) - 1} more) that {other_name} "
-                "lacks: a paired comparison needs both evaluations finished on the same episodes"
+                f"{name} has robot {robot} of episode {episode!r} (and {len(missing) - 1} more) that "
+                f"{other_name} lacks: a paired comparison needs both evaluations "
+                "finished on the same episodes"
             )
     return [(keyed[0][key], keyed[1][key]) for key in keyed[0]]
 
@@ -227,9 +230,9 @@ def pooled_paired_differences(
     for folder, digest in zip(folders[1:], digests[1:], strict=True):
         if digests[0] is None or digest != digests[0]:
             raise ValueError(
-                f"{folders[0]} and {folder} ran different episode sets (content_sha256 {str(digests[0])[:12]} "
-                f"vs {str(digest)[:12]}); a paired comparison needs every evaluation run with the same "
-                "--episodes file"
+                f"{folders[0]} and {folder} ran different episode sets (content_sha256 "
+                f"{str(digests[0])[:12]} vs {str(digest)[:12]}); a paired comparison needs every evaluation "
+                "run with the same --episodes file"
             )
     labels = [str(run.get("label")) for run in runs]
     if names is None:
@@ -299,16 +302,17 @@ def unseen_obstacle_differences(
         if partner is None:
             episode, robot = _seen_partner(record)
             raise ValueError(
-                f"{folder}: robot {robot} of {record.episode_id!r} has no seen partner {episode!r}; evaluate the "
-                "whole table3 episode set (make-episodes --protocol table3)"
+                f"{folder}: robot {robot} of {record.episode_id!r} has no seen partner {episode!r}; evaluate "
+                "the whole table3 episode set (make-episodes --protocol table3)"
             )
         if (
             partner.world_seed != record.world_seed
             or abs(partner.shortest_path - record.shortest_path) > 1e-3
         ):
             raise ValueError(
-                f"{folder}: {record.episode_id!r} and {partner.episode_id!r} are not the same maze, start and "
-                "target; the seen and unseen setups must come from one make-episodes --protocol table3 call"
+                f"{folder}: {record.episode_id!r} and {partner.episode_id!r} are not the same maze, start "
+                "and target; the seen and unseen setups must come from one "
+                "make-episodes --protocol table3 call"
             )
         pairs.append((record, partner))
     if not pairs:
@@ -344,8 +348,8 @@ def paired_markdown(
     saying how they are computed."""
     a, b = labels
     lines = [
-        f"| {row_header} | trials | robot-trials | {a} SR | {b} SR | SR {a} - {b} (points) | SPL difference | "
-        "CR difference |",
+        f"| {row_header} | trials | robot-trials | {a} SR | {b} SR | SR {a} - {b} (points) | SPL difference "
+        "| CR difference |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
@@ -364,7 +368,7 @@ def paired_markdown(
     lines += [
         "",
         f"Paired on the same robot-trials; {pooled}{100 * confidence:g} % percentile-bootstrap intervals "
-        f"resampling {resampled} (n/a with fewer than {min_trials_for_interval(confidence)} {units}); * : the "
-        "interval excludes zero.",
+        f"resampling {resampled} (n/a with fewer than {min_trials_for_interval(confidence)} {units}); * : "
+        "the interval excludes zero.",
     ]
     return "\n".join(lines) + "\n"

@@ -26,9 +26,9 @@ def plot_setup_bars(
     with its confidence interval as an error bar and its value written above.
 
     The legend sits above the panels, outside them, so it never covers a bar or a value; the figure is
-    about 0.45 inch per bar wide so the values stay legible. A bar without an interval (NaN: too few trials, or mazes,
-    :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`) has no error bar, and a line under the
-    panels says so.
+    about 0.45 inch per bar wide so the values stay legible. A bar without an interval (NaN: too few trials,
+    or mazes, :func:`~navformer_rl.evaluation.measures.min_trials_for_interval`) has no error bar, and a line
+    under the panels says so.
 
     Args:
         summaries: per-(method, setup) summaries (the pooled ``"all"`` rows are skipped).

@@ -40,8 +40,9 @@ class PolicySpec:
 
     Attributes:
         method: one of :data:`METHODS`.
-        checkpoint: run dir / checkpoint folder / ``model.safetensors`` / ``pretrained:NAME`` (shipped weights)
-            for ``navformer`` and ``dt``; a PPO run dir / checkpoint folder for ``dsac`` and ``matdn``.
+        checkpoint: run dir / checkpoint folder / ``model.safetensors`` / ``pretrained:NAME`` (shipped
+            weights) for ``navformer`` and ``dt``; a PPO run dir / checkpoint folder for ``dsac`` and
+            ``matdn``.
         seed: base seed of stochastic policies (VRW, FCA's noise); each episode adds its own seed.
         device: where ``navformer`` / ``dt`` run their model (``cpu``, ``cuda``, ``cuda:N``, ``auto``); the
             other methods ignore it (``dsac`` / ``matdn`` run their small networks on the CPU).
@@ -84,7 +85,10 @@ class PolicySpec:
                 )
             # your own policy: nothing to check a label against
             return {
-                "factory": f"{getattr(self.factory, '__module__', '?')}.{getattr(self.factory, '__qualname__', self.factory)}"
+                "factory": (
+                    f"{getattr(self.factory, '__module__', '?')}."
+                    f"{getattr(self.factory, '__qualname__', self.factory)}"
+                )
             }
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
@@ -100,7 +104,8 @@ class PolicySpec:
             if self.checkpoint is None:
                 raise ValueError(
                     f"method {self.method!r} needs a checkpoint: a run directory, a checkpoint folder or "
-                    f"shipped weights pretrained:{self.method} (CLI --checkpoint PATH, recipe checkpoint=PATH)"
+                    f"shipped weights pretrained:{self.method} (CLI --checkpoint PATH, "
+                    "recipe checkpoint=PATH)"
                 )
             from navformer_rl.training.checkpoint import WEIGHTS_FILENAME, resolve_checkpoint
 
@@ -150,7 +155,8 @@ class PolicySpec:
     def _load_checkpoint(self):
         """``(NavFormerPolicy on the CPU, NavFormerConfig)`` of ``navformer`` / ``dt`` with this spec's
         ``native`` and ``context_steps`` (ValueError naming a context longer than the model's); without
-        ``context_steps``, the window the checkpoint was trained on (``data.context_steps``) or the whole context."""
+        ``context_steps``, the window the checkpoint was trained on (``data.context_steps``) or the whole
+        context."""
         from navformer_rl.baselines.dt import load_dt_policy
         from navformer_rl.baselines.navformer import load_navformer_policy
         from navformer_rl.modules.decoding.incremental import check_window_steps

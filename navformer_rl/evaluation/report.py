@@ -11,8 +11,8 @@ aggregates from the per-robot-trial rows, and writes:
 - links to each method's top-down maps and videos, and the episode-set hash each method ran on;
 - a warning for an evaluation whose label names a training ablation (``navformer-no_thsc``) that its
   checkpoint was not trained with (``evaluate`` refuses such labels; a folder may still hold one it did
-  not check): its rows are compared with the paper's row of the checkpoint's actual ablation when ``run.json`` or the
-  checkpoint tells it, and with no paper row otherwise.
+  not check): its rows are compared with the paper's row of the checkpoint's actual ablation when ``run.json``
+  or the checkpoint tells it, and with no paper row otherwise.
 
 Every table and the plot list the setups in one order
 (:func:`~navformer_rl.evaluation.tables.ordered_setups`).
@@ -293,7 +293,8 @@ def _unpaired_warning(runs: Sequence[tuple[Path, dict[str, Any]]]) -> str | None
 
 
 _UNITS = {"trial": "trials", "world": "mazes"}
-"""What each :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS` value resamples, as the report names it."""
+"""What each :data:`~navformer_rl.evaluation.measures.CLUSTER_LEVELS` value resamples,
+as the report names it."""
 
 
 def _interval_settings(

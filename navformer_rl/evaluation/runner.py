@@ -216,7 +216,8 @@ def robot_trials(
 
 
 def make_eval_env(robots: tuple[str, ...], max_steps: int):
-    """A ``MultiRobotNavEnv`` for the robot styles ``robots`` (one per robot) and trial length ``max_steps``."""
+    """A ``MultiRobotNavEnv`` for the robot styles ``robots``
+    (one per robot) and trial length ``max_steps``."""
     from navformer_rl.envs.multi_robot import MultiRobotNavEnv
 
     return MultiRobotNavEnv(robots=list(robots), max_steps=max_steps)

@@ -102,7 +102,8 @@ def _policy_identity(run: Mapping[str, Any]) -> tuple[str, str]:
 
 
 def _as_seed(records: Sequence[RobotTrial], index: int) -> list[RobotTrial]:
-    """``records`` with episode ids prefixed by the seed's index, so that pooling keeps seeds' trials apart."""
+    """``records`` with episode ids prefixed by the seed's index,
+    so that pooling keeps seeds' trials apart."""
     return [dataclasses.replace(r, episode_id=f"seed{index}/{r.episode_id}") for r in records]
 
 
@@ -189,14 +190,16 @@ def seed_table_markdown(summaries: Sequence[SeedGroupSummary]) -> str:
     """A markdown table: one row per group with its seeds' SR, mean ± std of SR / SPL / CR over seeds, and
     the pooled SR / CR with their intervals."""
     lines = [
-        "| Group | Seeds | SR per seed | SR mean ± std | SPL mean ± std | CR mean ± std | pooled SR | pooled CR |",
+        "| Group | Seeds | SR per seed | SR mean ± std | SPL mean ± std | "
+        "CR mean ± std | pooled SR | pooled CR |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         per_seed = ", ".join(f"{100 * r.metrics.sr:.1f}%" for r in s.runs)
         lines.append(
             f"| {s.name} | {len(s.runs)} | {per_seed} | {_mean_std(s.mean['sr'], s.std['sr'], True)} | "
-            f"{_mean_std(s.mean['spl'], s.std['spl'], False)} | {_mean_std(s.mean['cr'], s.std['cr'], False)} | "
-            f"{format_sr(s.pooled.sr, s.pooled.sr_ci)} | {format_ratio(s.pooled.cr, s.pooled.cr_ci)} |"
+            f"{_mean_std(s.mean['spl'], s.std['spl'], False)} | "
+            f"{_mean_std(s.mean['cr'], s.std['cr'], False)} | {format_sr(s.pooled.sr, s.pooled.sr_ci)} | "
+            f"{format_ratio(s.pooled.cr, s.pooled.cr_ci)} |"
         )
     return "\n".join(lines) + "\n"

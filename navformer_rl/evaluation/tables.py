@@ -120,7 +120,8 @@ def interval_method(cluster: str = "trial", confidence: float = 0.95) -> str:
         f"is equal or a row has fewer than {fewest} {units} the number of {units} is the sample size; "
         f"bootstrap over {units} for SPL and CR, n/a with fewer {units} than that"
         + (
-            "; the intervals describe these mazes (`--cluster-by world` widens them to the variation between mazes)"
+            "; the intervals describe these mazes "
+            "(`--cluster-by world` widens them to the variation between mazes)"
             if cluster == "trial"
             else ""
         )
@@ -199,7 +200,8 @@ def format_ratio(value: float, ci: tuple[float, float] | None = None) -> str:
 
 
 def _env_size(setup: str, size: float | None) -> str:
-    """The "Env size (m)" cell: a maze's side twice, a Table II world's footprint, ``all`` for the pooled row."""
+    """The "Env size (m)" cell: a maze's side twice, a Table II world's footprint,
+    ``all`` for the pooled row."""
     if size is None:
         return "all"
     footprint = FURNISHED_FOOTPRINTS.get(setup)

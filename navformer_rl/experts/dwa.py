@@ -3,16 +3,23 @@
 Each control step samples ``(v, w)`` in the dynamic window (velocity limits intersected with what the
 acceleration limits reach in one control period), rolls each sample out as a constant-velocity arc,
 rejects samples that come closer to an obstacle than the safety distance within their check horizon
-(``predict_time``, stretched to cover the braking distance at ``a_max`` and, for slow samples, a minimum
-path length), and picks the lowest cost over ``predict_time``:
+(``predict_time``, stretched to cover one period at the sample plus the braking distance at ``a_max`` and,
+for slow samples, a minimum path length), and picks the lowest cost over ``predict_time``:
 
     cost = k_goal * |end - goal| + k_heading * |bearing(goal) - yaw_end| / pi
            + k_speed * (v_max - v) / v_max + k_clear * (c_cap - min(clearance, c_cap)) / c_cap
 
-Obstacles come from a bool occupied grid (clearance = Euclidean distance transform, in metres). When no
-sample faster than ``forward_speed`` (which follows ``a_max * dt`` and ``v_max``) is admissible the
-planner enters *recovery*: it turns in place toward the goal, or backs off slowly when backing increases
-clearance.
+Obstacles come from a bool occupied grid (clearance = Euclidean distance transform, in metres, measured at
+least up to the safety distance: :attr:`DWAConfig.clearance_range`). When no sample faster than
+``forward_speed`` (which follows ``a_max * dt`` and ``v_max``) is admissible the planner enters *recovery*:
+it backs off slowly when backing increases clearance, else brakes and turns in place toward the goal.
+
+Why the clearance holds for any limits: a chosen sample's arc is clear for one period plus its braking
+distance, so after that period braking along the same arc stays clear (the window always holds the braking
+speed ``v - a_max * dt``). A robot with :attr:`DWAConfig.slow_dynamics` (more than one period to reach the
+back-off speed; not the Jackal nor the TurtleBot, whose plans are unchanged) also aims at the nearest free
+heading when the way toward the goal is blocked within its stopping distance, and recovers along checked
+paths (:meth:`DWAPlanner.recover_slowly`).
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ class DWAConfig:
     """Control period (one env step)."""
     predict_time: float = 1.6
     rollout_dt: float = 0.2
+    """Longest step (s) of the rollouts; never longer than ``dt`` (:attr:`rollout_step`)."""
     n_v: int = 7
     n_w: int = 15
     robot_radius: float = 0.30
@@ -58,14 +66,62 @@ class DWAConfig:
 
     @property
     def check_distance(self) -> float:
-        """Shortest path (m) a forward sample is checked along: what ``creep_speed`` covers in ``predict_time``."""
+        """Shortest path (m) a forward sample is checked along: what ``creep_speed`` covers in
+        ``predict_time``."""
         return self.creep_speed * self.predict_time
 
     @property
     def safety_horizon(self) -> float:
-        """Seconds a sample is checked for at least: ``predict_time``, longer when the braking distance
-        ``v**2 / (2 a_max)`` exceeds what ``v <= v_max`` covers in ``predict_time``."""
-        return max(self.predict_time, self.v_max / (2.0 * self.a_max))
+        """Seconds a sample is checked for at least: ``predict_time``, longer when one period at the sample
+        plus its braking distance ``v**2 / (2 a_max)`` exceeds what ``v <= v_max`` covers in ``predict_time``
+        (the Jackal and the TurtleBot stop well within ``predict_time``)."""
+        return max(self.predict_time, self.dt + self.v_max / (2.0 * self.a_max))
+
+    @property
+    def rollout_step(self) -> float:
+        """Step (s) of the rollouts: ``rollout_dt``, or ``dt`` when shorter, so that a rollout's first pose is
+        where one period of the command takes the robot."""
+        return min(self.rollout_dt, self.dt)
+
+    @property
+    def slow_dynamics(self) -> bool:
+        """Whether the robot needs more than one period to reach ``backoff_speed`` (``a_max * dt <
+        backoff_speed``; the Jackal and the TurtleBot reach it within one). Such a robot looks
+        :attr:`lookahead` metres ahead for the way toward the goal and recovers along checked paths
+        (:meth:`DWAPlanner.recover_slowly`)."""
+        return self.a_max * self.dt < self.backoff_speed
+
+    @property
+    def lookahead(self) -> float:
+        """With :attr:`slow_dynamics`: how far (m) ahead the way toward the goal must be free for the heading
+        cost to aim at the goal, the safety distance plus the braking distance from ``v_max`` (a slow robot
+        cannot swerve late); 0 otherwise."""
+        return self.safe_distance + self.v_max**2 / (2.0 * self.a_max) if self.slow_dynamics else 0.0
+
+    @property
+    def backoff_periods(self) -> int:
+        """Periods a back-off is checked for: two for each period the robot takes to reach ``backoff_speed``,
+        so that a slowly accelerating robot's back-off is checked along enough path to show a gain."""
+        return 2 * max(1, math.ceil(self.backoff_speed / (self.a_max * self.dt) - 1e-9))
+
+    @property
+    def safe_distance(self) -> float:
+        """Closest (m) a checked sample may come to an obstacle: ``robot_radius + safety_margin``."""
+        return self.robot_radius + self.safety_margin
+
+    @property
+    def clearance_range(self) -> float:
+        """Cap (m) of the :class:`ClearanceMap` the planner reads: ``clearance_cap``, raised to the safety
+        distance for a robot whose radius and margin exceed it (a capped map could not tell a safe sample from
+        one inside the safety distance)."""
+        return max(self.clearance_cap, self.safe_distance)
+
+    @property
+    def map_half_size(self) -> float:
+        """Half side (m) of the :class:`ClearanceMap` window around the robot: every checked rollout
+        (:attr:`reach`) or look-ahead (:attr:`lookahead`) and the obstacles within :attr:`clearance_range` of
+        it, plus the robot's radius."""
+        return max(self.reach, self.lookahead) + self.clearance_range + self.robot_radius
 
     def check_horizon(self, v: np.ndarray) -> np.ndarray:
         """Seconds (float64 ``[N]``) each sample speed ``v`` ``[N]`` is checked for obstacles: the
@@ -74,7 +130,8 @@ class DWAConfig:
 
     @property
     def reach(self) -> float:
-        """Farthest (m) a checked rollout ends from the robot (size a :class:`ClearanceMap` window with it)."""
+        """Farthest (m) a checked rollout ends from the robot
+        (size a :class:`ClearanceMap` window with it)."""
         return max(self.v_max * self.safety_horizon, self.check_distance)
 
 
@@ -183,18 +240,24 @@ class DWAPlanner:
     ) -> DWAResult:
         """One DWA decision for ``pose = (x, y, yaw)``, ``velocity = (v, w)``, ``goal = (x, y)``."""
         c = self.config
+        if clearance.cap < c.safe_distance:
+            raise ValueError(
+                f"ClearanceMap cap={clearance.cap}: expected at least the safety distance "
+                f"{c.safe_distance} (robot_radius + safety_margin); build it with config.clearance_range"
+            )
         pose = np.asarray(pose, dtype=np.float64)
         vs, ws = self.window(velocity)
         v_grid, w_grid = np.meshgrid(vs, ws, indexing="ij")
         v, w = v_grid.ravel(), w_grid.ravel()
         horizon = c.check_horizon(v)  # [N]
-        n_steps = max(1, math.ceil(float(horizon.max()) / c.rollout_dt - 1e-9))
-        traj = rollout(pose, v, w, n_steps * c.rollout_dt, c.rollout_dt)  # [N, S, 3]
-        t = c.rollout_dt * np.arange(1, n_steps + 1)  # [S]
+        step = c.rollout_step
+        n_steps = max(1, math.ceil(float(horizon.max()) / step - 1e-9))
+        traj = rollout(pose, v, w, n_steps * step, step)  # [N, S, 3]
+        t = step * np.arange(1, n_steps + 1)  # [S]
         along = clearance(traj[..., :2])  # [N, S]
-        n_predict = max(1, round(c.predict_time / c.rollout_dt))
+        n_predict = max(1, round(c.predict_time / step))
         here = float(clearance(pose[None, :2])[0])
-        safe = c.robot_radius + c.safety_margin
+        safe = c.safe_distance
         # Already inside the safety distance: accept only samples that do not get closer.
         checked = t[None, :] <= horizon[:, None] + 1e-9  # [N, S]
         admissible = np.where(checked, along, np.inf).min(axis=1) >= min(safe, here - 1e-3)
@@ -204,7 +267,14 @@ class DWAPlanner:
             end = traj[:, n_predict - 1, :]
             to_goal = goal[None, :] - end[:, :2]
             dist = np.hypot(to_goal[:, 0], to_goal[:, 1])
-            heading = np.abs(wrap_angle(np.arctan2(to_goal[:, 1], to_goal[:, 0]) - end[:, 2])) / np.pi
+            aim = np.arctan2(to_goal[:, 1], to_goal[:, 0])
+            if c.slow_dynamics:  # aim at the nearest free heading when the way toward the goal is blocked
+                bearing = math.atan2(goal[1] - pose[1], goal[0] - pose[0])
+                length = min(float(np.hypot(goal[0] - pose[0], goal[1] - pose[1])), c.lookahead)
+                free = self.free_heading(pose, bearing, clearance, safe, length)
+                if free != bearing:
+                    aim = np.full_like(aim, free)
+            heading = np.abs(wrap_angle(aim - end[:, 2])) / np.pi
             heading = np.where(dist < 0.2, 0.0, heading)
             cost = (
                 c.k_goal * dist
@@ -220,13 +290,18 @@ class DWAPlanner:
     def recover(
         self, pose: np.ndarray, velocity: np.ndarray, goal: np.ndarray, clearance: ClearanceMap, here: float
     ) -> DWAResult:
-        """No admissible forward motion: back off if that gains clearance, else turn toward the goal."""
+        """No admissible forward motion. A robot that reaches ``backoff_speed`` within one period (the Jackal,
+        the TurtleBot) backs off if two periods of it gain clearance, else
+        brakes at ``a_max`` while turning toward the goal. A slower one (:meth:`recover_slowly`) checks its
+        braking and its back-off along the paths they take."""
         c = self.config
+        if c.slow_dynamics:
+            return self.recover_slowly(pose, velocity, goal, clearance, here)
         v0, w0 = float(velocity[0]), float(velocity[1])
         dv, dw = c.a_max * c.dt, c.alpha_max * c.dt
         v_back = float(np.clip(-c.backoff_speed, v0 - dv, v0 + dv))
-        if v_back < 0.0 and here < c.robot_radius + c.safety_margin:
-            back = rollout(pose, np.array([v_back]), np.array([0.0]), 2 * c.dt, c.rollout_dt)[0]
+        if v_back < 0.0 and here < c.safe_distance:
+            back = rollout(pose, np.array([v_back]), np.array([0.0]), 2 * c.dt, c.rollout_step)[0]
             gained = clearance(back[:, :2])
             if gained.min() >= here - 1e-6 and gained[-1] > here + 1e-3:
                 return DWAResult(v_back, 0.0, True)
@@ -235,3 +310,70 @@ class DWAPlanner:
         v = float(np.clip(0.0, v0 - dv, v0 + dv))
         w = float(np.clip(direction * c.w_max, w0 - dw, w0 + dw))
         return DWAResult(v, w, True)
+
+    def recover_slowly(
+        self, pose: np.ndarray, velocity: np.ndarray, goal: np.ndarray, clearance: ClearanceMap, here: float
+    ) -> DWAResult:
+        """Recovery of a robot that needs several periods to reach ``backoff_speed`` (and to brake).
+
+        - Moving forward: brake at ``a_max`` turning toward the goal when that path (one period, then braking
+          on the same arc) keeps the clearance, else brake along the arc last checked (whose braking path the
+          admissibility test found clear).
+        - Inside the safety distance and not moving forward: back off, turning toward straight, when the
+          back-off path of :attr:`DWAConfig.backoff_periods` periods gains clearance.
+        - Else turn in place toward the goal or, when a straight move toward it would lose clearance, toward
+          the nearest heading along which it would not (:meth:`free_heading`): the robot stops turning there
+          instead of swinging about a blocked bearing.
+        """
+        c = self.config
+        v0, w0 = float(velocity[0]), float(velocity[1])
+        dv, dw = c.a_max * c.dt, c.alpha_max * c.dt
+        floor = min(c.safe_distance, here) - 1e-3
+        v_back = float(np.clip(-c.backoff_speed, v0 - dv, v0 + dv))
+        w_straight = float(np.clip(0.0, w0 - dw, w0 + dw))
+        if v0 <= 0.0 and v_back < 0.0 and here < c.safe_distance:
+            horizon = c.backoff_periods * c.dt
+            back = rollout(pose, np.array([v_back]), np.array([w_straight]), horizon, c.rollout_step)[0]
+            gained = clearance(back[:, :2])
+            if gained.min() >= here - 1e-6 and gained[-1] > here + 1e-3:
+                return DWAResult(v_back, w_straight, True)
+        bearing = math.atan2(goal[1] - pose[1], goal[0] - pose[0])
+        v = float(np.clip(0.0, v0 - dv, v0 + dv))
+        if v0 <= 0.0:
+            bearing = self.free_heading(pose, bearing, clearance, floor)
+        direction = 1.0 if wrap_angle(bearing - pose[2]) >= 0 else -1.0
+        w = float(np.clip(direction * c.w_max, w0 - dw, w0 + dw))
+        if v > 0.0 and self.braking_clearance(pose, v, w, clearance) < floor:
+            w = float(np.clip(w0 * v / v0, w0 - dw, w0 + dw))  # brake along the arc last checked
+        return DWAResult(v, w, True)
+
+    def braking_clearance(self, pose: np.ndarray, v: float, w: float, clearance: ClearanceMap) -> float:
+        """Least clearance (m) along the path of ``(v, w)`` for one period then braking at ``a_max`` on the
+        same arc (``v > 0``)."""
+        c = self.config
+        horizon = c.dt + v / (2.0 * c.a_max)  # the arc's length over v
+        n_steps = max(1, math.ceil(horizon / c.rollout_step - 1e-9))
+        path = rollout(pose, np.array([v]), np.array([w]), n_steps * c.rollout_step, c.rollout_step)[0]
+        return float(clearance(path[:, :2]).min())
+
+    def free_heading(
+        self,
+        pose: np.ndarray,
+        bearing: float,
+        clearance: ClearanceMap,
+        floor: float,
+        length: float | None = None,
+    ) -> float:
+        """``bearing`` when a straight move of ``length`` (default ``check_distance``) along it keeps the
+        clearance at least ``floor``; else the nearest heading that does (5 degree steps, either side);
+        ``bearing`` when none does."""
+        c = self.config
+        offsets = np.radians(np.arange(5.0, 181.0, 5.0))
+        headings = bearing + np.concatenate([[0.0], np.stack([offsets, -offsets], axis=1).ravel()])
+        length = c.check_distance if length is None else max(length, clearance.resolution)
+        steps = max(1, math.ceil(length / (0.5 * clearance.resolution)))
+        along = np.linspace(0.0, length, steps + 1)[1:]
+        unit = np.stack([np.cos(headings), np.sin(headings)], axis=-1)
+        points = pose[None, None, :2] + along[None, :, None] * unit[:, None, :]  # [H, S, 2]
+        free = clearance(points).min(axis=1) >= floor
+        return float(headings[int(np.argmax(free))]) if free.any() else bearing

@@ -119,8 +119,9 @@ class LogOddsGrid:
         """Integrate one scan taken at ``pose = (x, y, yaw)``.
 
         ``ranges``/``angles``: float ``[N]``, angles relative to the heading. Cells sampled along each ray
-        (every ``0.75`` cell) before the hit become more free; the cell just behind a hit (``range < max_range``)
-        becomes more occupied. Each cell is updated at most once per scan; occupied wins over free.
+        (every ``0.75`` cell) before the hit become more free; the cell just behind a hit
+        (``range < max_range``) becomes more occupied. Each cell is updated at most once per scan; occupied
+        wins over free.
         """
         ranges = np.asarray(ranges, dtype=np.float64)
         angles = np.asarray(angles, dtype=np.float64)
@@ -163,6 +164,7 @@ class LogOddsGrid:
         return self.logodds < self.free_below
 
     def traversable(self, robot_radius: float) -> np.ndarray:
-        """bool ``[H, W]``: free cells farther than ``robot_radius`` (+ half a cell) from any occupied cell."""
+        """bool ``[H, W]``: free cells farther than ``robot_radius``
+        (+ half a cell) from any occupied cell."""
         blocked = inflate(self.occupied(), robot_radius + 0.5 * self.resolution, self.resolution)
         return self.free() & ~blocked

@@ -82,8 +82,8 @@ class NavigatorConfig:
         radii = (full, *self.fallback_inflation)
         if any(not (0 <= b < a) for a, b in zip(radii, radii[1:])):
             raise ValueError(
-                f"fallback_inflation={self.fallback_inflation!r}: expected decreasing radii >= 0 m, each below "
-                f"the full inflation {full:.3f} m (robot_radius + inflation_margin + resolution / 2)"
+                f"fallback_inflation={self.fallback_inflation!r}: expected decreasing radii >= 0 m, each "
+                f"below the full inflation {full:.3f} m (robot_radius + inflation_margin + resolution / 2)"
             )
 
 
@@ -139,7 +139,8 @@ class FrontierNavigator:
     def observe(
         self, pose: np.ndarray, ranges: np.ndarray, lidar: LidarConfig, keep: np.ndarray | None = None
     ) -> None:
-        """Integrate one scan (float ``[n_rays]``) taken at ``pose``; ``keep`` (bool ``[n_rays]``) drops rays."""
+        """Integrate one scan (float ``[n_rays]``) taken at ``pose``; ``keep``
+        (bool ``[n_rays]``) drops rays."""
         angles = lidar.angles
         if keep is not None:
             ranges, angles = ranges[keep], angles[keep]
@@ -285,7 +286,8 @@ class FrontierNavigator:
         self._set_path(pose, path, goal)
 
     def _approach_goal(self, passable: np.ndarray, start: tuple[int, int]) -> tuple[int, int] | None:
-        """The passable cell within ``target_approach`` of the target nearest to ``start`` by path, or None."""
+        """The passable cell within ``target_approach`` of the target nearest to ``start`` by path,
+        or None."""
         c = self.config
         grid = np.stack(np.mgrid[0 : passable.shape[0], 0 : passable.shape[1]], -1)
         near = ((self.map.cell_to_world(grid) - self.target) ** 2).sum(-1) <= c.target_approach**2
@@ -297,7 +299,8 @@ class FrontierNavigator:
         return divmod(k, dist.shape[1]) if np.isfinite(dist.flat[k]) else None
 
     def _explored_around(self, cell: tuple[int, int]) -> bool:
-        """Whether ``cell`` and its 4-neighbours are all explored (the goal no longer borders unexplored space)."""
+        """Whether ``cell`` and its 4-neighbours are all explored
+        (the goal no longer borders unexplored space)."""
         r, c = cell
         h, w = self.map.shape
         r0, r1, c0, c1 = max(0, r - 1), min(h, r + 2), max(0, c - 1), min(w, c + 2)
@@ -340,7 +343,8 @@ class FrontierNavigator:
             self.last_progress_step = self.step_count
 
     def _path_blocked(self, pose: np.ndarray, horizon: float = 3.0) -> bool:
-        """Whether an occupied cell now lies within the robot radius of the next ``horizon`` metres of path."""
+        """Whether an occupied cell now lies within the robot radius of the next ``horizon`` metres of
+        path."""
         if len(self.path) == 0:
             return False
         c = self.config

@@ -6,7 +6,8 @@ the extra hard constraint that ``u`` lies in the allowed-holonomic-velocity poly
 tracked by the unicycle within ``E``), then tracks it with ``(v, w)``:
 
     theta = wrap(angle(u) - yaw),  w = clip(theta / T, +-w_max),
-    v = v*(u, theta) = |u| theta sin(theta) / (2 (1 - cos theta))   (v* = |u| as theta -> 0), clipped to v_max.
+    v = v*(u, theta) = |u| theta sin(theta) / (2 (1 - cos theta))   (v* = |u| as theta -> 0),
+    clipped to v_max.
 """
 
 from __future__ import annotations
@@ -288,8 +289,8 @@ class NHORCA:
         return commands
 
     def _deadlock_preference(self, i: int, pref: np.ndarray, c: NHORCAConfig) -> np.ndarray:
-        """Robot ``i``'s preferred velocity float64 ``[2]``, rotated by the right-hand rule while it is blocked:
-        clockwise first; a robot still blocked after 12 steps alternates sides every 12 steps."""
+        """Robot ``i``'s preferred velocity float64 ``[2]``, rotated by the right-hand rule while it is
+        blocked: clockwise first; a robot still blocked after 12 steps alternates sides every 12 steps."""
         if self.blocked_steps[i] <= 0:
             return pref
         k = int(self.blocked_steps[i]) - 1

@@ -75,7 +75,8 @@ class _ExpertBase:
         self.failed = np.zeros(0, dtype=bool)
 
     def reset(self, world, sim, rng: np.random.Generator) -> None:
-        """Start an episode in ``world`` driven through ``sim`` (robot ``i`` looks for ``world.targets[i]``)."""
+        """Start an episode in ``world`` driven through ``sim`` (robot ``i`` looks for
+        ``world.targets[i]``)."""
         if not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         if sim.n_robots != world.n_robots:
@@ -121,7 +122,8 @@ class ExplorationExpert(_ExpertBase):
         self.dwas: list[DWAPlanner] = []
 
     def reset(self, world, sim, rng: np.random.Generator) -> None:
-        """Start an episode: one navigator (map radius, camera) and one DWA planner per robot, from its spec."""
+        """Start an episode: one navigator (map radius, camera) and one DWA planner per robot,
+        from its spec."""
         super().reset(world, sim, rng)
         self.navigators = [
             FrontierNavigator(
@@ -178,8 +180,8 @@ class ExplorationExpert(_ExpertBase):
             nav.map.resolution,
             tuple(nav.map.origin),
             pose[:2],
-            cfg.reach + cfg.clearance_cap + cfg.robot_radius,
-            cfg.clearance_cap,
+            cfg.map_half_size,
+            cfg.clearance_range,
         )
         res = self.dwas[i].plan(pose, vel, carrot, clearance)
         return np.array([res.v, res.w])

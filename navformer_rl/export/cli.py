@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from navformer_rl.cli import args as cli_args
 from navformer_rl.export.minari import DATASETS_PATH_ENV, DEFAULT_CHUNK_STEPS, INSTALL_HINT
+from navformer_rl.utils import cli_args
 
 _EPILOG = f"""\
 examples:

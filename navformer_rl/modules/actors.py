@@ -27,8 +27,8 @@ from tensordict.utils import NestedKey
 
 from navformer_rl.modules.inputs import check_trajectory_steps, check_unmasked_padding, require_keys
 from navformer_rl.modules.models.dve import DualVisualEncoder
+from navformer_rl.modules.models.heads import ActionHead, BinnedActionHead
 from navformer_rl.modules.models.navformer import NavFormerModel
-from navformer_rl.modules.models.thsc import ActionHead, BinnedActionHead
 from navformer_rl.modules.models.transformer import HIDDEN_NAMES, CausalTransformer
 from navformer_rl.utils.length_groups import length_sorted_groups
 
@@ -39,7 +39,8 @@ ACTION_LOGITS_KEY = "action_logits"
 """What a ``BinnedActionHead`` writes beside ``action_pred``: float32 logits ``[N, T, A, K]``
 (``ActionBinLoss`` reads them)."""
 EMBED_KEY = "embed"
-"""Parent key of the DVE's outputs: ``("embed", "static")``, ``("embed", "general")``, ``("embed", "target")``."""
+"""Parent key of the DVE's outputs: ``("embed", "static")``, ``("embed", "general")``,
+``("embed", "target")``."""
 HIDDEN_KEY = "hidden"
 """Parent key of the causal transformer's outputs: ``("hidden", name)`` for name in ``HIDDEN_NAMES``."""
 
@@ -191,7 +192,8 @@ def head_module(
 
 
 def _head_out_keys(head: ActionHead | BinnedActionHead, action_pred: NestedKey) -> list[NestedKey]:
-    """What ``head`` writes: ``[action_pred]``, and ``ACTION_LOGITS_KEY`` after it for a ``BinnedActionHead``."""
+    """What ``head`` writes: ``[action_pred]``, and ``ACTION_LOGITS_KEY`` after it for a
+    ``BinnedActionHead``."""
     return [action_pred, ACTION_LOGITS_KEY] if isinstance(head, BinnedActionHead) else [action_pred]
 
 
@@ -257,9 +259,10 @@ class NavFormerActor(TensorDictSequential):
     """The ``TensorDictSequential`` of :func:`make_navformer_actor`, which checks its inputs first.
 
     Before any part runs: every key of ``in_keys`` but the mask present (else a
-    :class:`~navformer_rl.modules.inputs.MissingKeyError` naming it and ``make_navformer_actor(in_keys=...)``),
-    the frames ``[N, T, H, W, 3]`` (a flat ``[N * T]`` replay-buffer sample is named as such), and a batch
-    without a mask whose timesteps show padding refused (``check_unmasked_padding``).
+    :class:`~navformer_rl.modules.inputs.MissingKeyError` naming it and
+    ``make_navformer_actor(in_keys=...)``), the frames ``[N, T, H, W, 3]`` (a flat ``[N * T]`` replay-buffer
+    sample is named as such), and a batch without a mask whose timesteps show padding refused
+    (``check_unmasked_padding``).
     """
 
     def __init__(self, *modules: TensorDictModuleBase, input_keys: dict[str, NestedKey]) -> None:
@@ -346,7 +349,8 @@ def make_navformer_actor(
         >>> actor(batch.exclude("return_to_go"))
         Traceback (most recent call last):
         ...
-        navformer_rl.modules.inputs.MissingKeyError: the NavFormer actor reads 'return_to_go' (float R-hat [N, T, 1]), ...
+        navformer_rl.modules.inputs.MissingKeyError: the NavFormer actor reads 'return_to_go'
+            (float R-hat [N, T, 1]), ...
     """
     target_pixels, pixels, return_to_go, action, step, mask = _checked(
         in_keys, list(NAVFORMER_IN_KEYS), "in_keys"

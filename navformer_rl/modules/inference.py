@@ -78,10 +78,11 @@ class NavFormerPolicy(TensorDictModuleBase):
 
     Context: the target token, then per step R-hat, e^s, e^ca, a; each call adds one timestep through the
     KV cache (``IncrementalNavFormer``). Past ``context_steps`` timesteps (None, the default: the model's
-    whole context, ``config.context_tokens`` = 1024 tokens = 256 steps, 341 for DT) the oldest whole timestep leaves the
-    window and the target token stays (streaming window, see ``docs/model.md``). A shorter ``context_steps``
-    is an inference-time option, not the paper's (``docs/deviations.md``). Without ``step_count`` in the input, state is cleared by ``reset()``, when the
-    number of robots changes, or never otherwise.
+    whole context, ``config.context_tokens`` = 1024 tokens = 256 steps, 341 for DT) the oldest whole timestep
+    leaves the window and the target token stays (streaming window, see ``docs/model.md``). A shorter
+    ``context_steps`` is an inference-time option, not the paper's (``docs/deviations.md``). Without
+    ``step_count`` in the input, state is cleared by ``reset()``, when the number of robots changes, or never
+    otherwise.
 
     In ``env.rollout``: TorchRL's ``step_mdp`` drops rewards from the next input, so R-hat stays at its
     initial value there unless the env (or a transform) exposes the reward as an observation. With the
@@ -169,9 +170,9 @@ class NavFormerPolicy(TensorDictModuleBase):
             read = [name for name in POLICY_IN_KEYS if self._keys[name] is not None]
             if not 2 <= len(keys) <= len(read):
                 raise ValueError(
-                    f"NavFormerPolicy.in_keys={keys!r}: expected 2 to {len(read)} keys, taken in order for what "
-                    f"it reads, {read} (those past the list's end are then not read); set_keys(name=key) "
-                    "names them one by one"
+                    f"NavFormerPolicy.in_keys={keys!r}: expected 2 to {len(read)} keys, taken in order for "
+                    f"what it reads, {read} (those past the list's end are then not read); "
+                    "set_keys(name=key) names them one by one"
                 )
             named = dict.fromkeys(read[len(keys) :]) | dict(zip(read, keys))
         self.set_keys(**named)
@@ -229,20 +230,6 @@ class NavFormerPolicy(TensorDictModuleBase):
     def action_key(self) -> NestedKey:
         return self._keys["action"]
 
-    @classmethod
-    def from_pretrained(cls, name: str, **policy_options) -> NavFormerPolicy:
-        """The policy of the shipped weights ``name`` (``"navformer"``, ``"dt"``, ... or ``"pretrained:NAME"``;
-        ``navformer pretrained list``), on the CPU in eval mode; ``policy_options`` go to the constructor (e.g.
-        ``native=False``); without ``context_steps`` it attends to the window the weights were trained on
-        (``data.context_steps``), else to its whole context. Errors are one line: an unknown name lists the
-        shipped ones, a missing or corrupt file is named (docs/pretrained.md)."""
-        from navformer_rl.pretrained import load_pretrained, resolve_pretrained
-        from navformer_rl.training.checkpoint import training_context_steps
-
-        model, _ = load_pretrained(name)
-        policy_options.setdefault("context_steps", training_context_steps(resolve_pretrained(name)))
-        return cls(model, **policy_options)
-
     @property
     def device(self) -> torch.device:
         return next(self.model.parameters()).device
@@ -283,14 +270,14 @@ class NavFormerPolicy(TensorDictModuleBase):
         if value is None:
             keys = sorted(map(str, tensordict.keys(True, True)))
             raise MissingKeyError(
-                f"NavFormerPolicy reads {key!r} ({name}: uint8 [..., {side}, {side}, 3]), missing from the input "
-                f"tensordict with keys {keys}; point it at your key with policy.set_keys({name}=...) (e.g. "
-                "set_keys(**SINGLE_ROBOT_POLICY_KEYS) for the single-robot env)"
+                f"NavFormerPolicy reads {key!r} ({name}: uint8 [..., {side}, {side}, 3]), missing from the "
+                f"input tensordict with keys {keys}; point it at your key with policy.set_keys({name}=...) "
+                "(e.g. set_keys(**SINGLE_ROBOT_POLICY_KEYS) for the single-robot env)"
             )
         if value.dtype != torch.uint8:
             raise ValueError(
-                f"NavFormerPolicy: {key!r} must be uint8 HWC images [..., {side}, {side}, 3], got {value.dtype} "
-                f"{list(value.shape)}; for TorchRL's float CHW images (ToTensorImage) append "
+                f"NavFormerPolicy: {key!r} must be uint8 HWC images [..., {side}, {side}, 3], got "
+                f"{value.dtype} {list(value.shape)}; for TorchRL's float CHW images (ToTensorImage) append "
                 "navformer_rl.envs.policy_transforms.ToUint8Image to the env"
             )
         return value
@@ -302,8 +289,8 @@ class NavFormerPolicy(TensorDictModuleBase):
         side = self.model.config.image_size
         if pixels.shape[-3:] != (side, side, 3):
             raise ValueError(
-                f"{self.pixels_key!r}: expected frames [..., {side}, {side}, 3] (the model's image_size), got "
-                f"shape {tuple(pixels.shape)}"
+                f"{self.pixels_key!r}: expected frames [..., {side}, {side}, 3] (the model's image_size), "
+                f"got shape {tuple(pixels.shape)}"
             )
         target = self._input(tensordict, "target_pixels")
         if target.shape != pixels.shape:
@@ -363,7 +350,8 @@ class NavFormerPolicy(TensorDictModuleBase):
             self._weights_seen = (tensors, [t.detach().clone() for t in tensors])
 
     def _new_episode_flags(self, tensordict: TensorDictBase, robots: int, device: torch.device) -> Tensor:
-        """bool ``[robots]``: robots whose episode starts at this call (``step_count == 0`` or ``is_init``)."""
+        """bool ``[robots]``: robots whose episode starts at this call
+        (``step_count == 0`` or ``is_init``)."""
         flags = torch.zeros(robots, dtype=torch.bool, device=device)
         step_count = None if self.step_count_key is None else tensordict.get(self.step_count_key, None)
         if step_count is not None:

@@ -16,8 +16,8 @@ class ActionBinLoss(TeacherForcedActionLoss):
     Each action dimension's target is "two-hot": the expert value x in [-1, 1] splits its mass between the two
     nearest bin centres ``linspace(-1, 1, K)`` in proportion to closeness (x = -1, 1 or a centre: one bin), so
     the target keeps x's value below the bin width. ``loss_dt = sum_{n,t valid} sum_a CE(target_a, logits_a)
-    / #valid`` (the sum over action dims as eq. 10's squared norm). Opt-in (``model.action_bins``); the paper's
-    L_DT is :class:`~navformer_rl.objectives.ActionMSELoss`.
+    / #valid`` (the sum over action dims as eq. 10's squared norm). Opt-in (``model.action_bins``); the
+    paper's L_DT is :class:`~navformer_rl.objectives.ActionMSELoss`.
 
     Keys (``set_keys``): ``action_target`` (default ``"action"``, float ``[N, T, A]``), ``action_logits``
     (default ``"action_logits"``, written by the actor, float ``[N, T, A, K]``), ``mask`` (default ``"mask"``,
@@ -61,8 +61,8 @@ class ActionBinLoss(TeacherForcedActionLoss):
 
 
 def two_hot(target: torch.Tensor, bins: int) -> torch.Tensor:
-    """Actions ``[...]`` in [-1, 1] (clamped) -> probabilities ``[..., bins]`` on the two nearest of the centres
-    ``linspace(-1, 1, bins)``, weighted so their mean is the action."""
+    """Actions ``[...]`` in [-1, 1] (clamped) -> probabilities ``[..., bins]`` on the two nearest of the
+    centres ``linspace(-1, 1, bins)``, weighted so their mean is the action."""
     position = (target.float().clamp(-1.0, 1.0) + 1.0) * (bins - 1) / 2.0
     lower = position.floor().clamp(max=bins - 2)
     upper_weight = position - lower

@@ -29,7 +29,8 @@ def byol_mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
 
 
 class EncoderProjector(nn.Module):
-    """Online/target branch body of one encoder: float NCHW views ``[B, 3, H, W]`` -> projections ``[B, d_proj]``."""
+    """Online/target branch body of one encoder: float NCHW views ``[B, 3, H, W]`` -> projections
+    ``[B, d_proj]``."""
 
     def __init__(self, encoder: ImageEncoder, projector: nn.Module) -> None:
         super().__init__()
@@ -46,7 +47,8 @@ def normalized_mse(prediction: Tensor, projection: Tensor) -> Tensor:
 
 
 def byol_tau(step: int, total_steps: int, tau_base: float = 0.996) -> float:
-    """BYOL's cosine EMA schedule: ``tau_k = 1 - (1 - tau_base) (cos(pi k / K) + 1) / 2`` (tau_0 = tau_base, tau_K = 1)."""
+    """BYOL's cosine EMA schedule: ``tau_k = 1 - (1 - tau_base) (cos(pi k / K) + 1) / 2``
+    (tau_0 = tau_base, tau_K = 1)."""
     if total_steps <= 0:
         raise ValueError(f"total_steps={total_steps!r}: expected a positive int")
     k = min(max(step, 0), total_steps)

@@ -127,7 +127,8 @@ class BYOLAugmentation(nn.Module):
     def forward(
         self, pixels: Tensor, dtype: torch.dtype = torch.float32, channels_last: bool = False
     ) -> Tensor:
-        """pixels: uint8 ``[B, H, W, 3]`` -> views ``[B, 3, H, W]`` of ``dtype`` (channels_last memory if asked).
+        """pixels: uint8 ``[B, H, W, 3]`` -> views ``[B, 3, H, W]`` of ``dtype`` (channels_last memory if
+        asked).
 
         The views are computed in float32 chunk by chunk and written straight into the output's dtype and
         layout, so an encoder running in bf16 / channels_last needs no further conversion pass.

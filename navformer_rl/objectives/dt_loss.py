@@ -113,8 +113,8 @@ class TeacherForcedActionLoss(LossModule):
             prediction = self.actor_network(tensordict).get(prediction_key, None)
         if prediction is None:
             raise KeyError(
-                f"{name}: the actor did not write {prediction_key!r} ({self.prediction_key} key); its out_keys "
-                f"are {self.actor_network.out_keys}"
+                f"{name}: the actor did not write {prediction_key!r} ({self.prediction_key} key); its "
+                f"out_keys are {self.actor_network.out_keys}"
             )
         self.check_prediction(prediction, target)
         loss = self.action_loss(prediction, target, tensordict.get(keys.mask, None))
@@ -169,7 +169,8 @@ class ActionMSELoss(TeacherForcedActionLoss):
         >>> loss(batch)
         Traceback (most recent call last):
         ...
-        navformer_rl.modules.inputs.MissingKeyError: ActionMSELoss reads 'expert_action' (the expert actions [N, T, A], the action_target key), ...
+        navformer_rl.modules.inputs.MissingKeyError: ActionMSELoss reads 'expert_action' (the expert actions
+            [N, T, A], the action_target key), ...
     """
 
     @dataclass

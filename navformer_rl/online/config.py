@@ -1,6 +1,7 @@
-"""The PPO configuration: :class:`PPOConfig` and its sections (the layout of ``navformer_rl/config/ppo.yaml``),
-read from YAML + hydra-style ``key=value`` overrides (:func:`load_ppo_config`) or a nested dict
-(:func:`ppo_config_from_dict`), every key, type and range checked (ValueError naming the key).
+"""The PPO configuration: :class:`PPOConfig` and its sections (the layout of
+``navformer_rl/config/ppo.yaml``), read from YAML + hydra-style ``key=value`` overrides
+(:func:`load_ppo_config`) or a nested dict (:func:`ppo_config_from_dict`), every key, type and range checked
+(ValueError naming the key).
 
 Plain dataclasses, no hydra; ``navformer train-ppo`` and the recipe ``recipes/ppo`` both build them.
 """
@@ -21,7 +22,8 @@ from navformer_rl.constants import MAX_EPISODE_STEPS, MAX_WORLD_SIZE, MIN_WORLD_
 from navformer_rl.utils.checks import check_int, check_number, check_seed
 
 PPO_AUTOCAST_DTYPES = ("bfloat16",)
-"""``optim.autocast_dtype`` values: bfloat16 only (float16 would need loss scaling, which the update lacks)."""
+"""``optim.autocast_dtype`` values: bfloat16 only (float16 would need loss scaling,
+which the update lacks)."""
 
 
 @dataclass
@@ -232,8 +234,8 @@ def validate_ppo_config(cfg: PPOConfig) -> None:
     check_number(cfg.optim.max_grad_norm, "optim.max_grad_norm", greater_than=0.0)
     if cfg.optim.autocast_dtype is not None and cfg.optim.autocast_dtype not in PPO_AUTOCAST_DTYPES:
         raise ValueError(
-            f"optim.autocast_dtype={cfg.optim.autocast_dtype!r}: expected null or one of {PPO_AUTOCAST_DTYPES} "
-            "(float16 would need loss scaling)"
+            f"optim.autocast_dtype={cfg.optim.autocast_dtype!r}: expected null or one of "
+            f"{PPO_AUTOCAST_DTYPES} (float16 would need loss scaling)"
         )
     check_int(cfg.eval.interval, "eval.interval", minimum=0)
     check_int(cfg.eval.episodes, "eval.episodes")
@@ -278,7 +280,8 @@ def _section(cls: type, values: Any, prefix: str) -> Any:
     unknown = sorted(set(values) - known)
     if unknown:
         raise ValueError(
-            f"unknown keys {[prefix + k for k in unknown]}; {prefix.rstrip('.') or 'the config'} accepts {sorted(known)}"
+            f"unknown keys {[prefix + k for k in unknown]}; "
+            f"{prefix.rstrip('.') or 'the config'} accepts {sorted(known)}"
         )
     kwargs = {}
     for name, value in values.items():

@@ -25,7 +25,8 @@ from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.utils.checks import check_number
 
 GEODESIC_KEY = ("privileged", "geodesic_distance")
-"""float32 ``[A, 1]``: metres from each robot to its target's success disc (written by :class:`ShapedNavReward`)."""
+"""float32 ``[A, 1]``: metres from each robot to its target's success disc (written by
+:class:`ShapedNavReward`)."""
 REWARD_KEY = ("agents", "reward")
 
 
@@ -76,8 +77,9 @@ class ShapedNavReward(Transform):
         base = getattr(parent, "base_env", None)
         if not isinstance(base, MultiRobotNavEnv):
             raise ValueError(
-                "ShapedNavReward must be applied to a MultiRobotNavEnv (TransformedEnv(MultiRobotNavEnv(...), "
-                f"ShapedNavReward())), got base env {type(base).__name__}"
+                "ShapedNavReward must be applied to a MultiRobotNavEnv "
+                "(TransformedEnv(MultiRobotNavEnv(...), ShapedNavReward())), "
+                f"got base env {type(base).__name__}"
             )
         return base
 

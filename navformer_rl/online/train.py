@@ -11,11 +11,12 @@ The loop, top to bottom::
         collector.update_policy_weights_()
         log a row; every eval.interval batches the fixed episodes; every checkpoint.interval a checkpoint
 
-A run directory holds ``ppo_config.json``, ``progress.csv`` (:data:`~navformer_rl.online.curve.PROGRESS_COLUMNS`),
-``learning_curve.png`` and ``checkpoints/`` (the house layout: ``config.json`` + ``model.safetensors``, which
-``navformer evaluate --method dsac|matdn`` reads, and ``resume.pt`` with the optimiser, counters and RNG states).
-Resuming restores weights, optimiser, counters and RNG states; episodes in flight are not restored (the
-collector starts new ones, with env seeds derived from the seed and the resumed iteration).
+A run directory holds ``ppo_config.json``, ``progress.csv``
+(:data:`~navformer_rl.online.curve.PROGRESS_COLUMNS`), ``learning_curve.png`` and ``checkpoints/`` (the house
+layout: ``config.json`` + ``model.safetensors``, which ``navformer evaluate --method dsac|matdn`` reads, and
+``resume.pt`` with the optimiser, counters and RNG states). Resuming restores weights, optimiser, counters and
+RNG states; episodes in flight are not restored (the collector starts new ones, with env seeds derived from
+the seed and the resumed iteration).
 """
 
 from __future__ import annotations

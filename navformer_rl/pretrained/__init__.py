@@ -1,11 +1,11 @@
 """Shipped weights: ``pretrained:NAME`` wherever a checkpoint is accepted, and loading them by name.
 
 ``--checkpoint pretrained:navformer`` (``navformer evaluate``, ``navformer validate``, the evaluation recipe)
-resolves through :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` to the shipped folder, whose files are
-checked against the registry's sha256 first. :func:`load_pretrained` and :func:`load_pretrained_policy`
-load them in Python; :func:`~navformer_rl.pretrained.export.write_pretrained` (``navformer pretrained
-export``) ships a trained run. Layout and registry: :mod:`navformer_rl.training.pretrained_registry` (resolving a name is part of
-resolving a checkpoint).
+resolves through :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` to the shipped folder, whose
+files are checked against the registry's sha256 first. :func:`load_pretrained` and
+:func:`load_pretrained_policy` load them in Python; :func:`~navformer_rl.pretrained.export.write_pretrained`
+(``navformer pretrained export``) ships a trained run. Layout and registry:
+:mod:`navformer_rl.training.pretrained_registry` (resolving a name is part of resolving a checkpoint).
 """
 
 from __future__ import annotations

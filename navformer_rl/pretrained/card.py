@@ -94,8 +94,9 @@ def training_facts(folder: Path, header: dict[str, Any]) -> dict[str, Any]:
 
 
 def _datasets_items(paths: list[str]) -> tuple[int | None, int | None]:
-    """``(items, collection seed)`` of one folder or a list of folders read as one (``data.*_path`` as a list):
-    the summed items (None when any folder's are unknown) and the seed they share (None when they differ)."""
+    """``(items, collection seed)`` of one folder or a list of folders read as one (``data.*_path`` as a
+    list): the summed items (None when any folder's are unknown) and the seed they share (None when they
+    differ)."""
     found = [_dataset_items(Path(path)) for path in paths]
     items = None if any(n is None for n, _ in found) else sum(n for n, _ in found)
     seeds = {seed for _, seed in found}
@@ -236,7 +237,8 @@ def render_card(
         "|---|---|",
         f"| model | {architecture} (every field: config.json) |",
         f"| ablation | {config.get('ablation', 'not recorded')} |",
-        f"| iterations | {training['iteration']} (of optim.iterations={optim.get('iterations', 'not recorded')}) |",
+        f"| iterations | {training['iteration']} "
+        f"(of optim.iterations={optim.get('iterations', 'not recorded')}) |",
         f"| seed | {config.get('seed', 'not recorded')} |",
         f"| batches | {data_config.get('exploration_batch_trajs')} D_e trajectories, "
         f"{data_config.get('collision_batch_trajs')} D_ca trajectories"
@@ -249,8 +251,8 @@ def render_card(
     ]
     if data_config.get("context_steps") is not None:  # an opt-in, not the paper's: trained on shorter windows
         lines.append(
-            f"| trajectory windows | {data_config['context_steps']} steps (data.context_steps); the policy attends "
-            "to as many at evaluation |"
+            f"| trajectory windows | {data_config['context_steps']} steps (data.context_steps); the policy "
+            "attends to as many at evaluation |"
         )
     for dataset in training["data"]:
         size = (
@@ -272,15 +274,15 @@ def render_card(
     if source:
         lines.append(
             f"| initialised from | `{source.get('checkpoint')}`: iteration {source.get('iteration')} of "
-            f"`{source.get('folder')}` (weights sha256 `{str(source.get('weights_sha256'))[:16]}...`); fine-tuned "
-            "with fresh optimisers, so the iterations and training time here are this run's own |"
+            f"`{source.get('folder')}` (weights sha256 `{str(source.get('weights_sha256'))[:16]}...`); "
+            "fine-tuned with fresh optimisers, so the iterations and training time here are this run's own |"
         )
     averaged = training.get("averaged_from")
     if averaged:
         iterations = ", ".join(str(source.get("iteration")) for source in averaged)
         lines.append(
-            f"| weights | the uniform mean of {len(averaged)} checkpoints of the run (iterations {iterations}; "
-            "`navformer average-checkpoints`) |"
+            f"| weights | the uniform mean of {len(averaged)} checkpoints of the run (iterations "
+            f"{iterations}; `navformer average-checkpoints`) |"
         )
     lines += [
         f"| device setting | {config.get('device', 'not recorded')} |",

@@ -14,8 +14,10 @@ import argparse
 EPILOG = """\
 examples:
   navformer pretrained list
-  navformer pretrained export --checkpoint runs/navformer --name navformer --evaluation runs/eval/nf --card card.json
-  navformer evaluate --method navformer --checkpoint pretrained:navformer --protocol table1 --out runs/eval/shipped
+  navformer pretrained export --checkpoint runs/navformer --name navformer --evaluation runs/eval/nf \\
+      --card card.json
+  navformer evaluate --method navformer --checkpoint pretrained:navformer --protocol table1 \\
+      --out runs/eval/shipped
 
 card.json holds the card's prose only: {"summary": "...", "hardware": "...", "failure_modes": ["..."],
 "notes": ["..."]}; every number on the card is read from the run and evaluation folders. docs/pretrained.md

@@ -40,9 +40,10 @@ def write_pretrained(
     (written aside, then renamed into place).
 
     Args:
-        checkpoint: any path :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` accepts (a run directory:
-            its latest checkpoint).
-        name: the shipped name (``navformer``, ``dt``, ...; :data:`~navformer_rl.training.pretrained_registry.NAME_PATTERN`).
+        checkpoint: any path :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` accepts (a run
+            directory: its latest checkpoint).
+        name: the shipped name (``navformer``, ``dt``, ...;
+            :data:`~navformer_rl.training.pretrained_registry.NAME_PATTERN`).
         evaluations: ``navformer evaluate`` output folders of exactly these weights (their ``run.json``
             sha256 is checked); their SR / SPL / CR tables with intervals go on the card.
         card: the card's prose (:data:`~navformer_rl.pretrained.card.PROSE_FIELDS`), as a mapping or the path

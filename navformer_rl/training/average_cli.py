@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from navformer_rl.cli import args as cli_args
+from navformer_rl.utils import cli_args
 
 EPILOG = """\
 examples:

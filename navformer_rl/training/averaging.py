@@ -5,8 +5,8 @@ An opt-in beyond the paper (``docs/deviations.md``), after stochastic weight ave
 between checkpoints a few hundred iterations apart while the offline loss falls smoothly
 (``docs/studies.md``), and the mean of a run's last checkpoints is one model instead of one draw. Measured on
 the paper's 10,000-iteration run, the mean of the last 1,000 iterations' checkpoints follows the last one it
-averages (the same SR within 2.5 points at 2,000-5,000; +5.0 [-5.6, +15.3] at 9,000-10,000, and -5.0 [-14.1, +4.2] for
-the DT baseline's run) rather than removing the swings.
+averages (the same SR within 2.5 points at 2,000-5,000; +5.0 [-5.6, +15.3] at 9,000-10,000, and -5.0
+[-14.1, +4.2] for the DT baseline's run) rather than removing the swings.
 
 The result is a checkpoint's run part (``config.json`` + ``model.safetensors``, no ``resume.pt``) that every
 command accepting ``--checkpoint`` reads, and ``init_from=`` fine-tunes from. Its header is the newest
@@ -67,8 +67,8 @@ def run_checkpoints(run_dir: str | os.PathLike, first: int, last: int) -> list[P
             selected.append(folder)
     if len(selected) < 2:
         raise ValueError(
-            f"{str(run_dir)!r} has {len(selected)} regular checkpoint(s) between iterations {first} and {last}; "
-            "averaging needs at least 2"
+            f"{str(run_dir)!r} has {len(selected)} regular checkpoint(s) between iterations {first} and "
+            f"{last}; averaging needs at least 2"
         )
     return selected
 
@@ -143,22 +143,22 @@ def _run_identity(header: Mapping[str, Any]) -> tuple[Any, Any]:
 
 
 def _check_one_run(folders: Sequence[Path], headers: Sequence[Mapping[str, Any]]) -> None:
-    """Refuse checkpoints of different models or of different runs (their weights share no trajectory, so their
-    mean is not a model of either)."""
+    """Refuse checkpoints of different models or of different runs (their weights share no trajectory, so
+    their mean is not a model of either)."""
     reference, reference_header = folders[0], headers[0]
     for folder, header in zip(folders[1:], headers[1:]):
         config, expected = header["model_config"], reference_header["model_config"]
         if config != expected:
             differing = sorted(k for k in set(config) | set(expected) if config.get(k) != expected.get(k))
             raise ValueError(
-                f"checkpoints {reference} and {folder} have different model configurations (fields {differing}); "
-                "only checkpoints of one run can be averaged"
+                f"checkpoints {reference} and {folder} have different model configurations (fields "
+                f"{differing}); only checkpoints of one run can be averaged"
             )
         if _run_identity(header) != _run_identity(reference_header):
             raise ValueError(
                 f"checkpoints {reference} and {folder} come from different runs (training seed, init_from: "
-                f"{_run_identity(reference_header)} vs {_run_identity(header)}); only checkpoints of one run can "
-                "be averaged"
+                f"{_run_identity(reference_header)} vs {_run_identity(header)}); only checkpoints of one run "
+                "can be averaged"
             )
 
 

@@ -16,8 +16,8 @@ Layout of a run directory::
   checkpoint whose weights it started from: ``{"checkpoint", "folder", "iteration", "weights_sha256"}``,
   or None).
 * The **resume part** (``resume.pt``) holds optimiser states, BYOL target parameters, RNG states (one per
-  process under ``rng_ranks`` in a data-parallel run), the iteration and the samplers' states. It only contains tensors and plain Python containers, so it loads
-  with ``torch.load(..., weights_only=True)``.
+  process under ``rng_ranks`` in a data-parallel run), the iteration and the samplers' states. It only
+  contains tensors and plain Python containers, so it loads with ``torch.load(..., weights_only=True)``.
 
 Atomicity: a checkpoint is written completely into a private temporary folder, flushed to disk, then
 renamed into place with ``os.replace``; only then is ``latest`` rewritten (temp file + ``os.replace``). A
@@ -201,7 +201,8 @@ def resolve_checkpoint(path: str | os.PathLike) -> Path:
     ``checkpoints/latest`` pointer file (the checkpoint ``latest`` names); a checkpoint folder
     ``checkpoints/iter_XXXXXX``; or one of that folder's files (``model.safetensors``, ``config.json``,
     ``resume.pt``); or ``pretrained:NAME``, the folder of shipped weights
-    (:func:`~navformer_rl.training.pretrained_registry.resolve_pretrained`: its files checked against their sha256).
+    (:func:`~navformer_rl.training.pretrained_registry.resolve_pretrained`: its files checked against their
+    sha256).
 
     Raises:
         FileNotFoundError: ``path`` is none of these (the message lists the accepted forms), or it has
@@ -318,8 +319,8 @@ def read_model_config(path: str | os.PathLike) -> Any:
     """The ``NavFormerConfig`` a checkpoint's run part describes (from ``config.json``; weights not read).
 
     Raises:
-        FileNotFoundError / ValueError: as :func:`read_checkpoint_config`, or fields ``NavFormerConfig`` does not
-            know (written by another model version) or values it refuses.
+        FileNotFoundError / ValueError: as :func:`read_checkpoint_config`, or fields ``NavFormerConfig`` does
+            not know (written by another model version) or values it refuses.
     """
     from navformer_rl.modules import NavFormerConfig
 
@@ -361,6 +362,35 @@ def load_policy_model(path: str | os.PathLike, expected_config: Any | None = Non
     return config, model
 
 
+RENAMED_PREFIXES = {
+    "static_encoder.": "dve.static_encoder.",
+    "general_encoder.": "dve.general_encoder.",
+    "return_embed.": "transformer.tokens.return_embed.",
+    "action_embed.": "transformer.tokens.action_embed.",
+    "timestep_embed.": "transformer.tokens.timestep_embed.",
+    "modality_embed.": "transformer.tokens.modality_embed.",
+    "embed_ln.": "transformer.tokens.embed_ln.",
+    "transformer.blocks.": "transformer.gpt.blocks.",
+    "transformer.ln_final.": "transformer.gpt.ln_final.",
+}
+"""State-dict names of the single-module model (checkpoints of ``navformer_rl.run/1`` written before the
+model was split into its parts) -> the names of the parts. The parameter order is the same, so the
+optimiser states of a resumed run still match."""
+
+
+def upgrade_state_dict(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """``state`` with the single-module model's names (``RENAMED_PREFIXES``) mapped to the current ones;
+    current names are kept as they are."""
+    upgraded = {}
+    for name, tensor in state.items():
+        for old, new in RENAMED_PREFIXES.items():
+            if name.startswith(old):
+                name = new + name[len(old) :]
+                break
+        upgraded[name] = tensor
+    return upgraded
+
+
 def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str | os.PathLike) -> None:
     """``model.load_state_dict(state)`` after checking that the keys and shapes match exactly.
 
@@ -372,14 +402,12 @@ def load_model_weights(model: Any, state: Mapping[str, torch.Tensor], path: str 
             by another version of the model code (a ResNet18 checkpoint from before its BatchNorm became
             GroupNorm carries running statistics the model no longer has).
     """
-    from navformer_rl.modules.models.navformer import upgrade_state_dict
-
     state = upgrade_state_dict(state)
     mismatch = state_dict_mismatch(model.state_dict(), state)
     if mismatch:
         raise ValueError(
-            f"checkpoint {path} does not match NavFormerModel({model.config}): {mismatch} (written by another "
-            "version of the model code?)"
+            f"checkpoint {path} does not match NavFormerModel({model.config}): {mismatch} (written by "
+            "another version of the model code?)"
         )
     model.load_state_dict(state)
 

@@ -74,7 +74,8 @@ class ValidationConfig:
             (``validation/train_loss_dt_<task>``); skipped for a task the ablation does not train on.
         training_trajectories: how many training trajectories (a seeded subset) ``compare_training``
             scores. Per-trajectory losses vary widely, so a small subset's mean sits off the whole
-            dataset's by a fixed amount; 256 keeps that within ~10 % at the medium scale of docs/studies.md.
+            dataset's by a fixed amount; 256 keeps that within ~10 % at the medium scale of
+            docs/studies.md.
         seed: the subsets and window offsets (independent of the run's ``seed``, so runs compare on the
             same windows).
     """
@@ -115,22 +116,24 @@ class DataConfig:
 
     Attributes:
         exploration_path / collision_path / ssl_path: dataset folders of D_e, D_ca, D_ssl (absolute paths
-            recommended: the hydra recipe and ``navformer train`` read relative paths from where they start). A path may be None only when the ablation does
-            not use that dataset. ``exploration_path`` / ``collision_path`` may also be a list of folders of
-            that kind, read as one folder holding their trajectories in list order (e.g. the paper's data
-            plus DAgger rounds: ``data.exploration_path=[data/e,data/dagger1/e]``).
+            recommended: the hydra recipe and ``navformer train`` read relative paths from where they start).
+            A path may be None only when the ablation does not use that dataset. ``exploration_path`` /
+            ``collision_path`` may also be a list of folders of that kind, read as one folder holding their
+            trajectories in list order (e.g. the paper's data plus DAgger rounds:
+            ``data.exploration_path=[data/e,data/dagger1/e]``).
         exploration_batch_trajs / collision_batch_trajs: trajectories per batch (25 / 150).
         ssl_batch_pairs: D_ssl image pairs per batch (512).
         context_steps: longest trajectory window in steps; None = what fits the model's context
-            (``NavFormerConfig.window_steps`` = 1024 // 4 = 256 steps). Longer trajectories are cut to a window
-            at a random offset.
+            (``NavFormerConfig.window_steps`` = 1024 // 4 = 256 steps). Longer trajectories are cut to a
+            window at a random offset.
         exploration_trajectories / collision_trajectories / ssl_pairs: train on the first N trajectories
             (pairs) of a dataset folder only; None = all of it (:meth:`~navformer_rl.data.NavDataset.head`).
             For data-scaling studies from one collection. With a list of folders: the first N of their
             concatenation.
         prefetch: draw the next iteration's batches in a background thread while this one trains
-            (:class:`~navformer_rl.data.prefetch.Prefetcher`; the same batches, so the same losses). On CUDA the
-            batches are also gathered into page-locked memory, so their copies to the GPU are asynchronous.
+            (:class:`~navformer_rl.data.prefetch.Prefetcher`; the same batches, so the same losses). On CUDA
+            the batches are also gathered into page-locked memory, so their copies to the GPU are
+            asynchronous.
     """
 
     exploration_path: DatasetPaths = None
@@ -151,7 +154,8 @@ class SSLConfig:
     """BYOL settings (eqs. 6-8). ``projection_dim`` / ``hidden_dim``: projector and predictor MLP sizes;
     ``tau_base``: EMA rate at iteration 0, raised to 1 by BYOL's cosine schedule over the run;
     ``loss_weight``: w in L = L_DT + w L_BYOL (eq. 11 has w = 1; BYOL's loss is ~15x L_DT in the medium run
-    of docs/studies.md, so with ``encoder_training=joint`` its gradient dominates the shared encoders)."""
+    of docs/studies.md, so with ``encoder_training=joint`` its gradient dominates the shared
+    encoders)."""
 
     projection_dim: int = 128
     hidden_dim: int = 512
@@ -245,8 +249,8 @@ class TrainConfig:
             one (:mod:`navformer_rl.training.init_from`). None: random initialisation. A resumed run continues
             from its own checkpoint and keeps the source it recorded.
         keep_freed_memory: glibc's ``malloc`` serves big tensors from the heap and keeps freed memory
-            (:func:`navformer_rl.utils.allocator.keep_freed_memory`): the same values, 0.8-0.95x the time of a CPU
-            iteration, the process's memory stays at its peak between checkpoints (after each one
+            (:func:`navformer_rl.utils.allocator.keep_freed_memory`): the same values, 0.8-0.95x the time of a
+            CPU iteration, the process's memory stays at its peak between checkpoints (after each one
             ``release_free_memory`` hands the free pages back). No effect on other C libraries.
     """
 
@@ -357,13 +361,15 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
         raise ValueError(f"optim.chunks_by_length={cfg.optim.chunks_by_length!r}: expected true or false")
     if cfg.optim.chunks_by_length and cfg.optim.trajectory_chunks == 1:
         raise ValueError(
-            "optim.chunks_by_length=true needs optim.trajectory_chunks > 1 (got 1): it sorts and crops the chunks"
+            "optim.chunks_by_length=true needs optim.trajectory_chunks > 1 (got 1): "
+            "it sorts and crops the chunks"
         )
     for name in ("exploration_batch_trajs", "collision_batch_trajs"):
         size = getattr(cfg.data, name)
         if size % cfg.optim.trajectory_chunks:
             raise ValueError(
-                f"data.{name}={size} is not divisible by optim.trajectory_chunks={cfg.optim.trajectory_chunks}"
+                f"data.{name}={size} is not divisible by "
+                f"optim.trajectory_chunks={cfg.optim.trajectory_chunks}"
             )
     for name in ("lr", "weight_decay", "dve_lr", "dve_weight_decay"):
         check_number(getattr(cfg.optim, name), f"optim.{name}", at_least=0)
@@ -403,8 +409,9 @@ def validate_config(cfg: TrainConfig, require_data: bool = True) -> None:
     model = model_config(cfg)  # NavFormerConfig validates its own fields
     if cfg.data.context_steps is not None and cfg.data.context_steps > model.window_steps:
         raise ValueError(
-            f"data.context_steps={cfg.data.context_steps} needs {cfg.data.context_steps * model.tokens_per_step} "
-            f"tokens; the model's context of {model.context_tokens} tokens holds at most {model.window_steps} steps"
+            f"data.context_steps={cfg.data.context_steps} needs "
+            f"{cfg.data.context_steps * model.tokens_per_step} tokens; "
+            f"the model's context of {model.context_tokens} tokens holds at most {model.window_steps} steps"
         )
 
 

@@ -164,9 +164,9 @@ def _check_types(config_cls: type, values: Mapping[str, Any], prefix: str = "") 
 
 
 def read_config_file(path: str | os.PathLike | None, default: str | os.PathLike) -> DictConfig:
-    """The YAML mapping at ``path`` (``default`` when None) as a struct ``DictConfig``: unknown keys are refused,
-    except in its ``model`` section, whose model config checks the names itself. ValueError naming the file
-    when it is not readable YAML or not a mapping."""
+    """The YAML mapping at ``path`` (``default`` when None) as a struct ``DictConfig``: unknown keys are
+    refused, except in its ``model`` section, whose model config checks the names itself. ValueError naming
+    the file when it is not readable YAML or not a mapping."""
     import yaml
     from omegaconf import DictConfig, OmegaConf
 

@@ -94,7 +94,8 @@ def open_validation_datasets(cfg: TrainConfig) -> dict[str, Any]:
 
 def _open_dataset(path: DatasetPaths, kind: str, key: str) -> Any:
     """``open_dataset(path, kind)`` with errors that name the config ``key``; a list of several folders is
-    opened folder by folder (errors name ``key[i]``) and read as one (:func:`~navformer_rl.data.concat.concat_datasets`)."""
+    opened folder by folder (errors name ``key[i]``) and read as one
+    (:func:`~navformer_rl.data.concat.concat_datasets`)."""
     from navformer_rl.data import open_dataset
     from navformer_rl.data.concat import concat_datasets
 
@@ -130,8 +131,9 @@ def _largest_batch(cfg: TrainConfig, kind: str, available: int) -> int | None:
 
 
 def check_datasets_fit_model(cfg: TrainConfig, datasets: Mapping[str, Any], section: str = "data") -> None:
-    """Raise ``ValueError`` when the model of ``cfg`` cannot read ``datasets`` (opened by :func:`open_datasets`,
-    or by :func:`open_validation_datasets` with ``section="validation"``: the config section that errors name).
+    """Raise ``ValueError`` when the model of ``cfg`` cannot read ``datasets`` (opened by
+    :func:`open_datasets`, or by :func:`open_validation_datasets` with ``section="validation"``: the config
+    section that errors name).
 
     Checked: image size and action width (every dataset's images are ``image_size`` square; trajectory
     actions are ``action_dim`` wide) and the timestep table (the longest trajectory's last step must be

@@ -46,7 +46,8 @@ from navformer_rl.objectives.byol_augment import BYOLAugmentation
 from navformer_rl.utils.devices import resolve_device
 
 LAUNCH_VARIABLES = ("RANK", "WORLD_SIZE", "LOCAL_RANK")
-"""The environment variables ``torchrun`` sets in every process it starts (with ``MASTER_ADDR`` / ``MASTER_PORT``)."""
+"""The environment variables ``torchrun`` sets in every process it starts (with ``MASTER_ADDR`` /
+``MASTER_PORT``)."""
 TIMEOUT_VARIABLE = "NAVFORMER_DIST_TIMEOUT_S"
 """Seconds a collective waits for the other processes before failing (default: torch's, 10 to 30 minutes)."""
 BUCKET_ELEMENTS = 1 << 24
@@ -203,7 +204,8 @@ class Distributed:
 
 
 def _buckets(tensors: list[torch.Tensor]) -> Iterator[list[torch.Tensor]]:
-    """``tensors`` in runs of one dtype of at most :data:`BUCKET_ELEMENTS` elements (one tensor may exceed it)."""
+    """``tensors`` in runs of one dtype of at most :data:`BUCKET_ELEMENTS` elements
+    (one tensor may exceed it)."""
     by_dtype: dict[Any, list[torch.Tensor]] = {}
     for tensor in tensors:
         by_dtype.setdefault(tensor.dtype, []).append(tensor)
@@ -229,14 +231,14 @@ def _device_and_backend(device: str, local_rank: int, world_size: int) -> tuple[
         raise ValueError(f"device={device!r}: data-parallel training runs on cpu (gloo) or cuda (NCCL)")
     if resolved.index is not None and world_size > 1:
         raise ValueError(
-            f"device={device} names one GPU, but {world_size} processes train: use device=cuda or device=auto "
-            "(each process takes cuda:LOCAL_RANK; choose the GPUs with CUDA_VISIBLE_DEVICES)"
+            f"device={device} names one GPU, but {world_size} processes train: use device=cuda or "
+            "device=auto (each process takes cuda:LOCAL_RANK; choose the GPUs with CUDA_VISIBLE_DEVICES)"
         )
     count = torch.cuda.device_count()
     if local_rank >= count:
         raise ValueError(
-            f"LOCAL_RANK={local_rank}, but torch sees {count} CUDA device(s): start at most {count} processes "
-            "per machine (torchrun --nproc-per-node)"
+            f"LOCAL_RANK={local_rank}, but torch sees {count} CUDA device(s): start at most {count} "
+            "processes per machine (torchrun --nproc-per-node)"
         )
     return torch.device("cuda", local_rank), "nccl"
 
@@ -254,7 +256,8 @@ def current(device: str) -> Distributed:
         if launch is not None and launch[1] > 1:
             raise RuntimeError(
                 f"torchrun started {launch[1]} processes but no process group is initialised: train with "
-                "navformer_rl.training.train (it starts one) or inside navformer_rl.training.distributed.session"
+                "navformer_rl.training.train (it starts one) "
+                "or inside navformer_rl.training.distributed.session"
             )
         return Distributed()
     world_size, rank = dist.get_world_size(), dist.get_rank()
@@ -297,7 +300,7 @@ def session(device: str) -> Iterator[Distributed]:
         dist.destroy_process_group()
 
 
-# -- the pieces a process trains with -------------------------------------------------------------------------
+# -- the pieces a process trains with ------------------------------------------------------------------------
 
 
 class ShardedTrajectoryBatcher(TensorDictReplayBuffer):
@@ -375,7 +378,8 @@ class ShardedAugmentation(BYOLAugmentation):
         count = self.rows.stop - self.rows.start
         if n != count:
             raise ValueError(
-                f"ShardedAugmentation takes rows {self.rows.start}-{self.rows.stop - 1} ({count} images); got {n}"
+                f"ShardedAugmentation takes rows {self.rows.start}-{self.rows.stop - 1} "
+                f"({count} images); got {n}"
             )
 
     def crop_boxes(self, n: int) -> torch.Tensor:
@@ -403,13 +407,15 @@ class _SumOverProcesses(torch.autograd.Function):
 
 
 def sum_over_processes(x: torch.Tensor) -> torch.Tensor:
-    """``x`` summed over the processes of the process group, differentiably (see :class:`_SumOverProcesses`)."""
+    """``x`` summed over the processes of the process group, differentiably (see
+    :class:`_SumOverProcesses`)."""
     return _SumOverProcesses.apply(x)
 
 
 class GlobalBatchNorm1d(nn.BatchNorm1d):
-    """``nn.BatchNorm1d`` whose training statistics are those of the global batch, over every process: the sums
-    are all-reduced by :func:`sum_over_processes`, so the gradient flows through them as on one process. Without a process group, or in eval mode, it is ``nn.BatchNorm1d``. Input ``[B, C]``.
+    """``nn.BatchNorm1d`` whose training statistics are those of the global batch, over every process: the
+    sums are all-reduced by :func:`sum_over_processes`, so the gradient flows through them as on one process.
+    Without a process group, or in eval mode, it is ``nn.BatchNorm1d``. Input ``[B, C]``.
     (``nn.SyncBatchNorm`` does the same on GPUs only; this one also runs on gloo.)"""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

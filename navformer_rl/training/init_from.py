@@ -1,4 +1,5 @@
-"""Fine-tuning: ``init_from=CHECKPOINT`` starts a run from trained weights with fresh optimisers and schedules.
+"""Fine-tuning: ``init_from=CHECKPOINT`` starts a run from trained weights with fresh optimisers and
+schedules.
 
 The source is any checkpoint form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes: a run
 directory (its latest checkpoint), a checkpoint folder or a file in it, or ``pretrained:NAME`` (shipped
@@ -68,7 +69,8 @@ def resolve_init_source(cfg: TrainConfig) -> InitSource:
     Raises:
         FileNotFoundError / ValueError: no checkpoint there (the message lists the accepted forms), an unknown
             or corrupt ``pretrained:NAME``, a foreign file; or a model that differs from the configured one in
-            a field outside :data:`MAY_DIFFER` (the message names each field, both values, and the keys to set).
+            a field outside :data:`MAY_DIFFER` (the message names each field, both values, and the keys to
+            set).
     """
     from navformer_rl.modules import NavFormerConfig
 

@@ -3,9 +3,11 @@
 Layout of the pretrained root (the package's ``navformer_rl/pretrained/weights/``, or the folder that the
 environment variable ``NAVFORMER_PRETRAINED_DIR`` names)::
 
-    registry.json               {"format": REGISTRY_FORMAT, "models": {NAME: {"method", "files": {file: sha256}}}}
+    registry.json               {"format": REGISTRY_FORMAT,
+                                 "models": {NAME: {"method", "files": {file: sha256}}}}
     <NAME>/
-        config.json             the run part of a training checkpoint (navformer_rl.training.checkpoint), byte for byte
+        config.json             the run part of a training checkpoint (navformer_rl.training.checkpoint),
+                                byte for byte
         model.safetensors
         MODEL_CARD.md           data, iterations, seeds, hardware, time, results, known failure modes
 
@@ -52,8 +54,8 @@ def check_name(name: str) -> str:
     """``name`` if it is a valid shipped name (:data:`NAME_PATTERN`); ValueError otherwise."""
     if not isinstance(name, str) or not NAME_PATTERN.match(name):
         raise ValueError(
-            f"pretrained name {name!r}: expected lower-case letters, digits, '_', '.' or '-', starting with a "
-            "letter or digit (e.g. navformer, dt)"
+            f"pretrained name {name!r}: expected lower-case letters, digits, '_', '.' or '-', starting with "
+            "a letter or digit (e.g. navformer, dt)"
         )
     return name
 
@@ -153,13 +155,14 @@ def resolve_pretrained(checkpoint: str | os.PathLike, root: str | os.PathLike | 
         if not path.is_file():
             raise FileNotFoundError(
                 f"{designation} is not shipped in this installation: {path} is missing; install navformer_rl "
-                f"from a source that includes its weights, or set {PRETRAINED_DIR_ENV} to a folder holding them"
+                "from a source that includes its weights, "
+                f"or set {PRETRAINED_DIR_ENV} to a folder holding them"
             )
         found = file_sha256(path)
         if found != expected:
             raise ValueError(
-                f"{path} is corrupt: its sha256 is {found[:16]}..., {registry} records {expected[:16]}... for "
-                f"{designation}; restore the file (e.g. git checkout -- {path.name} in its folder) or "
+                f"{path} is corrupt: its sha256 is {found[:16]}..., {registry} records {expected[:16]}... "
+                f"for {designation}; restore the file (e.g. git checkout -- {path.name} in its folder) or "
                 "reinstall navformer_rl"
             )
     return folder

@@ -1,7 +1,8 @@
-"""Running a training: :func:`build_trainer` (every check, then a ready
-:class:`~navformer_rl.training.trainer.Trainer`, restored when resuming, started from ``init_from``'s weights
-when fine-tuning) and :func:`train` (the loop with tqdm progress, checkpoints and validation; every process of
-a ``torchrun`` launch runs it) returning a :class:`TrainResult`.
+"""Running a training, TorchRL's way: every check (:func:`prepare_run`), the ``make_*`` pieces
+(:func:`make_trainer`, :mod:`~navformer_rl.training.factories`), the start (:func:`start_run`: resume, init
+weights, run files, logger), then the one loop (:func:`train_loop`). :func:`build_trainer` is the first three,
+:func:`train` all four (every process of a ``torchrun`` launch runs it); ``navformer train`` calls
+:func:`train`, the recipe (``recipes/navformer/navformer.py``) shows the same calls and runs the same loop.
 """
 
 from __future__ import annotations
@@ -21,10 +22,21 @@ from navformer_rl.training import distributed as dist
 from navformer_rl.training.config import TrainConfig, named_run, validate_config, with_encoder_optimizer
 from navformer_rl.training.config_io import RUN_INFO_KEY
 from navformer_rl.training.datasets import check_datasets_fit_model, open_datasets, open_validation_datasets
-from navformer_rl.training.init_from import load_initial_weights, resolve_init_source
+from navformer_rl.training.factories import (
+    TRAJECTORY_KEYS,
+    context_steps,
+    make_batchers,
+    make_learner,
+    make_model_and_losses,
+    make_optimizers,
+    seed_everything,
+    start_alike,
+)
+from navformer_rl.training.init_from import InitSource, load_initial_weights, resolve_init_source
 from navformer_rl.training.trainer import Trainer
+from navformer_rl.training.validation import make_validator
 from navformer_rl.utils.allocator import keep_freed_memory, release_free_memory
-from navformer_rl.utils.devices import bfloat16_autocast_warning
+from navformer_rl.utils.devices import bfloat16_autocast_warning, resolve_device
 from navformer_rl.utils.durable import atomic_write_text
 from navformer_rl.utils.interrupts import StopRequest, stop_at_safe_point
 
@@ -40,7 +52,8 @@ class TrainResult:
     checkpoint: Path | None
 
     def summary(self) -> str:
-        """Three lines for the terminal: iterations and last losses, the run directory, the last checkpoint."""
+        """Three lines for the terminal: iterations and last losses, the run directory,
+        the last checkpoint."""
         losses = ", ".join(
             f"{k}={self.metrics[k]:.4g}" for k in ("loss", "loss_dt", "loss_byol") if k in self.metrics
         )
@@ -51,18 +64,34 @@ class TrainResult:
         )
 
 
-def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None) -> Trainer:
-    """Validate ``cfg``, open the datasets, build everything and (when resuming) restore the latest checkpoint,
-    or (a new run with ``init_from``) load the source's weights.
+@dataclass
+class PreparedRun:
+    """A checked run, before anything is built (:func:`prepare_run`)."""
 
-    Every configuration error is raised here, before the first iteration. A fresh run refuses an
-    output directory that already holds checkpoints (pass ``resume=True`` to continue it). Resuming wins over
-    ``init_from``: the run continues from its own checkpoint and keeps the source it recorded (a warning
-    says so when ``init_from`` names another one).
+    cfg: TrainConfig
+    """The configuration, named (``logger.exp_name``) and with its encoder optimiser resolved."""
+    distributed: dist.Distributed
+    """This process's place in a data-parallel run (one process by default)."""
+    device: torch.device
+    """Where this process trains."""
+    datasets: dict[str, Any]
+    """The opened training datasets (``e``, ``ca``, ``ssl``: those the run uses)."""
+    validation_datasets: dict[str, Any]
+    """The opened held-out datasets (``validation.*``; empty without)."""
+    latest: Path | None
+    """The checkpoint to resume (``resume=true`` and one exists), else None."""
+    source: InitSource | None
+    """``init_from``'s weights for a new run, else None."""
+
+
+def prepare_run(cfg: TrainConfig, distributed: dist.Distributed | None = None) -> PreparedRun:
+    """Validate ``cfg`` and open the datasets: every configuration error is raised here, before anything is
+    built. A fresh run refuses an output directory that already holds checkpoints (pass ``resume=True`` to
+    continue it). Resuming wins over ``init_from``: the run continues from its own checkpoint and keeps the
+    source it recorded (a warning says so when ``init_from`` names another one).
 
     ``distributed``: this process's place in a data-parallel run (default: the process group already
-    started, else one process, :func:`~navformer_rl.training.distributed.current`). Only rank 0 writes
-    ``train_config.json`` and the logs.
+    started, else one process, :func:`~navformer_rl.training.distributed.current`).
     """
     validate_config(cfg)
     if distributed is None:
@@ -70,8 +99,7 @@ def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None)
     _check_batches_split(cfg, distributed.world_size)
     if cfg.keep_freed_memory:
         keep_freed_memory()
-    run_dir = Path(cfg.output_dir)
-    latest = ckpt.run_folder_latest(run_dir, cfg.resume)
+    latest = ckpt.run_folder_latest(Path(cfg.output_dir), cfg.resume)
     if latest is not None:
         cfg = _recorded_init_from(cfg, latest)
     source = resolve_init_source(cfg) if cfg.init_from is not None and latest is None else None
@@ -87,21 +115,50 @@ def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None)
     validation_datasets = open_validation_datasets(cfg)
     check_datasets_fit_model(cfg, validation_datasets, section="validation")
     cfg = with_encoder_optimizer(named_run(cfg, resuming=latest is not None))
-    trainer = Trainer(
-        cfg, datasets=datasets, validation_datasets=validation_datasets, distributed=distributed
+    device = distributed.device or resolve_device(cfg.device)
+    return PreparedRun(cfg, distributed, device, datasets, validation_datasets, latest, source)
+
+
+def make_trainer(run: PreparedRun) -> Trainer:
+    """The run's pieces, made in the order a seed's run depends on (as the recipe shows them)."""
+    cfg, device, distributed = run.cfg, run.device, run.distributed
+    seed_everything(cfg.seed)
+    cross_task, pairs = make_batchers(cfg, run.datasets, device=device, distributed=distributed)
+    parts = make_model_and_losses(cfg, device=device, distributed=distributed)
+    learner = make_learner(cfg, parts, make_optimizers(cfg, parts))
+    validator = make_validator(
+        cfg.validation, run.validation_datasets, run.datasets, context_steps(cfg), keys=TRAJECTORY_KEYS
     )
+    start_alike(parts, cfg, distributed)
+    return Trainer(
+        cfg,
+        cross_task=cross_task,
+        pairs=pairs,
+        parts=parts,
+        learner=learner,
+        validator=validator,
+        distributed=distributed,
+    )
+
+
+def start_run(run: PreparedRun, trainer: Trainer) -> Trainer:
+    """Restore the checkpoint to resume or load ``init_from``'s weights; rank 0 writes ``train_config.json``,
+    drops log rows written after the restored checkpoint and opens the logger. Returns ``trainer``."""
+    cfg, distributed = run.cfg, run.distributed
     slow_bf16 = bfloat16_autocast_warning(trainer.device, trainer.model_config.autocast_dtype)
     if slow_bf16 is not None and distributed.is_main:
-        warnings.warn(slow_bf16, UserWarning, stacklevel=2)
-    if latest is not None:
-        trainer.restore(latest)
-    elif source is not None:
-        load_initial_weights(trainer, source)
+        warnings.warn(slow_bf16, UserWarning, stacklevel=3)
+    if run.latest is not None:
+        trainer.restore(run.latest)
+    elif run.source is not None:
+        load_initial_weights(trainer, run.source)
     if trainer.iteration > cfg.optim.iterations:
         raise ValueError(
-            f"{latest} is at iteration {trainer.iteration}, beyond optim.iterations={cfg.optim.iterations}"
+            f"{run.latest} is at iteration {trainer.iteration}, "
+            f"beyond optim.iterations={cfg.optim.iterations}"
         )
     if distributed.is_main:
+        run_dir = trainer.run_dir
         run_dir.mkdir(parents=True, exist_ok=True)
         record = {**cfg.to_dict(), RUN_INFO_KEY: trainer.run_info}
         atomic_write_text(run_dir / "train_config.json", json.dumps(record, indent=2, sort_keys=True))
@@ -109,6 +166,13 @@ def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None)
         _truncate_csv_scalars(run_dir / "logs" / cfg.logger.exp_name / "scalars", trainer.iteration)
         trainer.logger = trainer.make_logger()
     return trainer
+
+
+def build_trainer(cfg: TrainConfig, distributed: dist.Distributed | None = None) -> Trainer:
+    """A ready :class:`Trainer` of ``cfg``: :func:`prepare_run` (every check), :func:`make_trainer`,
+    :func:`start_run` (restored when resuming, started from ``init_from``'s weights when fine-tuning)."""
+    run = prepare_run(cfg, distributed)
+    return start_run(run, make_trainer(run))
 
 
 def _check_batches_split(cfg: TrainConfig, world_size: int) -> None:
@@ -162,20 +226,9 @@ def _stop_agreed(stop: StopRequest, trainer: Trainer) -> bool:
 
 
 def train(cfg: TrainConfig) -> TrainResult:
-    """Train NavFormer as configured; see :mod:`navformer_rl.training` for one iteration.
-
-    The one training loop: ``navformer train`` and the hydra recipe (``recipes/navformer``) both call it.
-    Per iteration: ``Trainer.step()``, ``Trainer.record()`` (a log row every ``logger.log_interval``
-    iterations), validation when due, a checkpoint every ``checkpoint.interval`` iterations and at the end
-    (then, with ``keep_freed_memory``, ``malloc_trim`` hands the free heap back), a tqdm bar named after
-    ``logger.exp_name``. ``timeit`` times the phases (``time/<phase>`` in the log rows).
-
-    A Ctrl-C or SIGTERM (a scheduler's preemption) lets the iteration under way finish, saves a checkpoint
-    and then raises (``KeyboardInterrupt``, :class:`~navformer_rl.utils.interrupts.Terminated` for SIGTERM), so
-    ``resume=True`` loses nothing; a second one stops at once, back to the last checkpoint.
-
-    Returns a :class:`TrainResult`. With ``resume=True`` the run continues from the latest checkpoint and
-    produces the same subsequent losses and weights as an uninterrupted run.
+    """Train NavFormer as configured: :func:`build_trainer`, then :func:`train_loop`; see
+    :mod:`navformer_rl.training` for one iteration. ``navformer train`` calls it; the recipe makes the same
+    calls.
 
     Under ``torchrun`` every process calls it: :func:`~navformer_rl.training.distributed.session` starts the
     process group (and destroys it at the end, also on an error); rank 0 alone writes checkpoints, logs,
@@ -186,10 +239,28 @@ def train(cfg: TrainConfig) -> TrainResult:
 
 
 def _train(cfg: TrainConfig) -> TrainResult:
+    return train_loop(build_trainer(cfg))  # in the process group the session started
+
+
+def train_loop(trainer: Trainer) -> TrainResult:
+    """The one training loop, from the trainer's iteration to ``optim.iterations``.
+
+    Per iteration: ``Trainer.step()`` (eq. 11), ``Trainer.record()`` (a log row every
+    ``logger.log_interval`` iterations), validation when due, a checkpoint every ``checkpoint.interval``
+    iterations and at the end (then, with ``keep_freed_memory``, ``malloc_trim`` hands the free heap back), a
+    tqdm bar named after ``logger.exp_name``. ``timeit`` times the phases (``time/<phase>`` in the log rows).
+
+    A Ctrl-C or SIGTERM (a scheduler's preemption) lets the iteration under way finish, saves a checkpoint
+    and then raises (``KeyboardInterrupt``, :class:`~navformer_rl.utils.interrupts.Terminated` for SIGTERM),
+    so ``resume=True`` loses nothing; a second one stops at once, back to the last checkpoint.
+
+    Returns a :class:`TrainResult`. A resumed run produces the same subsequent losses and weights as an
+    uninterrupted run.
+    """
     from torchrl._utils import timeit
     from tqdm import tqdm
 
-    trainer = build_trainer(cfg)  # in the process group the session started
+    cfg = trainer.cfg
     distributed = trainer.distributed
     timeit.erase()
     metrics: dict[str, float] = {}

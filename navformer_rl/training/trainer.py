@@ -1,48 +1,44 @@
-"""One built training run, :class:`Trainer`: samplers, model, losses, optimisers, logger and validator;
-one iteration (``step``), logging, and checkpoints that resume bit-identically (``save_checkpoint``,
-``restore``). Built by :func:`navformer_rl.training.build_trainer`; one process of a data-parallel run
-(:mod:`navformer_rl.training.distributed`) when given a :class:`~navformer_rl.training.distributed.Distributed`.
+"""One built training run, :class:`Trainer`: the batches, the learner, the logger and the validator of a run;
+one iteration (``step``: :func:`~navformer_rl.training.step.train_step` with the run's metrics), logging, and
+checkpoints that resume bit-identically (``save_checkpoint``, ``restore``). Made from the ``make_*``
+factories (:mod:`navformer_rl.training.factories`) by :func:`navformer_rl.training.make_trainer`; one process
+of a data-parallel run (:mod:`navformer_rl.training.distributed`) when given a
+:class:`~navformer_rl.training.distributed.Distributed`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import random
 import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import torch
 from tensordict import TensorDict
 
 from navformer_rl.data.prefetch import Prefetcher
-from navformer_rl.data.samplers import split_by_length
-from navformer_rl.tasks import DATASETS, TRAJECTORY_KINDS
 from navformer_rl.training import checkpoint as ckpt
-from navformer_rl.training.config import (
-    TrainConfig,
-    encoder_optimizer,
-    model_config,
-    with_encoder_optimizer,
-)
-from navformer_rl.training.distributed import (
-    Distributed,
-    ShardedAugmentation,
-    ShardedPairBatcher,
-    ShardedTrajectoryBatcher,
-    rank_seed,
-    shard_rows,
-    use_global_batch_norm,
+from navformer_rl.training.config import TrainConfig, model_config, with_encoder_optimizer
+from navformer_rl.training.distributed import Distributed
+from navformer_rl.training.factories import (
+    BATCH_KEYS,
+    TRAJECTORY_KEYS,
+    ModelAndLosses,
+    make_logger,
+    parameter_groups,
 )
 from navformer_rl.training.log_window import LogWindow
-from navformer_rl.training.validation import make_validator
-from navformer_rl.utils.devices import resolve_device
+from navformer_rl.training.step import Learner, make_backward, train_step
 
 if TYPE_CHECKING:
     from torchrl.record.loggers import Logger
+
+    from navformer_rl.data import CrossTaskReplayBuffer
+    from navformer_rl.training.validation import Validator
+
+__all__ = ["BATCH_KEYS", "RESUME_MAY_CHANGE", "TRAJECTORY_KEYS", "Trainer"]
 
 RESUME_MAY_CHANGE = frozenset(
     {
@@ -64,21 +60,11 @@ RESUME_MAY_CHANGE = frozenset(
 )
 """Settings a resumed run may change; any other difference from the checkpoint's config is refused
 (``init_from`` only applies to a run's start: a resumed run continues from its own checkpoint)."""
-TRAJECTORY_KEYS = [("pixels",), ("action",), ("return_to_go",), ("step",)]
-"""Keys gathered from D_e / D_ca per step (plus ``mask`` and ``target_pixels`` added by the batcher)."""
-BATCH_KEYS = ["pixels", "action", "return_to_go", "step", "mask", "target_pixels"]
-"""What an iteration takes from a trajectory batch to the device."""
-
-
-def _seed_everything(seed: int) -> None:
-    """Seed Python's, NumPy's and torch's global generators from one ``seed``."""
-    random.seed(seed)
-    np.random.seed(seed % 2**32)
-    torch.manual_seed(seed)
 
 
 def _with_defaults(defaults: Mapping[str, Any], values: Mapping[str, Any]) -> dict[str, Any]:
-    """``values`` with every section key it lacks taken from ``defaults`` (``model`` overrides as they are)."""
+    """``values`` with every section key it lacks taken from ``defaults``
+    (``model`` overrides as they are)."""
     merged = dict(defaults)
     for key, value in values.items():
         if isinstance(value, Mapping) and isinstance(defaults.get(key), Mapping) and key != "model":
@@ -99,7 +85,8 @@ def _recorded_encoder_optimizer(recorded: Mapping[str, Any]) -> str:
 
 
 def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``values`` flattened to dotted keys (``model`` overrides kept whole), less :data:`RESUME_MAY_CHANGE`."""
+    """``values`` flattened to dotted keys (``model`` overrides kept whole), less
+    :data:`RESUME_MAY_CHANGE`."""
     flat: dict[str, Any] = {}
     for key, value in values.items():
         name = f"{prefix}{key}"
@@ -115,20 +102,22 @@ def _comparable(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 class Trainer:
-    """The built training run. Use :func:`build_trainer`; then ``step()`` per iteration.
+    """The built training run: :func:`~navformer_rl.training.make_trainer` (or :func:`build_trainer`) makes
+    it; then ``step()`` per iteration.
 
     Attributes:
         cfg: the :class:`TrainConfig`.  run_dir: output folder.  device: torch device.
-        model: ``NavFormerModel`` (the parameters).  actor: its parts composed as TensorDict modules
-            (``make_navformer_actor``), what the DT loss runs.  dt_loss: ``ActionMSELoss`` (``ActionBinLoss``
-            with ``model.action_bins``).  validation_loss: ``ActionMSELoss`` on the same actor (the validation rows).
-        byol_loss: ``BYOLLoss`` or None (no SSL).
-        cross_task: ``CrossTaskReplayBuffer`` of the D_e / D_ca batchers.  pairs: D_ssl ``PairBatcher`` or None.
+        parts: :class:`~navformer_rl.training.factories.ModelAndLosses`; ``model``, ``actor``, ``dt_loss``,
+            ``validation_loss``, ``byol_loss``, ``tau_schedule`` name its fields.
+        learner: :class:`~navformer_rl.training.step.Learner`, what an iteration updates; ``optimizers``
+            (``{"navformer": AdamW, "dve": Adam}``, "dve" absent when it would own nothing: ``ablation=dt``)
+            and ``scaler`` (``torch.amp.GradScaler``, enabled only under float16 autocast) name its fields.
+        backward: how L reaches the gradients (:func:`~navformer_rl.training.step.make_backward`): None for
+            one backward, else the trajectory-chunk / data-parallel wrapper.
+        cross_task: ``CrossTaskReplayBuffer`` of the D_e / D_ca batchers.
+        pairs: D_ssl ``PairBatcher`` or None.
         batches: :class:`~navformer_rl.data.prefetch.Prefetcher` of ``(task, batch, pairs)`` over both
             (drawing one iteration ahead with ``data.prefetch``; :meth:`close` stops it).
-        optimizers: ``{"navformer": AdamW, "dve": Adam}`` (:meth:`parameter_groups`; "dve" absent when it
-            would own nothing: ``ablation=dt``).
-        scaler: ``torch.amp.GradScaler``, enabled only under float16 autocast (loss scaling).
         iteration: completed iterations.  logger: TorchRL logger or None.
         log_window: :class:`LogWindow` of the iterations not logged yet (:meth:`record`).
         validator: :class:`~navformer_rl.training.validation.Validator` of the held-out sets, or None
@@ -145,144 +134,44 @@ class Trainer:
         self,
         cfg: TrainConfig,
         *,
-        datasets: dict[str, Any],
-        validation_datasets: dict[str, Any] | None = None,
+        cross_task: CrossTaskReplayBuffer,
+        pairs: Any,
+        parts: ModelAndLosses,
+        learner: Learner,
+        validator: Validator | None = None,
         distributed: Distributed | None = None,
     ) -> None:
-        from torchrl.objectives import SoftUpdate
-
-        from navformer_rl.data import CrossTaskReplayBuffer
-        from navformer_rl.modules import NavFormerModel, make_navformer_actor
-        from navformer_rl.objectives import ActionBinLoss, ActionMSELoss, BYOLLoss, BYOLTauSchedule
-
         self.cfg = with_encoder_optimizer(cfg)
-        cfg = self.cfg
         self.distributed = distributed if distributed is not None else Distributed()
         self.run_info: dict[str, Any] = {**self.distributed.run_info(), "init_from": None}
-        self.run_dir = Path(cfg.output_dir)
-        self.device = self.distributed.device or resolve_device(cfg.device)
-        self.model_config = model_config(cfg)
+        self.run_dir = Path(self.cfg.output_dir)
+        self.parts, self.learner = parts, learner
+        self.device = next(parts.model.parameters()).device
+        self.model_config = model_config(self.cfg)
         self.iteration = 0
-        _seed_everything(cfg.seed)
-
-        context = cfg.data.context_steps or self.model_config.window_steps
-        # prefetching trains on one batch while the next is gathered: two buffer sets per batcher
-        buffers = {"buffer_sets": 2 if cfg.data.prefetch else 1, "pin_memory": self.device.type == "cuda"}
-        batchers = {}
-        for seed_offset, kind in enumerate(TRAJECTORY_KINDS, start=1):
-            size = getattr(cfg.data, DATASETS[kind].batch_key)
-            dataset = datasets.get(kind)
-            batchers[kind] = (
-                None
-                if dataset is None
-                else dataset.trajectory_batcher(
-                    size, context, seed=cfg.seed + seed_offset, keys=TRAJECTORY_KEYS, **buffers
-                )
-            )
-        self.pairs = (
-            datasets["ssl"].pair_batcher(cfg.data.ssl_batch_pairs, seed=cfg.seed + 3, **buffers)
-            if cfg.uses_ssl
-            else None
-        )
-        if self.distributed.enabled:  # every process draws the global batch and gathers its rows of it
-            for kind, batcher in batchers.items():
-                batchers[kind] = (
-                    None if batcher is None else ShardedTrajectoryBatcher(batcher, self.distributed)
-                )
-            if self.pairs is not None:
-                self.pairs = ShardedPairBatcher(self.pairs, self.distributed)
-        self.cross_task = CrossTaskReplayBuffer(batchers["e"], batchers["ca"])
+        self.cross_task, self.pairs = cross_task, pairs
         self.batches = Prefetcher(
-            self._draw_batches, self._sampler_state, self._load_sampler_state, enabled=cfg.data.prefetch
+            self._draw_batches, self._sampler_state, self._load_sampler_state, enabled=self.cfg.data.prefetch
         )
-
-        self.model = NavFormerModel(self.model_config).to(self.device)
-        self.model.train()
-        self.actor = make_navformer_actor(self.model, length_groups=self.cfg.optim.length_groups)
-        self.dt_loss = (ActionBinLoss if self.model.config.action_bins else ActionMSELoss)(self.actor)
-        # validation scores eq. 10's squared error whatever the training loss (comparable rows)
-        self.validation_loss = (
-            self.dt_loss if isinstance(self.dt_loss, ActionMSELoss) else ActionMSELoss(self.actor)
-        )
-        self.byol_loss = None
-        self.updater = None
-        self.tau_schedule = None
-        if cfg.uses_ssl:
-            self.byol_loss = BYOLLoss(
-                self.model.dve,
-                projection_dim=cfg.ssl.projection_dim,
-                hidden_dim=cfg.ssl.hidden_dim,
-                seed=cfg.seed + 4,
-                augmentation=self._sharded_augmentation(),
-                autocast_dtype=self.model_config.autocast_dtype,
-            ).to(self.device)
-            if self.distributed.enabled:  # the projector / predictor BatchNorm over the global batch
-                use_global_batch_norm(self.byol_loss.online_network)
-                use_global_batch_norm(self.byol_loss.predictor)
-            self.updater = SoftUpdate(self.byol_loss, eps=cfg.ssl.tau_base)
-            self.tau_schedule = BYOLTauSchedule(self.updater, cfg.optim.iterations, cfg.ssl.tau_base)
-        self.optimizers = self._make_optimizers()
-        # float16 autocast needs loss scaling (its gradients underflow); disabled, the scaler is a no-op
-        self.scaler = torch.amp.GradScaler(
-            self.device.type, enabled=self.model_config.autocast_dtype == "float16"
-        )
-        self.logger = None
+        self.backward = make_backward(self.cfg, learner, self.distributed)
+        self.validator = validator
+        self.logger: Logger | None = None
         self.log_window = LogWindow()
-        self.validator = make_validator(
-            cfg.validation, validation_datasets or {}, datasets, context, keys=TRAJECTORY_KEYS
-        )
-        if self.distributed.enabled:
-            # the same start on every process (as DistributedDataParallel does), then per-process dropout
-            self.distributed.broadcast_tensors(self._state_tensors())
-            if not self.distributed.is_main:
-                _seed_everything(rank_seed(cfg.seed, self.distributed.rank))
 
-    # -- construction helpers -------------------------------------------------------------------------
-    def _sharded_augmentation(self) -> ShardedAugmentation | None:
-        """BYOL's augmentation of this process's pairs of the global batch (None for one process: BYOL's own)."""
-        if not self.distributed.enabled:
-            return None
-        total = self.cfg.data.ssl_batch_pairs
-        return ShardedAugmentation(rows=self.distributed.rows(total), total=total, seed=self.cfg.seed + 4)
-
-    def _state_tensors(self) -> list[torch.Tensor]:
-        """Every parameter and buffer of the model and the BYOL loss (online, EMA target, BatchNorm statistics)."""
-        modules = [self.model] if self.byol_loss is None else [self.model, self.byol_loss]
-        return [t for module in modules for t in (*module.parameters(), *module.buffers())]
+    # -- the parts, by name -----------------------------------------------------------------------------
+    model = property(lambda self: self.parts.model, doc="The ``NavFormerModel`` (the parameters).")
+    actor = property(lambda self: self.parts.actor, doc="The model's parts as TensorDict modules.")
+    dt_loss = property(lambda self: self.parts.dt_loss, doc="L_DT (eq. 10).")
+    validation_loss = property(lambda self: self.parts.validation_loss, doc="Eq. 10's squared error.")
+    byol_loss = property(lambda self: self.parts.byol_loss, doc="L_BYOL (eq. 8) or None.")
+    tau_schedule = property(lambda self: self.parts.tau_schedule, doc="The EMA's tau schedule or None.")
+    optimizers = property(lambda self: self.learner.optimizers, doc="``{name: optimiser}``.")
+    scaler = property(lambda self: self.learner.scaler, doc="The float16 loss scaler.")
 
     def parameter_groups(self) -> dict[str, list[torch.nn.Parameter]]:
-        """``{"navformer": [...], "dve": [...]}``: which parameters each optimiser owns (disjoint, complete).
-
-        ``navformer`` (AdamW): the navigation network (token embeddings, transformer, head), plus the visual
-        encoders when :func:`~navformer_rl.training.config.encoder_optimizer` is ``adamw``. ``dve`` (Adam):
-        the visual encoders when it is ``adam`` (the paper's split, §VI), then BYOL's projectors and
-        predictors; absent when it would be empty. Which losses reach the encoders is ``encoder_training``'s.
-        """
-        encoder_ids = {id(p) for p in self.model.dve.parameters()}
-        model_params = [p for p in self.model.parameters() if p.requires_grad]
-        encoders_under_adam = encoder_optimizer(self.cfg) == "adam"
-        groups = {
-            "navformer": [p for p in model_params if not (encoders_under_adam and id(p) in encoder_ids)]
-        }
-        dve = [p for p in model_params if id(p) in encoder_ids] if encoders_under_adam else []
-        if self.byol_loss is not None:
-            model_ids = {id(p) for p in model_params}
-            dve += [p for p in self.byol_loss.parameters() if id(p) not in model_ids]
-        if dve:
-            groups["dve"] = dve
-        return groups
-
-    def _make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        groups = self.parameter_groups()
-        optim = self.cfg.optim
-        optimizers: dict[str, torch.optim.Optimizer] = {
-            "navformer": torch.optim.AdamW(groups["navformer"], lr=optim.lr, weight_decay=optim.weight_decay)
-        }
-        if "dve" in groups:
-            optimizers["dve"] = torch.optim.Adam(
-                groups["dve"], lr=optim.dve_lr, weight_decay=optim.dve_weight_decay
-            )
-        return optimizers
+        """Which parameters each optimiser owns
+        (:func:`~navformer_rl.training.factories.parameter_groups`)."""
+        return parameter_groups(self.cfg, self.model, self.byol_loss)
 
     # -- batches --------------------------------------------------------------------------------------
     def _draw_batches(self) -> tuple[str, Any, Any]:
@@ -292,7 +181,8 @@ class Trainer:
         return self.cross_task.task_of(batch), batch.select(*BATCH_KEYS), pairs
 
     def _sampler_state(self) -> dict[str, Any]:
-        """The samplers' positions and RNG states (``cross_task`` and, with SSL, ``pairs``) for a checkpoint."""
+        """The samplers' positions and RNG states (``cross_task`` and, with SSL,
+        ``pairs``) for a checkpoint."""
         state = {"cross_task": self.cross_task.state_dict()}
         if self.pairs is not None:
             state["pairs"] = self.pairs.state_dict()
@@ -309,7 +199,8 @@ class Trainer:
 
     # -- one iteration --------------------------------------------------------------------------------
     def step(self) -> dict[str, float]:
-        """Run one training iteration (eq. 11) and return its metrics as floats.
+        """Run one training iteration (eq. 11, :func:`~navformer_rl.training.step.train_step`) and return its
+        metrics as floats.
 
         Keys: ``loss`` (L), ``loss_dt``, ``loss_dt_<task>`` (task of this iteration), ``loss_byol``,
         ``byol_<encoder>``, ``projection_std_<encoder>``, ``tau``, ``lr``, ``lr_dve``, ``frames``
@@ -323,39 +214,22 @@ class Trainer:
             task, batch, pairs = self.batches.next(draw_ahead=self.iteration + 1 < self.cfg.optim.iterations)
             batch = batch.to(self.device, non_blocking=True)
             pairs = pairs.to(self.device, non_blocking=True) if pairs is not None else None
-        for optimizer in self.optimizers.values():
-            optimizer.zero_grad(set_to_none=True)
-        with timeit("forward_backward", sync=sync):
-            loss_dt, loss_byol, byol_out = self._forward_backward(batch, pairs)
-        if self.distributed.enabled:
-            with timeit("all_reduce", sync=sync):
-                groups = self.parameter_groups().values()
-                self.distributed.all_reduce_gradients(p for group in groups for p in group)
-        with timeit("optimizer", sync=sync):
-            if self.cfg.optim.clip_grad_norm is not None:
-                for optimizer in self.optimizers.values():
-                    self.scaler.unscale_(optimizer)
-                    params = [p for g in optimizer.param_groups for p in g["params"]]
-                    torch.nn.utils.clip_grad_norm_(params, self.cfg.optim.clip_grad_norm)
-            for optimizer in self.optimizers.values():
-                self.scaler.step(optimizer)  # skipped (float16 only) when a gradient overflowed
-            self.scaler.update()
-            tau = None
-            if self.updater is not None:
-                tau = self.updater.eps
-                self.updater.step()
-                self.tau_schedule.step()
+        out = train_step(self.learner, batch, pairs, self.backward)
         self.iteration += 1
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)  # the timing covers the queued GPU work
         elapsed = time.perf_counter() - start
+        return self._metrics(task, batch, pairs, out, elapsed)
+
+    def _metrics(self, task: str, batch: TensorDict, pairs: TensorDict | None, out: Any, elapsed: float):
+        """The iteration's metrics (see :meth:`step`); with several processes, the global batch's."""
         losses = {
-            "loss_dt": loss_dt,
+            "loss_dt": out.loss_dt,
             "frames": batch["mask"].sum() + (2 * pairs.shape[0] if pairs is not None else 0),
         }
-        if byol_out is not None:
-            losses["weighted_loss_byol"] = loss_byol.detach()  # loss = L_DT + w L_BYOL
-            losses.update({k: v.detach() for k, v in byol_out.items()})
+        if out.byol is not None:
+            losses["weighted_loss_byol"] = out.loss_byol.detach()  # loss = L_DT + w L_BYOL
+            losses.update({k: v.detach() for k, v in out.byol.items()})
         if self.distributed.enabled:
             losses = self._global_values(losses, pairs)
         frames = float(losses["frames"])
@@ -368,20 +242,16 @@ class Trainer:
             "iteration_s": elapsed,
         }
         total = metrics["loss_dt"]
-        if byol_out is not None:
+        if out.byol is not None:
             total += float(losses["weighted_loss_byol"])
-            metrics.update({k: float(losses[k]) for k in byol_out.keys()})
-            metrics["tau"] = float(tau)
+            metrics.update({k: float(losses[k]) for k in out.byol.keys()})
+            metrics["tau"] = float(out.tau)
         if "dve" in self.optimizers:
             metrics["lr_dve"] = self.optimizers["dve"].param_groups[0]["lr"]
         metrics["loss"] = total
         if not math.isfinite(total):
             raise FloatingPointError(f"iteration {self.iteration}: the loss is {total} (metrics {metrics})")
         return metrics
-
-    def _pair_share(self, pairs: TensorDict) -> float:
-        """This process's share of the global D_ssl batch (1 for one process)."""
-        return pairs.shape[0] / self.cfg.data.ssl_batch_pairs if self.distributed.enabled else 1.0
 
     def _global_values(
         self, local: dict[str, torch.Tensor], pairs: TensorDict | None
@@ -390,53 +260,10 @@ class Trainer:
         ``weighted_loss_byol`` and ``frames`` are already this process's part of the global value (summed);
         BYOL's per-encoder outputs are means over this process's pairs (weighted by its share, then summed:
         exact for the losses, a weighted mean of per-process values for ``projection_std_<encoder>``)."""
-        share = self._pair_share(pairs) if pairs is not None else 1.0
+        share = pairs.shape[0] / self.cfg.data.ssl_batch_pairs if pairs is not None else 1.0
         parts = {"loss_dt", "weighted_loss_byol", "frames"}
         values = torch.stack([v.float() if k in parts else v.float() * share for k, v in local.items()])
         return dict(zip(local, self.distributed.all_reduce_sum(values).unbind(0), strict=True))
-
-    def _forward_backward(
-        self, batch: TensorDict, pairs: TensorDict | None
-    ) -> tuple[torch.Tensor, torch.Tensor | None, TensorDict | None]:
-        """L = L_DT + L_BYOL, one backward (or one per trajectory chunk, weighted to the same gradient).
-
-        Every backward goes through ``self.scaler`` (loss scaling under float16 autocast, else unchanged).
-        With several processes each one back-propagates its part of the global loss: L_DT's masked mean
-        weighted by its valid steps over the global batch's (all-reduced), L_BYOL by its share of the pairs;
-        summed over the processes (the gradients' all-reduce) that is the global batch's L.
-        Returns ``(loss_dt, loss_byol, byol_out)``: the detached DT loss, BYOL's weighted loss (None without
-        SSL) and the BYOL loss module's output TensorDict (None without SSL; this process's pairs).
-        """
-        chunks = self.cfg.optim.trajectory_chunks
-        byol_out = self.byol_loss(pairs) if pairs is not None else None
-        loss_byol = byol_out["loss_byol"] if byol_out is not None else None
-        if loss_byol is not None and self.cfg.ssl.loss_weight != 1.0:
-            loss_byol = loss_byol * self.cfg.ssl.loss_weight  # logged unweighted (byol_out)
-        if chunks == 1 and not self.distributed.enabled:
-            loss_dt = self.dt_loss(batch)["loss_dt"]
-            self.scaler.scale(loss_dt if loss_byol is None else loss_dt + loss_byol).backward()
-            return loss_dt.detach(), loss_byol, byol_out
-        valid_total = batch["mask"].sum()
-        if self.distributed.enabled:
-            valid_total = self.distributed.all_reduce_sum(valid_total)
-            if loss_byol is not None:
-                loss_byol = loss_byol * self._pair_share(pairs)
-        valid_total = valid_total.clamp_min(1)
-        n = batch.shape[0]
-        if self.cfg.optim.chunks_by_length:
-            parts = split_by_length(batch, chunks)
-        else:
-            parts = [batch[shard_rows(n, i, min(chunks, n))] for i in range(min(chunks, n))]
-        if loss_byol is not None and len(parts) > 1:
-            self.scaler.scale(loss_byol).backward()
-        loss_dt = torch.zeros((), device=self.device)
-        for part in parts:
-            # masked mean of the chunk x its share of the valid steps = its part of the batch's masked mean
-            weighted = self.dt_loss(part)["loss_dt"] * (part["mask"].sum() / valid_total)
-            together = loss_byol is not None and len(parts) == 1  # one backward, as one process does
-            self.scaler.scale(weighted + loss_byol if together else weighted).backward()
-            loss_dt += weighted.detach()
-        return loss_dt, loss_byol, byol_out
 
     # -- validation -----------------------------------------------------------------------------------
     def validation_due(self) -> bool:
@@ -455,18 +282,8 @@ class Trainer:
 
     # -- logging --------------------------------------------------------------------------------------
     def make_logger(self) -> Logger | None:
-        """TorchRL logger of ``cfg.logger.backend`` writing under ``<run_dir>/logs`` (None for ``none``)."""
-        backend = self.cfg.logger.backend
-        log_dir = str(self.run_dir / "logs")
-        if backend == "csv":
-            from torchrl.record.loggers.csv import CSVLogger
-
-            return CSVLogger(self.cfg.logger.exp_name, log_dir=log_dir, video_format="pt")
-        if backend == "tensorboard":
-            from torchrl.record.loggers.tensorboard import TensorboardLogger
-
-            return TensorboardLogger(self.cfg.logger.exp_name, log_dir=log_dir)
-        return None
+        """The run's TorchRL logger (:func:`~navformer_rl.training.factories.make_logger`)."""
+        return make_logger(self.cfg, self.run_dir)
 
     def record(self, metrics: Mapping[str, float]) -> bool:
         """Add this iteration's ``metrics`` to :attr:`log_window` and, when the iteration is a multiple of

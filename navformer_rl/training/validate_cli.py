@@ -2,19 +2,21 @@
 
 The offline form of training's ``validation.*`` (:func:`navformer_rl.training.validation.score_checkpoints`)::
 
-    navformer validate --checkpoint runs/nf/checkpoints/iter_* --exploration data/val_e --collision data/val_ca
+    navformer validate --checkpoint runs/nf/checkpoints/iter_* \\
+        --exploration data/val_e --collision data/val_ca
 """
 
 from __future__ import annotations
 
 import argparse
 
-from navformer_rl.cli import args as cli_args
+from navformer_rl.utils import cli_args
 
 EPILOG = """\
 examples:
   navformer validate --checkpoint runs/navformer --exploration data/val_e --collision data/val_ca
-  navformer validate --checkpoint runs/navformer/checkpoints/iter_* runs/dt --collision data/val_ca --json val.json
+  navformer validate --checkpoint runs/navformer/checkpoints/iter_* runs/dt --collision data/val_ca \\
+      --json val.json
 
 Eq. 10 (squared action error summed over the action dims, averaged over every valid step) with the model in
 eval mode, one window per trajectory (seeded, as training's validation.seed). docs/training.md
@@ -36,8 +38,10 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         nargs="+",
         required=True,
         metavar="PATH",
-        help="run directories (their latest checkpoint), checkpoint folders (e.g. runs/nf/checkpoints/iter_*) "
-        "or shipped weights (pretrained:navformer, pretrained:dt)",
+        help=(
+            "run directories (their latest checkpoint), checkpoint folders "
+            "(e.g. runs/nf/checkpoints/iter_*) or shipped weights (pretrained:navformer, pretrained:dt)"
+        ),
     )
     parser.add_argument("--exploration", metavar="DIR", help="a D_e dataset folder (held out)")
     parser.add_argument("--collision", metavar="DIR", help="a D_ca dataset folder (held out)")

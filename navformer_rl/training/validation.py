@@ -163,7 +163,8 @@ class Validator:
     def __call__(
         self, loss_module: Any, model: torch.nn.Module, device: torch.device, distributed: Any = None
     ) -> dict[str, float]:
-        """``{"validation/<metric>": float}`` for every set, ``model`` in eval mode (see :func:`evaluation_mode`).
+        """``{"validation/<metric>": float}`` for every set, ``model`` in eval mode (see
+        :func:`evaluation_mode`).
 
         ``distributed``: a :class:`~navformer_rl.training.distributed.Distributed` of several processes
         shares the batches out (each scores every N-th one; the sums are all-reduced, every process gets
@@ -232,11 +233,12 @@ def score_checkpoints(
 
     The offline form of the trainer's validation (``navformer validate``): score checkpoints of one run at
     several iterations, or of several runs, on the same windows (fixed by ``seed``, as ``validation.seed``;
-    each window at most ``context_steps`` steps, default the model's context, ``NavFormerConfig.window_steps``,
-    as in the paper's training).
+    each window at most ``context_steps`` steps, default the model's context,
+    ``NavFormerConfig.window_steps``, as in the paper's training).
 
     Args:
-        checkpoints: checkpoint paths in any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes.
+        checkpoints: checkpoint paths in any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint`
+            takes.
         datasets: ``{kind: folder}`` with kinds ``e`` (D_e) and / or ``ca`` (D_ca).
         batch_trajs / max_trajectories / seed: as in :class:`ValidationConfig`.
         device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``.

@@ -3,17 +3,17 @@
 glibc's ``malloc`` serves every block above its mmap threshold (at most 32 MiB) with a fresh ``mmap`` and
 gives it back with ``munmap`` when freed. A CPU training iteration allocates and frees dozens of such
 tensors (the GPT's ``[37950, 512]`` MLP activations and their gradients, the attention weights, ...), so
-the kernel maps and zeroes those pages again at every iteration: with ``GLIBC_TUNABLES=glibc.malloc.hugetlb=1``
-(transparent huge pages, what ``run.sh`` sets) a paper batch-B iteration took ~6,000 page faults, ~750 of
-them 2 MiB huge pages. :func:`keep_freed_memory` switches that off for the rest of the process
-(``mallopt(M_MMAP_MAX, 0)``: big blocks come from the heap too, and ``mallopt(M_TRIM_THRESHOLD, 2 GiB - 1)``:
-freed memory stays in the heap), so once the heap has grown to the run's peak (a few iterations) the
-process reuses its pages (2-40 faults per batch-B iteration). On the 2-core CPU a mean paper iteration
-then takes 0.80-0.88x the time, 0.88-0.95x in the real loop with its data sampling (``benchmarks/model.md``,
-"Allocator: keep freed memory"). The values computed do not change. The cost: the process's resident memory stays at its peak instead of shrinking between
-iterations. Without huge pages for malloc, glibc may still grow the heap past a freed block that small
-objects have split (seen in a synthetic loop of equal-size tensors; not in training, which faulted 2-7 pages
-per batch-B iteration that way too).
+the kernel maps and zeroes those pages again at every iteration: with
+``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` (transparent huge pages, what ``run.sh`` sets) a paper batch-B
+iteration took ~6,000 page faults, ~750 of them 2 MiB huge pages. :func:`keep_freed_memory` switches that off
+for the rest of the process (``mallopt(M_MMAP_MAX, 0)``: big blocks come from the heap too, and
+``mallopt(M_TRIM_THRESHOLD, 2 GiB - 1)``: freed memory stays in the heap), so once the heap has grown to the
+run's peak (a few iterations) the process reuses its pages (2-40 faults per batch-B iteration). On the 2-core
+CPU a mean paper iteration then takes 0.80-0.88x the time, 0.88-0.95x in the real loop with its data sampling
+(``benchmarks/model.md``, "Allocator: keep freed memory"). The values computed do not change. The cost: the
+process's resident memory stays at its peak instead of shrinking between iterations. Without huge pages for
+malloc, glibc may still grow the heap past a freed block that small objects have split (seen in a synthetic
+loop of equal-size tensors; not in training, which faulted 2-7 pages per batch-B iteration that way too).
 
 :func:`release_free_memory` (``malloc_trim(0)``) hands the free pages inside the heap back to the kernel;
 ``navformer train`` calls it after every checkpoint when it keeps freed memory, so what the heap's
@@ -57,7 +57,8 @@ def _glibc() -> ctypes.CDLL | None:
 
 
 def keep_freed_memory() -> bool:
-    """Make glibc's ``malloc`` serve big blocks from the heap and keep freed memory (see the module docstring).
+    """Make glibc's ``malloc`` serve big blocks from the heap and keep freed memory (see the module
+    docstring).
 
     Returns True when the settings took effect, False on a C library other than glibc (nothing changes).
     Idempotent; there is no way back within the process.

@@ -18,9 +18,9 @@ _CUDA_INDEX = re.compile(r"^cuda:(\d+)$")
 
 
 def check_device(name: object, option: str = "device") -> str:
-    """``name`` if it is ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` and usable here; otherwise ValueError naming
-    ``option``, the value and what was expected (a CUDA device on a machine where torch sees none, or a GPU
-    number beyond those present)."""
+    """``name`` if it is ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` and usable here; otherwise ValueError
+    naming ``option``, the value and what was expected (a CUDA device on a machine where torch sees none, or a
+    GPU number beyond those present)."""
     if not isinstance(name, str) or not (name in DEVICES or _CUDA_INDEX.match(name)):
         raise ValueError(f"{option}={name!r}: expected one of {list(DEVICES)} or 'cuda:N' (GPU number N)")
     if name.startswith("cuda"):
@@ -76,7 +76,7 @@ def bfloat16_autocast_warning(device: torch.device, autocast_dtype: str | None) 
 
     capability = torch.backends.cpu.get_cpu_capability()
     return (
-        f"model.autocast_dtype=bfloat16 on a CPU without native bf16 (torch sees {capability}, no AVX512-BF16 "
-        "or AMX): bf16 is emulated there and trains several times slower than fp32 (about 7x in "
+        f"model.autocast_dtype=bfloat16 on a CPU without native bf16 (torch sees {capability}, no "
+        "AVX512-BF16 or AMX): bf16 is emulated there and trains several times slower than fp32 (about 7x in "
         "docs/training.md); leave model.autocast_dtype unset (fp32) on this machine"
     )

@@ -131,9 +131,9 @@ def publish_folder(tmp: str | os.PathLike, final: str | os.PathLike) -> Path:
     """Make the finished temporary folder ``tmp`` (a sibling of ``final``) appear as ``final`` in one rename.
 
     Its files get :func:`file_mode` (``mkstemp`` / safetensors create them owner-only) and are flushed, the
-    folder gets :func:`dir_mode` (``mkdtemp`` creates 0700); an existing ``final`` is moved aside first, so the
-    rename cannot fail on a non-empty target, and removed after. A crash leaves ``final`` old or new, never half
-    written. Returns ``final``."""
+    folder gets :func:`dir_mode` (``mkdtemp`` creates 0700); an existing ``final`` is moved aside first, so
+    the rename cannot fail on a non-empty target, and removed after. A crash leaves ``final`` old or new,
+    never half written. Returns ``final``."""
     tmp, final = Path(tmp), Path(final)
     for child in tmp.iterdir():
         os.chmod(child, file_mode())

@@ -11,8 +11,9 @@ from typing import Any
 def lazy_exports(
     package: str, exports: Mapping[str, str]
 ) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
-    """``(__getattr__, __dir__)`` for ``package``: attribute ``name`` is imported from module ``exports[name]``
-    on first access; any other name raises ``AttributeError`` as a missing attribute does."""
+    """``(__getattr__, __dir__)`` for ``package``: attribute ``name`` is imported from module
+    ``exports[name]`` on first access; any other name raises ``AttributeError`` as a missing attribute
+    does."""
 
     def __getattr__(name: str) -> Any:
         if name in exports:

@@ -1,4 +1,5 @@
-"""Groups of right-padded trajectories of similar length: what ``split_by_length`` and ``LengthGroups`` crop."""
+"""Groups of right-padded trajectories of similar length:
+what ``split_by_length`` and ``LengthGroups`` crop."""
 
 from __future__ import annotations
 
@@ -6,10 +7,11 @@ import torch
 
 
 def length_sorted_groups(mask: torch.Tensor, groups: int) -> list[tuple[torch.Tensor, int]]:
-    """``[(rows, steps)]``: the trajectories of a right-padded bool ``mask`` ``[N, T]`` ordered by valid length
-    (stable: ties keep the batch's order) and cut into ``min(groups, N)`` consecutive groups of near-equal size
-    (the first ``N % groups`` one larger). ``rows``: int64 indices into the batch; ``steps``: the group's longest
-    valid length (at least 1), so cropping the group to ``[:, :steps]`` drops only padding.
+    """``[(rows, steps)]``: the trajectories of a right-padded bool ``mask`` ``[N, T]`` ordered by valid
+    length (stable: ties keep the batch's order) and cut into ``min(groups, N)`` consecutive groups of
+    near-equal size (the first ``N % groups`` one larger). ``rows``: int64 indices into the batch; ``steps``:
+    the group's longest valid length (at least 1), so cropping the group to ``[:, :steps]`` drops only
+    padding.
     """
     if groups < 1:
         raise ValueError(f"groups must be >= 1, got {groups}")

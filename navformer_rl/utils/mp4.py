@@ -1,20 +1,19 @@
-"""H.264 mp4 writing that browsers play: frames are piped to the ffmpeg binary shipped by ``imageio-ffmpeg``.
+"""H.264 mp4 writing that browsers play, through ``imageio-ffmpeg``'s ``write_frames`` (its ffmpeg binary).
 
 OpenCV's pip wheels carry no H.264 encoder (only MPEG-4 Part 2, ``mp4v``, which browsers and most notebook
-viewers refuse), so the evaluation videos and the world demo pipe raw RGB frames into ffmpeg with
-``libx264``, ``yuv420p`` and the index at the front of the file (``+faststart``): the files play in
-browsers, VS Code, Jupyter, VLC and QuickTime. A file is moved into place only after ffmpeg exited with
-status 0, so a crashed or killed encoder never leaves a broken video behind.
+viewers refuse), so the evaluation videos and the world demo send raw RGB frames to ffmpeg with ``libx264``,
+``yuv420p``, even sides (odd ones padded white rather than rescaled) and the index at the front of the file
+(``+faststart``): the files play in browsers, VS Code, Jupyter, VLC and QuickTime. What this module adds to
+``write_frames``: a file is moved into place only once ffmpeg has finished it and it holds every frame
+written (``write_frames`` does not report ffmpeg's exit status), so a crashed or killed encoder never
+leaves a broken video behind.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
-import subprocess
-import tempfile
 import weakref
-from fractions import Fraction
+from collections.abc import Generator
 from pathlib import Path
 from types import ModuleType
 
@@ -29,7 +28,11 @@ PRESET = "veryfast"
 
 
 class VideoEncoderError(OSError):
-    """The ffmpeg encoder is missing, or failed while writing a video (its message included)."""
+    """The ffmpeg encoder is missing, or failed while writing a video."""
+
+
+class _Abort(BaseException):
+    """Thrown into ``write_frames`` to make it kill ffmpeg (a ``BaseException``: it does not wait)."""
 
 
 def _imageio_ffmpeg() -> ModuleType:
@@ -79,9 +82,9 @@ class Mp4Writer:
         threads: encoder threads (0 = as many as ffmpeg chooses); give 1 when several processes encode.
 
     Raises:
-        VideoEncoderError: from :meth:`write` or :meth:`close` when ffmpeg fails (its message included); the
-            partial file is deleted and ``path`` left untouched. A writer dropped without ``close`` or
-            ``abort`` has its encoder killed when it is garbage-collected.
+        VideoEncoderError: from :meth:`write` or :meth:`close` when ffmpeg fails (it prints its message on
+            stderr); the partial file is deleted and ``path`` left untouched. A writer dropped without
+            ``close`` or ``abort`` has its encoder killed when it is garbage-collected.
     """
 
     def __init__(self, path: str | os.PathLike, fps: float, threads: int = 0) -> None:
@@ -94,11 +97,10 @@ class Mp4Writer:
             raise ValueError(f"{self.path}: expected a file name ending in .mp4")
         self.fps = float(fps)
         self.threads = int(threads)
-        self._executable = ffmpeg_executable()
+        ffmpeg_executable()  # a missing encoder is named now, not at the first frame
         self._context = atomic_path(self.path)  # the temporary file keeps the .mp4 suffix ffmpeg reads
         self._tmp = self._context.__enter__()
-        self._process: subprocess.Popen | None = None
-        self._log = None  # ffmpeg's stderr, a temporary file (a pipe could fill up and block ffmpeg)
+        self._encoder: Generator[None, object, None] | None = None  # write_frames, started at the first frame
         self._finalizer: weakref.finalize | None = None
         self._finished = False
         self._size: tuple[int, int] | None = None  # (height, width) of the incoming frames
@@ -130,8 +132,8 @@ class Mp4Writer:
                 f"the video's first frame {self._size[1]}x{self._size[0]} px"
             )
         try:
-            self._process.stdin.write(np.ascontiguousarray(_pad_to_even(frame)).data)  # no copy to bytes
-        except BrokenPipeError:
+            self._encoder.send(np.ascontiguousarray(_pad_to_even(frame)).data)  # no copy to bytes
+        except (OSError, StopIteration):  # write_frames reports a broken pipe as an IOError
             self._fail(f"ffmpeg stopped after {self.frames} frames")
         self.frames += 1
 
@@ -143,19 +145,16 @@ class Mp4Writer:
             self.abort()
             raise ValueError(f"no frames were written to {self.path}")
         try:
-            with contextlib.suppress(BrokenPipeError):  # the exit status below tells
-                self._process.stdin.close()
-            status = self._process.wait()
-            if status != 0:
-                self._fail(f"ffmpeg exited with status {status}")
-            if self._tmp.stat().st_size == 0:
-                self._fail("ffmpeg wrote an empty file")
+            try:
+                self._encoder.close()  # ffmpeg finishes the file
+            except OSError:
+                self._fail("ffmpeg failed while finishing the file")
+            self._check_finished_file()
         except BaseException:  # Ctrl-C while ffmpeg finishes, a vanished file, ...
             self.abort()
             raise
         self._finished = True
         self._finalizer.detach()
-        self._log.close()
         self._context.__exit__(None, None, None)
         return self.path
 
@@ -165,45 +164,56 @@ class Mp4Writer:
             return
         self._finished = True
         if self._finalizer is not None:
-            self._finalizer()  # kills and reaps ffmpeg, closes its log
-        elif self._log is not None:
-            self._log.close()
+            self._finalizer()  # kills ffmpeg
         self._context.__exit__(RuntimeError, RuntimeError("aborted"), None)
 
     def _fail(self, what: str) -> None:
-        """Abort and raise :class:`VideoEncoderError` with ffmpeg's last messages."""
-        self._log.seek(0)
-        messages = self._log.read().decode(errors="replace").strip()[-800:]
+        """Abort and raise :class:`VideoEncoderError`."""
         self.abort()
-        raise VideoEncoderError(f"{self.path}: {what}" + (f": {messages}" if messages else ""))
+        raise VideoEncoderError(f"{self.path}: {what} (its message, if any, is on stderr)")
+
+    def _check_finished_file(self) -> None:
+        """:class:`VideoEncoderError` unless ffmpeg left a readable file with every frame written."""
+        if not self._tmp.is_file() or self._tmp.stat().st_size == 0:
+            self._fail("ffmpeg wrote no file")
+        try:
+            frames, _ = _imageio_ffmpeg().count_frames_and_secs(str(self._tmp))
+        except (RuntimeError, OSError) as error:
+            self._fail(f"ffmpeg wrote an unreadable file ({error})")
+        if frames != self.frames:
+            self._fail(f"ffmpeg wrote {frames} of the {self.frames} frames")
 
     def _start_encoder(self) -> None:
         height, width = self._size
-        command = [
-            *(self._executable, "-y", "-loglevel", "error", "-f", "rawvideo", "-vcodec", "rawvideo"),
-            *("-s", f"{width + width % 2}x{height + height % 2}", "-pix_fmt", "rgb24"),
-            *("-r", str(Fraction(self.fps).limit_denominator()), "-i", "-", "-an"),
-            *("-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", str(CRF), "-preset", PRESET),
-            *("-threads", str(self.threads), "-movflags", "+faststart", str(self._tmp)),
-        ]
-        self._log = tempfile.TemporaryFile()
+        self._encoder = _imageio_ffmpeg().write_frames(
+            str(self._tmp),
+            (width + width % 2, height + height % 2),  # _pad_to_even
+            fps=self.fps,
+            codec="libx264",
+            quality=None,  # the rate factor below
+            macro_block_size=1,  # even sides are enough for yuv420p; no rescaling
+            ffmpeg_log_level="error",
+            output_params=[
+                *("-crf", str(CRF), "-preset", PRESET, "-threads", str(self.threads)),
+                *("-movflags", "+faststart"),
+            ],
+        )
         try:
-            self._process = subprocess.Popen(
-                command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log
-            )
+            self._encoder.send(None)  # starts ffmpeg
         except OSError as error:
+            self._encoder = None
             self.abort()
             raise VideoEncoderError(f"{self.path}: cannot start ffmpeg ({error})") from None
-        self._finalizer = weakref.finalize(self, _stop_encoder, self._process, self._log)
+        self._finalizer = weakref.finalize(self, _stop_encoder, self._encoder)
 
 
-def _stop_encoder(process: subprocess.Popen, log) -> None:
-    """Kill and reap an unfinished ffmpeg (so it never writes its file later) and close its log."""
-    process.kill()
-    process.wait()
-    with contextlib.suppress(OSError):  # flushing into the dead encoder's pipe
-        process.stdin.close()
-    log.close()
+def _stop_encoder(encoder: Generator[None, object, None]) -> None:
+    """Kill an unfinished ffmpeg (so it never writes its file later): ``write_frames`` kills it on a
+    ``BaseException`` that is not an ``Exception``."""
+    try:
+        encoder.throw(_Abort())
+    except (_Abort, StopIteration, OSError):
+        pass
 
 
 def _pad_to_even(frame: np.ndarray) -> np.ndarray:

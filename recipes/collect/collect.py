@@ -4,7 +4,8 @@ Thin layer over :func:`navformer_rl.data.collect.collect`: build each kind's set
 collect (resumable: rerun the same command after an interruption). Prints each dataset's counts.
 
 A mistake the user can fix is printed as one line, ``collect.py: error: <message>``, with exit status 2, like
-``navformer collect`` (``NAVFORMER_DEBUG=1`` shows the traceback); a refused run leaves no hydra folder behind.
+``navformer collect`` (``NAVFORMER_DEBUG=1`` shows the traceback); a refused run leaves no hydra folder
+behind.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Evaluation recipe (paper §VII): ``python recipes/evaluate/evaluate.py method=fca protocol=table1 workers=2``.
+"""Evaluation recipe (paper §VII):
+``python recipes/evaluate/evaluate.py method=fca protocol=table1 workers=2``.
 
 Builds the episode set (a file, or a protocol generated on the fly), then runs
 :func:`navformer_rl.evaluation.harness.evaluate`, which writes per-robot-trial JSONL, the Table I-layout
@@ -8,8 +9,8 @@ a rerun reuses finished episodes only when given the same ``output_dir``.
 
 A mistake the user can fix (an unknown method, a missing checkpoint, a bad label, protocol or worker count) is
 printed as one line, ``evaluate.py: error: <message>``, with exit status 2, like the ``navformer`` command
-(``NAVFORMER_DEBUG=1`` shows the traceback); the method, checkpoint and label are checked before anything else,
-and a refused run leaves no output folder behind.
+(``NAVFORMER_DEBUG=1`` shows the traceback); the method, checkpoint and label are checked before anything
+else, and a refused run leaves no output folder behind.
 """
 
 from __future__ import annotations

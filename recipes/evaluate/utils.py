@@ -15,7 +15,7 @@ from navformer_rl.evaluation.episodes import (
     make_protocol_episodes,
     protocol_trials,
 )
-from navformer_rl.evaluation.harness import EvaluationResult, PolicySpec, evaluate
+from navformer_rl.evaluation.harness import EvaluateConfig, EvaluationResult, PolicySpec, evaluate
 from navformer_rl.evaluation.measures import check_cluster
 from navformer_rl.utils.backends import check_backend
 
@@ -49,8 +49,8 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
         given = [name for name, value in {**generation, "setups": setups}.items() if value is not None]
         if given:
             raise ValueError(
-                f"{', '.join(given)}: only with `protocol`; the episode file {cfg.episodes} fixes its trials, "
-                "seeds and steps per trial"
+                f"{', '.join(given)}: only with `protocol`; the episode file {cfg.episodes} fixes its "
+                "trials, seeds and steps per trial"
             )
         return load_episode_set(cfg.episodes)
     defaults = {
@@ -66,10 +66,7 @@ def make_episode_set(cfg: DictConfig) -> EpisodeSet:
 
 def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult:
     """Run the harness with the recipe's settings into ``cfg.output_dir``."""
-    return evaluate(
-        cfg.method,
-        episode_set,
-        cfg.output_dir,
+    config = EvaluateConfig(
         checkpoint=cfg.checkpoint,
         workers=int(cfg.workers),
         label=cfg.label,
@@ -84,6 +81,7 @@ def run_evaluation(cfg: DictConfig, episode_set: EpisodeSet) -> EvaluationResult
         ray_address=cfg.ray_address,
         context_steps=cfg.context_steps,
     )
+    return evaluate(cfg.method, episode_set, cfg.output_dir, config)
 
 
 def resume_hint(

@@ -33,8 +33,8 @@ def make_train_config(cfg: DictConfig) -> TrainConfig:
         )
     if default_dir and int(os.environ.get("WORLD_SIZE", "1") or 1) > 1:
         raise ValueError(
-            "under torchrun the recipe needs output_dir=<run directory> (add hydra.run.dir=<the same> to keep "
-            "hydra's records there): hydra names each process's folder after the second it started"
+            "under torchrun the recipe needs output_dir=<run directory> (add hydra.run.dir=<the same> to "
+            "keep hydra's records there): hydra names each process's folder after the second it started"
         )
     container: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     container.pop("hydra", None)

@@ -1,4 +1,5 @@
-"""DSAC / MA-TDN trained online with PPO (paper §VII.A baselines): ``python recipes/ppo/ppo.py [key=value ...]``.
+"""DSAC / MA-TDN trained online with PPO (paper §VII.A baselines):
+``python recipes/ppo/ppo.py [key=value ...]``.
 
 Per batch: a multi-process collector (``MultiSyncCollector`` over ``MultiRobotNavEnv`` workers, every robot
 driven by the policy, shaped reward) -> GAE per robot -> ``ClipPPOLoss`` epochs over minibatches of

@@ -28,7 +28,8 @@ OUTER_WALLS = np.array(
 
 
 def open_world(starts, targets):
-    """A 5 m world with only its outer walls; ``targets``: ``(x, y, shape, colour)``; ``starts``: ``[R, 3]``."""
+    """A 5 m world with only its outer walls; ``targets``: ``(x, y, shape, colour)``; ``starts``:
+    ``[R, 3]``."""
     specs = [TargetSpec(np.array([x, y], dtype=np.float32), s, c) for x, y, s, c in targets]
     return world_from_layout(5.0, OUTER_WALLS, specs, np.asarray(starts, dtype=np.float32))
 
@@ -49,7 +50,8 @@ class FixedEpisodeEnv(MultiRobotNavEnv):
 
 
 def shaped_env(world, method: str | None = None, max_steps: int = 16, weights: RewardWeights | None = None):
-    """``FixedEpisodeEnv(world)`` with the PPO env's transforms (shaped reward, return, ``method``'s primers)."""
+    """``FixedEpisodeEnv(world)`` with the PPO env's transforms (shaped reward, return,
+    ``method``'s primers)."""
     base = FixedEpisodeEnv(world, max_steps=max_steps, seed=0)
     primers = env_primers(method, SMALL[method], world.n_robots) if method else []
     return TransformedEnv(

@@ -1,4 +1,5 @@
-"""DSAC and MA-TDN through the evaluation harness: ``evaluate(method, ..., checkpoint=PPO run)`` and the CLI."""
+"""DSAC and MA-TDN through the evaluation harness:
+``evaluate(method, ..., checkpoint=PPO run)`` and the CLI."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""DSAC and MA-TDN as TensorDict modules: keys, shapes, specs, gradients through ClipPPOLoss, MA-TDN's memory."""
+"""DSAC and MA-TDN as TensorDict modules: keys, shapes, specs, gradients through ClipPPOLoss,
+MA-TDN's memory."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""The hydra recipe ``recipes/ppo/ppo.py``: the configuration ``navformer train-ppo`` resolves, one-line errors."""
+"""The hydra recipe ``recipes/ppo/ppo.py``: the configuration ``navformer train-ppo`` resolves,
+one-line errors."""
 
 from __future__ import annotations
 

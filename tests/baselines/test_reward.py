@@ -13,7 +13,8 @@ from .conftest import CORRIDOR, open_world, shaped_env
 
 
 def drive(env, actions, steps):
-    """Step ``env`` with the fixed ``actions`` float ``[A, 2]`` until done or ``steps``; the stacked outputs."""
+    """Step ``env`` with the fixed ``actions`` float ``[A, 2]`` until done or ``steps``;
+    the stacked outputs."""
     td = env.reset()
     outs = []
     for _ in range(steps):

@@ -117,7 +117,8 @@ def _fake_run(folder, method, returns):
     (folder / "ppo_config.json").write_text(json.dumps({"method": method}))
     log = ProgressLog(folder)
     for i, value in enumerate(returns, start=1):
-        log.append({"iteration": i, "frames": 100 * i, "train_return": value, "train_success_rate": value / 10,
+        log.append({"iteration": i, "frames": 100 * i, "train_return": value,
+                    "train_success_rate": value / 10,
                     "eval_return": value if i % 2 == 0 else math.nan})  # fmt: skip
 
 

@@ -371,7 +371,8 @@ def test_settings_overrides_are_checked():
 
 
 def test_deferred_rendering_equals_live_cameras():
-    """run_episode renders after the episode (restoring poses); the frames equal live rendering at each step."""
+    """run_episode renders after the episode (restoring poses);
+    the frames equal live rendering at each step."""
     from navformer_rl.envs.robots import JACKAL
     from navformer_rl.envs.sim import Simulator
     from navformer_rl.experts.policies import NHORCAExpert

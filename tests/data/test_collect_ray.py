@@ -13,7 +13,8 @@ from navformer_rl.data.collect import collect, settings_for
 from navformer_rl.utils import backends
 
 SETTINGS = settings_for("ca", "small", seed=5, n_trajectories=5, other_robots=(2, 2))
-"""5 D_ca trajectories from arena episodes of 3 robots: at least 2 work units (3 trajectories at most each)."""
+"""5 D_ca trajectories from arena episodes of 3 robots: at least 2 work units
+(3 trajectories at most each)."""
 
 
 @pytest.fixture(scope="module")

@@ -32,7 +32,8 @@ CA_SETTINGS = {"n_trajectories": 5, "other_robots": (2, 2), "max_steps": 40}
 
 
 def make_run(run_dir: Path, config: NavFormerConfig, seed: int, train_config: dict | None = None) -> Path:
-    """A run directory with one seeded, untrained checkpoint of ``config`` (``train_config`` in its header)."""
+    """A run directory with one seeded, untrained checkpoint of ``config``
+    (``train_config`` in its header)."""
     torch.manual_seed(seed)
     model = NavFormerModel(config)
     save_checkpoint(

@@ -252,8 +252,11 @@ def test_resume_with_same_size_content_damage_names_the_file_and_the_fix(
     file = writer_module.shard_dir(resumable, unit) / name
     with pytest.raises(
         ValueError,
-        match=rf"^{re.escape(str(file))}: its content changed after it was written \(its sha256 is [0-9a-f]+\.\.\., "
-        rf"\S*unit-{unit:06d}/stats.json recorded [0-9a-f]+\.\.\..*{REMEDY.format(unit=unit)}",
+        match=(
+            rf"^{re.escape(str(file))}: "
+            r"its content changed after it was written \(its sha256 is [0-9a-f]+\.\.\., "
+            rf"\S*unit-{unit:06d}/stats.json recorded [0-9a-f]+\.\.\..*{REMEDY.format(unit=unit)}"
+        ),
     ):
         _collect(resumable)
     assert json.loads((resumable / "metadata.json").read_text())["status"] == "collecting"

@@ -1,4 +1,5 @@
-"""The data versions are honest: a tiny seeded collection of each kind has its signature recorded next to them.
+"""The data versions are honest: a tiny seeded collection of each kind has its signature recorded next to
+them.
 
 A dataset's identity is its settings plus the numbers of ``navformer_rl.data.versions.DATA_VERSIONS`` (not
 its code's text). These tests collect a tiny dataset of each kind through the real simulator and experts
@@ -94,7 +95,8 @@ def data_signature(dataset: NavDataset) -> dict[str, Any]:
 
     ``items`` (trajectories or pairs), ``rows``, ``lengths`` (steps per trajectory; ``[]`` for D_ssl),
     ``exact`` (int / bool columns as ints) and ``close`` (float columns rounded to 1e-6), both ``[rows]`` or
-    ``[rows, values]``, and ``images`` (:func:`image_signature` of each uint8 column and of ``target_pixels``).
+    ``[rows, values]``, and ``images`` (:func:`image_signature` of each uint8 column and of
+    ``target_pixels``).
     """
     columns = {key_name(key): dataset.rows.get(key).numpy() for key in fields_for(dataset.kind)}
     if dataset.targets is not None:
@@ -188,13 +190,14 @@ def mismatch_message(
     return (
         f"the collected {kind} data differs from its signature in {SIGNATURE_FILE.name}:\n{listed}{more}\n"
         f"bump {' or '.join(KIND_VERSIONS[DatasetKind.parse(kind)])} (whichever behaviour changed) in "
-        f"navformer_rl/data/versions.py, or SCHEMA_VERSION in navformer_rl/data/schema.py for a change of the "
-        f"stored keys, {then}"
+        "navformer_rl/data/versions.py, or SCHEMA_VERSION in navformer_rl/data/schema.py for a change of "
+        f"the stored keys, {then}"
     )
 
 
 def collect_signature(kind: str, folder: Path) -> dict[str, Any]:
-    """Collect :data:`SETTINGS` of ``kind`` into ``folder`` (1 worker) and return its :func:`data_signature`."""
+    """Collect :data:`SETTINGS` of ``kind`` into ``folder`` (1 worker) and return its
+    :func:`data_signature`."""
     return data_signature(
         open_dataset(collect(kind, folder / kind, SETTINGS[kind], workers=1, progress=False))
     )
@@ -247,7 +250,8 @@ def test_the_collected_data_matches_its_recorded_versions(kind, tmp_path):
     )
     assert data_versions(kind) == recorded[kind]["versions"], (
         f"the data versions of {kind} are now {data_versions(kind)}, but its signature in "
-        f"{SIGNATURE_FILE.name} was recorded with {recorded[kind]['versions']}: re-record with `{RECORD_COMMAND}`"
+        f"{SIGNATURE_FILE.name} was recorded with {recorded[kind]['versions']}: "
+        f"re-record with `{RECORD_COMMAND}`"
     )
     differences = signature_differences(recorded[kind]["signature"], collect_signature(kind, tmp_path))
     assert not differences, mismatch_message(kind, differences)

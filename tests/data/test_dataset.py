@@ -1,4 +1,5 @@
-"""Writer + loader: round trip, refusals with clear messages, crash/resume == uninterrupted (byte for byte)."""
+"""Writer + loader: round trip, refusals with clear messages, crash/resume == uninterrupted
+(byte for byte)."""
 
 import json
 import os

@@ -1,4 +1,5 @@
-"""The hydra collection recipe (a subprocess, like TorchRL's sota smoke tests), and what the three recipes share."""
+"""The hydra collection recipe (a subprocess, like TorchRL's sota smoke tests),
+and what the three recipes share."""
 
 from __future__ import annotations
 

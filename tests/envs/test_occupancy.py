@@ -131,7 +131,8 @@ def test_reach_one_is_the_eight_connected_grid_without_corner_cutting():
         (1, 1): {(0, 0), (0, 1), (1, 0), (1, 1)},  # a diagonal needs both side cells free
         (1, -1): {(0, -1), (0, 0), (1, -1), (1, 0)},
     }
-    # (2, 1) from the centre of (0, 0) to that of (2, 1) crosses row 1 at x = 1.0: it touches (1, 0) and (1, 1)
+    # (2, 1) from the centre of (0, 0) to that of (2, 1) crosses row 1 at x = 1.0:
+    # it touches (1, 0) and (1, 1)
     assert set(dict((m[:2], m[2]) for m in grid_moves(2))[(2, 1)]) == {(0, 0), (1, 0), (1, 1), (2, 1)}
     assert reach_overestimate(1) == pytest.approx(1 / math.cos(math.pi / 8) - 1)  # 8.24 %
     assert reach_overestimate(5) == pytest.approx(1 / math.cos(math.atan(1 / 5) / 2) - 1)  # 0.49 %

@@ -62,7 +62,8 @@ def test_negative_seeds_are_refused_by_every_command(capsys):
     from navformer_rl import cli
 
     for argv in (["demo", "--seed", "-1"], ["collect", "e", "--out", "x", "--seed", "-1"],
-                 ["evaluate", "make-episodes", "--protocol", "smoke", "--out", "x", "--episode-seed", "-1"]):  # fmt: skip
+                 ["evaluate", "make-episodes", "--protocol", "smoke", "--out", "x",
+                  "--episode-seed", "-1"]):  # fmt: skip
         with pytest.raises(SystemExit) as exit_info:
             cli.main(argv)
         assert exit_info.value.code == 2
@@ -78,8 +79,8 @@ def test_cli_errors(tmp_path, capsys):
             _run(argv)
     err = capsys.readouterr().err
     assert (
-        "argument --method: invalid choice: 'random' (choose from 'navformer', 'dt', 'vrw', 'fca', 'dsac', 'matdn', 'frontier')"
-        in err
+        "argument --method: invalid choice: 'random' (choose from 'navformer', 'dt', 'vrw', "
+        "'fca', 'dsac', 'matdn', 'frontier')" in err
     )
     assert "argument --protocol: invalid choice: 'table9'" in err
     with pytest.raises(ValueError, match="--episodes FILE or --protocol"):

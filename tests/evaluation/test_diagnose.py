@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from navformer_rl.evaluation.diagnose_actions import edge_of_view_turns, turn_agreement, turn_changes
-from navformer_rl.evaluation.diagnose_measures import (
+from navformer_rl.evaluation.diagnose.actions import edge_of_view_turns, turn_agreement, turn_changes
+from navformer_rl.evaluation.diagnose.measures import (
     bearing,
     command_statistics,
     is_circling,
@@ -24,7 +24,7 @@ from navformer_rl.evaluation.diagnose_measures import (
     steps_to_free,
     wall_measures,
 )
-from navformer_rl.evaluation.diagnose_trace import EpisodeGeometry, RobotSteps, load_trace, save_trace
+from navformer_rl.evaluation.diagnose.trace import EpisodeGeometry, RobotSteps, load_trace, save_trace
 
 DT = 0.2
 
@@ -538,7 +538,7 @@ def expert_sets(tmp_path_factory):
 def test_teacher_forced_turns_score_the_windows_navformer_validate_scores(
     tmp_path, expert_sets, checkpoint_factory
 ):
-    from navformer_rl.evaluation.diagnose_actions import teacher_forced_turns
+    from navformer_rl.evaluation.diagnose.actions import teacher_forced_turns
     from navformer_rl.modules import NavFormerConfig
     from navformer_rl.training.validation import score_checkpoints
 

@@ -8,8 +8,26 @@ import pytest
 import torch
 
 from navformer_rl.evaluation.episodes import save_episode_set
-from navformer_rl.evaluation.harness import METHODS, PolicySpec, checkpoint_ablation, evaluate
+from navformer_rl.evaluation.harness import (
+    METHODS,
+    EvaluateConfig,
+    PolicySpec,
+    checkpoint_ablation,
+    evaluate,
+)
 from navformer_rl.modules import NavFormerConfig
+
+
+def test_evaluate_takes_an_evaluate_config_and_its_fields_as_keywords(tmp_path, tiny_episodes):
+    """Keywords replace the config's fields; a name that is not a field is refused before anything runs."""
+    config = EvaluateConfig(maps_per_setup=0, videos_per_setup=0, progress=False, label="walk")
+    result = evaluate("vrw", tiny_episodes, tmp_path / "vrw", config, seed=3)
+    run = json.loads((tmp_path / "vrw" / "run.json").read_text())
+    assert (run["label"], run["seed"]) == ("walk", 3) and len(result.records) == 4
+    assert {f.name for f in dataclasses.fields(EvaluateConfig)} >= {"checkpoint", "workers", "context_steps"}
+    with pytest.raises(TypeError, match="maps"):
+        evaluate("vrw", tiny_episodes, tmp_path / "other", config, maps=1)
+    assert not (tmp_path / "other").exists()
 
 
 @pytest.mark.parametrize("method", ["navformer", "dt"])

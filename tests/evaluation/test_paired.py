@@ -195,7 +195,8 @@ def table3_records(seen: list[bool], unseen: list[bool]) -> list[RobotTrial]:
                 records.append(
                     dataclasses.replace(
                         BASE, episode_id=f"{setup}/w{t // 2:02d}t{t % 2:02d}", setup=setup, size=12.5,
-                        world_seed=t // 2, trial=t, robot=robot, measured=robot == 0 or setup.endswith("-seen"),
+                        world_seed=t // 2, trial=t, robot=robot,
+                        measured=robot == 0 or setup.endswith("-seen"),
                         success=ok if robot == 0 else True, success_step=50 if (ok or robot) else None,
                     )
                 )  # fmt: skip

@@ -1,4 +1,5 @@
-"""The per-setup bar plot: the legend stays off the bars and their values; missing intervals render cleanly."""
+"""The per-setup bar plot: the legend stays off the bars and their values;
+missing intervals render cleanly."""
 
 import csv
 import io

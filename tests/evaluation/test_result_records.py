@@ -205,7 +205,8 @@ TABLE3 = CONTEXT / "table3"
     [("navformer", -0.067), ("navformer_w16", 0.0), ("dt", 0.067), ("dt_w16", -0.017)],
 )
 def test_table3_records_give_the_quoted_unseen_minus_seen(record: str, expected: float) -> None:
-    """Table III's 120 episodes, gzip-compressed: the same Jackal among unseen against seen obstacle robots."""
+    """Table III's 120 episodes, gzip-compressed: the same Jackal among unseen against seen obstacle
+    robots."""
     from navformer_rl.evaluation.paired import unseen_obstacle_differences
 
     _, difference = unseen_obstacle_differences(TABLE3 / record, n_resamples=200)
@@ -512,7 +513,8 @@ def test_only_the_paper_scale_dt_gets_closer_while_its_target_is_hidden() -> Non
     learned = [value for record, value in hidden.items() if "frontier" not in record and "fca" not in record]
     assert len(learned) == 14 and max(abs(value) for value in learned) < 0.003
     assert hidden["expert/diagnosis/frontier"] > 0.02 and hidden["expert/diagnosis/fca"] > 0.05
-    # DT's paper-scale run is the one learned policy that closes in, by about a third of the exploration expert
+    # DT's paper-scale run is the one learned policy that closes in,
+    # by about a third of the exploration expert
     assert 0.005 < paper_dt < hidden["expert/diagnosis/frontier"] / 2
 
 
@@ -556,7 +558,8 @@ def test_run_b_at_5000_keeps_turning_as_its_context_fills() -> None:
 def test_run_b_on_table1_against_the_tenth_scale_weights(
     iteration: str, expected_sr: float, expected_cr: float, against_tenth: dict[str, tuple[float, float]]
 ) -> None:
-    """Iterations 5,000 and 10,000 (``pretrained:navformer``) paired with ``navformer_tenth`` and ``dt_tenth``."""
+    """Iterations 5,000 and 10,000 (``pretrained:navformer``) paired with ``navformer_tenth`` and
+    ``dt_tenth``."""
     record = PAPER10K / "table1" / f"navformer_10k_s0_runb_it{iteration}"
     (summary,) = summarize_seed_groups({"run B": [record]})
     assert summary.runs[0].metrics.n_trials == 540
@@ -592,8 +595,8 @@ def test_run_b_at_7000_on_table1() -> None:
 
 
 def test_navformer_against_dt_at_the_papers_scale_on_table1() -> None:
-    """Both final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``) on Table I:
-    DT is ahead in every setup and touches less."""
+    """Both final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``)
+    on Table I: DT is ahead in every setup and touches less."""
     navformer = PAPER10K / "table1" / "navformer_10k_s0_runb_it10000"
     dt = PAPER10K / "table1" / "dt_10k_s0_it10000"
     (summary,) = summarize_seed_groups({"DT": [dt]})
@@ -615,8 +618,8 @@ def test_navformer_against_dt_at_the_papers_scale_on_table1() -> None:
     [("navformer_10k_s0_runb_it10000", -0.0333), ("dt_10k_s0_it10000", -0.1000)],
 )
 def test_the_shipped_policies_on_table3(record: str, expected_sr_difference: float) -> None:
-    """The final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``): the same Jackal
-    among unseen against seen robots."""
+    """The final checkpoints of the paper's training (``pretrained:navformer``, ``pretrained:dt``): the same
+    Jackal among unseen against seen robots."""
     from navformer_rl.evaluation.paired import unseen_obstacle_differences
 
     _, difference = unseen_obstacle_differences(PAPER10K / "table3" / record, n_resamples=200)
@@ -624,7 +627,7 @@ def test_the_shipped_policies_on_table3(record: str, expected_sr_difference: flo
     assert difference.difference["sr"] == pytest.approx(expected_sr_difference, abs=5e-4)
 
 
-# ---------------------------------------------------------------------------------------------------------------
+# ----------------------------------------------------------------------------------------------------------
 # The pages: every number of ours in results.md's tables, the README's caption and the model cards' result
 # tables is recomputed from the committed records (the paper's from paper_results), so a page that drifts from
 # its records fails here.
@@ -632,12 +635,24 @@ def test_the_shipped_policies_on_table3(record: str, expected_sr_difference: flo
 ROOT = DATA_SCALING.parents[2]
 RESULTS_PAGE = ROOT / "docs" / "results.md"
 BASELINES = DATA_SCALING.parent / "baselines"
-T1 = {"navformer": PAPER10K / "table1" / "navformer_10k_s0_runb_it10000", "dt": PAPER10K / "table1" / "dt_10k_s0_it10000",
-      "vrw": BASELINES / "table1" / "vrw", "fca": BASELINES / "table1" / "fca"}  # fmt: skip
-T2 = {"navformer": PAPER10K / "table2" / "navformer_10k_s0_runb_it10000", "dt": PAPER10K / "table2" / "dt_10k_s0_it10000",
-      "vrw": BASELINES / "table2" / "vrw", "fca": BASELINES / "table2" / "fca"}  # fmt: skip
-T3 = {"navformer": PAPER10K / "table3" / "navformer_10k_s0_runb_it10000", "dt": PAPER10K / "table3" / "dt_10k_s0_it10000",
-      "vrw": BASELINES / "table3" / "vrw", "fca": BASELINES / "table3" / "fca"}  # fmt: skip
+T1 = {
+    "navformer": PAPER10K / "table1" / "navformer_10k_s0_runb_it10000",
+    "dt": PAPER10K / "table1" / "dt_10k_s0_it10000",
+    "vrw": BASELINES / "table1" / "vrw",
+    "fca": BASELINES / "table1" / "fca",
+}
+T2 = {
+    "navformer": PAPER10K / "table2" / "navformer_10k_s0_runb_it10000",
+    "dt": PAPER10K / "table2" / "dt_10k_s0_it10000",
+    "vrw": BASELINES / "table2" / "vrw",
+    "fca": BASELINES / "table2" / "fca",
+}
+T3 = {
+    "navformer": PAPER10K / "table3" / "navformer_10k_s0_runb_it10000",
+    "dt": PAPER10K / "table3" / "dt_10k_s0_it10000",
+    "vrw": BASELINES / "table3" / "vrw",
+    "fca": BASELINES / "table3" / "fca",
+}
 PAPER_NAMES = {
     "navformer": "NavFormer",
     "dt": "DT",
@@ -691,7 +706,8 @@ def _paired(row, metric: str = "sr") -> str:
     """A paired difference with its interval (SR in points), ``*`` where the interval excludes zero."""
     low, high = row.interval[metric]
     scale, digits = (100, 1) if metric == "sr" else (1, 3)
-    text = f"{scale * row.difference[metric]:+.{digits}f} [{scale * low:+.{digits}f}, {scale * high:+.{digits}f}]"
+    difference, low, high = (f"{scale * x:+.{digits}f}" for x in (row.difference[metric], low, high))
+    text = f"{difference} [{low}, {high}]"
     return text + (" *" if row.excludes_zero(metric) else "")
 
 
@@ -707,7 +723,7 @@ def _paper(sr: float, spl: float, cr: float) -> str:
 
 
 def _paper_table1_pooled(method: str) -> tuple[float, float, float]:
-    """Table I's nine rows pooled as ours are: each setup weighted by its robot-trials (60 trials x robots)."""
+    """Table I's nine rows pooled as ours are: each setup weighted by its robot-trials (60 x robots)."""
     from navformer_rl.evaluation.paper_results import TABLE1
 
     weight = sum(robots for _, robots in TABLE1)
@@ -760,8 +776,8 @@ def test_table1_section_is_the_records_per_setup() -> None:
     setups = list(summaries["navformer"])
     assert [row[0] for row in rows] == setups[:-1] + ["all 540 trials"] and len(setups) == 10
     for row, setup in zip(rows, setups):
-        expected = [_ours(summaries["navformer"][setup]), _ours(summaries["dt"][setup]), _paired(pairs[setup]),
-                    _ours(summaries["vrw"][setup]), _ours(summaries["fca"][setup]), "not re-measured"]  # fmt: skip
+        expected = [_ours(summaries[name][setup]) for name in ("navformer", "dt")] + [_paired(pairs[setup])]
+        expected += [_ours(summaries["vrw"][setup]), _ours(summaries["fca"][setup]), "not re-measured"]
         paper = (
             ""
             if setup == "all"
@@ -834,13 +850,20 @@ CONTEXT_T1, CONTEXT_T3, WINDOW16_T1, WINDOW16_T3 = (
 CARD_RECORDS = {
     "navformer": [PAPER10K / "navformer_10k_s0_runb_it10000", T1["navformer"], T3["navformer"]],
     "dt": [PAPER10K / "dt_10k_s0_it10000", T1["dt"], T3["dt"]],
-    "navformer_tenth": [PAPER10K / "navformer_tenth_it02500", CONTEXT_T1 / "navformer", CONTEXT_T1 / "navformer_w16",
-                        CONTEXT_T3 / "navformer"],
+    "navformer_tenth": [
+        PAPER10K / "navformer_tenth_it02500",
+        CONTEXT_T1 / "navformer",
+        CONTEXT_T1 / "navformer_w16",
+        CONTEXT_T3 / "navformer",
+    ],
     "dt_tenth": [PAPER10K / "dt_tenth_it02500", CONTEXT_T1 / "dt", CONTEXT_T3 / "dt"],
-    "navformer_window16": [WINDOW16 / "navformer_ctx16_it2500", WINDOW16_T1 / "navformer_ctx16",
-                           WINDOW16_T3 / "navformer_ctx16"],
+    "navformer_window16": [
+        WINDOW16 / "navformer_ctx16_it2500",
+        WINDOW16_T1 / "navformer_ctx16",
+        WINDOW16_T3 / "navformer_ctx16",
+    ],
     "dt_window16": [WINDOW16 / "dt_ctx16_it2500", WINDOW16_T1 / "dt_ctx16", WINDOW16_T3 / "dt_ctx16"],
-}  # fmt: skip
+}
 """Each shipped model's card result sections, in order, and the committed record each one reports."""
 
 
@@ -901,13 +924,26 @@ def test_the_readme_caption_quotes_the_records() -> None:
 @pytest.mark.parametrize(
     ("name", "phrases"),
     [
-        ("navformer", ("It reaches {nf:.1f} % SR over Table I's nine setups", "({nf75:.1f} % at 7.5 m with 2 robots",
-                       "{nf_tenth:.1f} points above pretrained:navformer_tenth", "{nf_dt_tenth:.1f} above pretrained:dt_tenth",
-                       "but {dt_nf:.1f} points below pretrained:dt")),
-        ("dt", ("It reaches {dt:.1f} % SR over Table I's nine setups", "({dt75:.1f} % at 7.5 m with 2 robots",
-                "{dt_nf:.1f} points above pretrained:navformer and {dt_tenth:.1f} above pretrained:dt_tenth")),
+        (
+            "navformer",
+            (
+                "It reaches {nf:.1f} % SR over Table I's nine setups",
+                "({nf75:.1f} % at 7.5 m with 2 robots",
+                "{nf_tenth:.1f} points above pretrained:navformer_tenth",
+                "{nf_dt_tenth:.1f} above pretrained:dt_tenth",
+                "but {dt_nf:.1f} points below pretrained:dt",
+            ),
+        ),
+        (
+            "dt",
+            (
+                "It reaches {dt:.1f} % SR over Table I's nine setups",
+                "({dt75:.1f} % at 7.5 m with 2 robots",
+                "{dt_nf:.1f} points above pretrained:navformer and {dt_tenth:.1f} above pretrained:dt_tenth",
+            ),
+        ),
     ],
-)  # fmt: skip
+)
 def test_the_model_card_summaries_quote_the_records(name: str, phrases: tuple[str, ...]) -> None:
     nf, dt = _summaries(T1["navformer"]), _summaries(T1["dt"])
 
@@ -915,11 +951,15 @@ def test_the_model_card_summaries_quote_the_records(name: str, phrases: tuple[st
         return 100 * paired_differences(a, b, n_resamples=200)[1][-1].difference["sr"]
 
     values = {
-        "nf": 100 * nf["all"].sr, "nf75": 100 * nf["7.5m-2r"].sr, "dt": 100 * dt["all"].sr, "dt75": 100 * dt["7.5m-2r"].sr,
+        "nf": 100 * nf["all"].sr,
+        "nf75": 100 * nf["7.5m-2r"].sr,
+        "dt": 100 * dt["all"].sr,
+        "dt75": 100 * dt["7.5m-2r"].sr,
         "nf_tenth": pooled(T1["navformer"], CONTEXT_T1 / "navformer"),
         "nf_dt_tenth": pooled(T1["navformer"], CONTEXT_T1 / "dt"),
-        "dt_nf": pooled(T1["dt"], T1["navformer"]), "dt_tenth": pooled(T1["dt"], CONTEXT_T1 / "dt"),
-    }  # fmt: skip
+        "dt_nf": pooled(T1["dt"], T1["navformer"]),
+        "dt_tenth": pooled(T1["dt"], CONTEXT_T1 / "dt"),
+    }
     summary = (CARDS / name / "MODEL_CARD.md").read_text().split("\n\n")[1]
     for phrase in phrases:
         assert phrase.format(**values) in summary, phrase.format(**values)
@@ -948,8 +988,8 @@ def test_table2_section_is_the_records_per_world_kind() -> None:
 
 
 def test_table3_section_is_the_records_seen_and_unseen() -> None:
-    """Table III's two tables: each method among seen and unseen obstacle robots, and unseen - seen for the same
-    robot, maze, start and target (`navformer evaluate unseen`) beside the paper's unpaired differences."""
+    """Table III's two tables: each method among seen and unseen obstacle robots, and unseen - seen for the
+    same robot, maze, start and target (`navformer evaluate unseen`) beside the paper's unpaired ones."""
     from navformer_rl.evaluation.paired import unseen_obstacle_differences
     from navformer_rl.evaluation.paper_results import TABLE3
 
@@ -982,8 +1022,8 @@ def test_table3_section_is_the_records_seen_and_unseen() -> None:
 
 
 def test_table4_section_lays_out_every_ablation_beside_the_paper() -> None:
-    """Table IV's rows in the paper's order with its numbers; ours: the full NavFormer's 12.5m-4r row of Table I
-    (Table IV's trials), the ablations marked as running until their records land."""
+    """Table IV's rows in the paper's order with its numbers; ours: the full NavFormer's 12.5m-4r row of
+    Table I (Table IV's trials), the ablations marked as running until their records land."""
     from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, TABLE4
 
     rows = _table_under("Table IV: ablations (§VII.D)")
@@ -992,7 +1032,7 @@ def test_table4_section_lays_out_every_ablation_beside_the_paper() -> None:
         sr, spl, cr = TABLE4[paper_row]
         assert row[2] == f"{_percent(sr)} % / {spl:.3f} / {cr:.3f}", paper_row
     assert rows[0][3] == _ours(_summaries(T1["navformer"])["12.5m-4r"])
-    assert {row[3] for row in rows[1:]} <= {"running", "not scheduled"}
+    assert {row[3] for row in rows[1:]} == {"running"}
     pairs = {r.setup: r for r in paired_differences(T1["dt"], T1["navformer"])[1]}
     text = " ".join(RESULTS_PAGE.read_text().split())
     assert f"DT - NavFormer is {_paired(pairs['12.5m-4r'])} points" in text

@@ -64,14 +64,15 @@ def test_step_count_zero_resets_only_that_robot():
 
 def test_policy_handles_root_keys_and_batched_leading_dims():
     model = make_model()
-    single = NavFormerPolicy(model, pixels_key="pixels", target_pixels_key="target_pixels", step_count_key=None,
-                             reward_key=None, action_key="action")  # fmt: skip
+    single = NavFormerPolicy(model, pixels_key="pixels", target_pixels_key="target_pixels",
+                             step_count_key=None, reward_key=None, action_key="action")  # fmt: skip
     td = TensorDict({"pixels": frames(1, 1)[0], "target_pixels": frames(1, 2)[0]}, batch_size=[])
     assert single(td)["action"].shape == (2,)
     batched = NavFormerPolicy(model)
     pixels, target = frames(6, 3).reshape(2, 3, 84, 84, 3), frames(6, 4).reshape(2, 3, 84, 84, 3)
     td = TensorDict(
-        {"agents": TensorDict({"pixels": pixels, "target_pixels": target, "step_count": torch.zeros(2, 3, 1, dtype=torch.long)}, batch_size=[2, 3])},
+        {"agents": TensorDict({"pixels": pixels, "target_pixels": target,
+                               "step_count": torch.zeros(2, 3, 1, dtype=torch.long)}, batch_size=[2, 3])},
         batch_size=[2],
     )  # fmt: skip
     action = batched(td)["agents", "action"]
@@ -92,8 +93,8 @@ class TwoRobotEnv(EnvBase):
         image = Bounded(0, 255, (robots, 84, 84, 3), dtype=torch.uint8)
         self.observation_spec = Composite(
             agents=Composite(
-                pixels=image, target_pixels=image.clone(), step_count=Unbounded((robots, 1), dtype=torch.int64),
-                shape=(robots,),
+                pixels=image, target_pixels=image.clone(),
+                step_count=Unbounded((robots, 1), dtype=torch.int64), shape=(robots,),
             )
         )  # fmt: skip
         self.action_spec = Composite(agents=Composite(action=Bounded(-1, 1, (robots, 2)), shape=(robots,)))
@@ -116,7 +117,8 @@ class TwoRobotEnv(EnvBase):
     def _reset(self, tensordict=None):
         self.t = 0
         return TensorDict({"agents": self._obs(), "done": torch.zeros(1, dtype=torch.bool),
-                           "terminated": torch.zeros(1, dtype=torch.bool), "truncated": torch.zeros(1, dtype=torch.bool)}, batch_size=[])  # fmt: skip
+                           "terminated": torch.zeros(1, dtype=torch.bool),
+                           "truncated": torch.zeros(1, dtype=torch.bool)}, batch_size=[])  # fmt: skip
 
     def _step(self, tensordict):
         action = tensordict["agents", "action"]
@@ -125,7 +127,8 @@ class TwoRobotEnv(EnvBase):
         done = torch.tensor([self.t >= self.horizon])
         agents = self._obs()
         agents.set("reward", torch.zeros(self.robots, 1))
-        return TensorDict({"agents": agents, "done": done, "terminated": done.clone(), "truncated": torch.zeros(1, dtype=torch.bool)}, batch_size=[])  # fmt: skip
+        return TensorDict({"agents": agents, "done": done, "terminated": done.clone(),
+                           "truncated": torch.zeros(1, dtype=torch.bool)}, batch_size=[])  # fmt: skip
 
     def _set_seed(self, seed):
         self.gen.manual_seed(seed or 0)
@@ -162,7 +165,8 @@ def test_is_init_restarts_the_context_like_step_count_zero():
 
     def td(step, is_init):
         return TensorDict(
-            {"pixels": frames(1, 10 + step)[0], "target_pixels": frames(1, 2)[0], "is_init": torch.tensor([is_init])},
+            {"pixels": frames(1, 10 + step)[0], "target_pixels": frames(1, 2)[0],
+             "is_init": torch.tensor([is_init])},
             batch_size=[],
         )  # fmt: skip
 

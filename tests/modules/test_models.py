@@ -1,4 +1,5 @@
-"""NavFormerModel: config validation, encoders, causality, THSC, padding, gradients, ablations, overfitting."""
+"""NavFormerModel: config validation, encoders, causality, THSC, padding, gradients, ablations,
+overfitting."""
 
 import pytest
 import torch
@@ -200,9 +201,10 @@ def test_resnet18_model_is_causal_in_training_mode(batch_factory):
 
 
 def test_resnet18_micro_batches_and_chunks_give_the_whole_batch_gradient(batch_factory):
-    """The memory levers on ResNet18 (``encoder_micro_batch``, ``optim.trajectory_chunks``: chunk losses weighted
-    by their share of valid steps) reproduce the whole-batch loss and gradient to float32 rounding. Noise images:
-    flat-colour images make MaxPool's float32 tie-breaking pick other (equally valid) subgradients."""
+    """The memory levers on ResNet18 (``encoder_micro_batch``, ``optim.trajectory_chunks``: chunk losses
+    weighted by their share of valid steps) reproduce the whole-batch loss and gradient to float32 rounding.
+    Noise images: flat-colour images make MaxPool's float32 tie-breaking pick other (equally valid)
+    subgradients."""
     config = NavFormerConfig.ablation("resnet18", dropout=0.0, d_embed=16, d_head=8, n_blocks=1)
     batch = batch_factory(4, 3)
     batch["mask"][1, 1:] = False  # chunks of unequal valid length

@@ -1,8 +1,8 @@
 """NavFormer's parts as TensorDict modules: composition, ablations, parts alone, old checkpoints, decoding.
 
 ``fixtures/pre_modules_checkpoints.tar.gz`` holds two checkpoints (``navformer``, ``dt``: d_embed 32, one
-block, 36 px images) written by ``navformer_rl.training.checkpoint.save_checkpoint`` with the single-module model of
-commit 7605c27 (state-dict names such as ``static_encoder.*``, ``transformer.blocks.*``), and in
+block, 36 px images) written by ``navformer_rl.training.checkpoint.save_checkpoint`` with the single-module
+model of commit 7605c27 (state-dict names such as ``static_encoder.*``, ``transformer.blocks.*``), and in
 ``expected.json`` that model's outputs on the inputs of ``fixture_batch`` (teacher-forced forward, windowed
 forward, ``IncrementalNavFormer`` torch path), its ``named_parameters`` order and the sums of the
 weights ``torch.manual_seed(0)`` gave it.
@@ -38,9 +38,9 @@ from navformer_rl.modules import (
     transformer_module,
 )
 from navformer_rl.modules.decoding.native import native_status
-from navformer_rl.modules.models import upgrade_state_dict
 from navformer_rl.objectives import ActionMSELoss, BYOLLoss
 from navformer_rl.training import checkpoint as ckpt
+from navformer_rl.training.checkpoint import upgrade_state_dict
 
 FIXTURE = Path(__file__).parent / "fixtures" / "pre_modules_checkpoints.tar.gz"
 SMALL = {
@@ -129,6 +129,37 @@ def test_a_seed_gives_the_weights_of_the_single_module_model(old_checkpoints, na
     assert sums.keys() == state.keys()
     for key, value in state.items():
         assert float(value.double().sum()) == pytest.approx(sums[key], rel=1e-12, abs=1e-12), key
+
+
+@pytest.mark.parametrize("ablation", ["none", "dt", "resnet18"])
+def test_the_initialisation_order_is_the_parts_from_config_then_the_tables(ablation):
+    """``NavFormerModel(config)`` = DVE, CT and head built by their ``from_config`` (PyTorch's default inits,
+    in that order), then GPT-2's N(0, 0.02) for the embedding tables; the same seed gives the same weights."""
+    from navformer_rl.modules.models import CausalTransformer, init_embedding_tables, make_head
+
+    config = NavFormerConfig.ablation(ablation)
+    config = NavFormerConfig(
+        **{**config.__dict__, **SMALL, "image_size": 84 if ablation == "resnet18" else 36}
+    )
+    torch.manual_seed(3)
+    model = NavFormerModel(config)
+    torch.manual_seed(3)
+    parts = nn.ModuleDict(
+        {
+            "dve": DualVisualEncoder.from_config(config),
+            "transformer": CausalTransformer.from_config(config),
+            "head": make_head(config),
+        }
+    )
+    parts.apply(init_embedding_tables)
+    assert model.state_dict().keys() == parts.state_dict().keys()
+    for key, value in model.state_dict().items():
+        assert torch.equal(value, parts.state_dict()[key]), key
+    tables = model.transformer.tokens
+    for table in (tables.timestep_embed, tables.modality_embed):
+        assert float(table.weight.detach().std()) == pytest.approx(
+            0.02, rel=0.3
+        )  # GPT-2's, not nn.Embedding's N(0, 1)
 
 
 def test_upgrade_state_dict_keeps_current_names():

@@ -1,5 +1,5 @@
-"""BYOLLoss (eqs. 6-8): loss values, EMA target, tau schedule, shared encoders, augmentations, and TorchRL's loss
-contract (``TestBYOLLoss``)."""
+"""BYOLLoss (eqs. 6-8): loss values, EMA target, tau schedule, shared encoders, augmentations, and TorchRL's
+loss contract (``TestBYOLLoss``)."""
 
 import math
 
@@ -18,6 +18,8 @@ from navformer_rl.objectives import (
     normalized_mse,
 )
 from navformer_rl.objectives.byol_augment import BYOLAugmentation
+
+from .contract import LossContract
 
 
 def pairs(n=8, seed=0):
@@ -61,17 +63,14 @@ def test_tau_schedule_follows_the_cosine_formula():
     assert updater.eps == pytest.approx(0.998)
 
 
-def test_loss_value_equals_the_symmetric_normalised_mse_of_its_branches():
-    model, loss = make_byol()
-    batch = pairs()
-    out = loss(batch)
-    assert set(out.keys()) == set(loss.out_keys)  # out_keys lists every entry forward writes
-    # recompute by hand with an augmentation replaying the same seeds
-    replay = BYOLAugmentation(seed=0)
+def byol_by_hand(loss: BYOLLoss, batch: TensorDict, seed: int = 0) -> dict[str, torch.Tensor]:
+    """Eqs. 6-8 recomputed from the loss's branches, with an augmentation replaying ``seed``'s first draws:
+    ``{"static": ..., "general": ..., "loss_byol": their sum}``."""
+    replay = BYOLAugmentation(seed=seed)
     v_d1 = replay(batch["pixels_dynamic"])
     v_s, v_d2 = replay(batch["pixels_static"]), replay(batch["pixels_dynamic"])
     assert (v_d1 - v_d2).abs().max() > 1e-3  # two different augmentations of o^d
-    total = 0.0
+    terms = {}
     for name, (a, b) in {"static": (v_s, v_d1), "general": (v_d1, v_d2)}.items():
         both = torch.cat([a, b])
         online = loss.online_network[name]
@@ -81,10 +80,20 @@ def test_loss_value_equals_the_symmetric_normalised_mse_of_its_branches():
             target = online(both)
         p_a, p_b = prediction.chunk(2)
         t_a, t_b = target.chunk(2)
-        expected = (normalized_mse(p_a, t_b) + normalized_mse(p_b, t_a)).mean()
-        torch.testing.assert_close(out[f"byol_{name}"], expected, rtol=1e-5, atol=1e-6)
-        total = total + expected
-    torch.testing.assert_close(out["loss_byol"], total, rtol=1e-5, atol=1e-6)
+        terms[name] = (normalized_mse(p_a, t_b) + normalized_mse(p_b, t_a)).mean()
+    terms["loss_byol"] = terms["static"] + terms["general"]
+    return terms
+
+
+def test_loss_value_equals_the_symmetric_normalised_mse_of_its_branches():
+    model, loss = make_byol()
+    batch = pairs()
+    out = loss(batch)
+    assert set(out.keys()) == set(loss.out_keys)  # out_keys lists every entry forward writes
+    expected = byol_by_hand(loss, batch)
+    for name in ("static", "general"):
+        torch.testing.assert_close(out[f"byol_{name}"], expected[name], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(out["loss_byol"], expected["loss_byol"], rtol=1e-5, atol=1e-6)
     assert 0 <= out["byol_static"] <= 8 and out["projection_std_general"] > 0
 
 
@@ -266,70 +275,40 @@ def test_train_and_eval_reach_the_heads_batchnorm():
     assert all(m.training for m in norms)
 
 
-class TestBYOLLoss:
-    """TorchRL's loss contract, as TorchRL's own loss tests check it (``test/test_cost.py``)."""
+class TestBYOLLoss(LossContract):
+    """TorchRL's loss contract (:class:`~tests.objectives.contract.LossContract`) for L_BYOL (eq. 8)."""
+
+    out_keys = ("loss_byol", "byol_static", "byol_general", "projection_std_static", "projection_std_general")
+    default_keys = {"pixels_static": "pixels_static", "pixels_dynamic": "pixels_dynamic"}
 
     @staticmethod
-    def make(seed: int = 0, augmentation_seed: int = 0) -> tuple[NavFormerModel, BYOLLoss]:
+    def make(seed: int = 0) -> tuple[NavFormerModel, BYOLLoss]:
         torch.manual_seed(seed)
         model = NavFormerModel(NavFormerConfig(dropout=0.0))
-        return model, BYOLLoss(model.static_encoder, model.general_encoder, seed=augmentation_seed)
+        return model, BYOLLoss(model.static_encoder, model.general_encoder, seed=0)  # the same augmentations
 
-    def test_input_tensordict_is_left_unchanged(self):
+    def batch(self) -> TensorDict:
+        return pairs(4)
+
+    def trained(self, model):
+        return model.dve  # the encoders BYOL shares with the model
+
+    def equation(self, model, loss, td) -> torch.Tensor:
+        return byol_by_hand(loss, td)["loss_byol"]  # the first call's augmentations, replayed
+
+    def renamed(self, model, td):
+        _, default = self.make()
+        expected = default(td)["loss_byol"].detach()
         _, loss = self.make()
-        batch = pairs(4)
-        before = batch.clone()
-        loss(batch)
-        assert set(batch.keys(True, True)) == set(before.keys(True, True))
-        assert (batch == before).all()
-
-    def test_state_dict_round_trip(self):
-        _, loss = self.make(seed=0)
-        _, other = self.make(seed=1)  # other parameters, the same augmentation seed
-        state = loss.state_dict()
-        assert any(key.startswith("target_online_network_params.") for key in state)  # the EMA target too
-        other.load_state_dict(state)
-        for key, value in other.state_dict().items():
-            torch.testing.assert_close(value, state[key], rtol=0, atol=0)
-        expected, got = loss(pairs(4)), other(pairs(4))
-        for key in loss.out_keys:
-            torch.testing.assert_close(got[key], expected[key], rtol=0, atol=0)
-
-    def test_set_keys_renames_the_inputs_end_to_end(self):
-        _, loss = self.make()
-        assert loss.tensor_keys.pixels_static == "pixels_static"
-        assert loss.tensor_keys.pixels_dynamic == "pixels_dynamic"
-        batch = pairs(4)
-        expected = loss(batch)["loss_byol"]
-        _, renamed = self.make()
-        renamed.set_keys(pixels_static=("pair", "static"), pixels_dynamic="dynamic")
-        assert set(renamed.in_keys) == {("pair", "static"), "dynamic"}
+        loss.set_keys(pixels_static=("pair", "static"), pixels_dynamic="dynamic")
+        assert set(loss.in_keys) == {("pair", "static"), "dynamic"}
         moved = TensorDict(
-            {("pair", "static"): batch["pixels_static"], "dynamic": batch["pixels_dynamic"]}, batch_size=[4]
+            {("pair", "static"): td["pixels_static"], "dynamic": td["pixels_dynamic"]},
+            batch_size=td.batch_size,
         )
-        torch.testing.assert_close(renamed(moved)["loss_byol"], expected, rtol=0, atol=0)
-        with pytest.raises(ValueError, match="not an accepted tensordict key"):
-            renamed.set_keys(pixels="pixels")
+        return loss, moved, expected
 
-    def test_select_and_reset_out_keys(self):
-        _, loss = self.make()
-        every_key = [
-            "loss_byol",
-            "byol_static",
-            "byol_general",
-            "projection_std_static",
-            "projection_std_general",
-        ]
-        assert loss.out_keys == every_key
-        loss.select_out_keys("loss_byol", "byol_static")
-        assert loss.out_keys == ["loss_byol", "byol_static"]
-        assert set(loss(pairs(4)).keys()) == {"loss_byol", "byol_static"}
-        loss.reset_out_keys()
-        assert loss.out_keys == every_key and set(loss(pairs(4)).keys()) == set(every_key)
-        with pytest.raises(ValueError, match="non existent key"):
-            loss.select_out_keys("loss_byol_static")
-
-    def test_reset_parameters_recursive_redraws_online_and_restarts_the_target(self):
+    def test_reset_parameters_recursive_restarts_the_target_from_the_online_branch(self):
         model, loss = self.make()
         updater = SoftUpdate(loss, eps=0.5)
         optimizer = torch.optim.SGD(loss.parameters(), lr=1.0)
@@ -340,37 +319,19 @@ class TestBYOLLoss:
         weight = ("static", "encoder", "linear", "weight")
         assert not torch.equal(target[weight], online[weight].data)
         shared = model.static_encoder.linear.weight
-        before = {
-            "encoder": shared.detach().clone(),
+        heads = {
             "projector": online["general", "projector", "0", "weight"].detach().clone(),
             "predictor": loss.predictor_params["static", "0", "weight"].detach().clone(),
         }
         loss.reset_parameters_recursive()
         assert model.static_encoder.linear.weight is shared  # the model's own parameter, re-drawn in place
-        after = {
-            "encoder": shared.detach(),
-            "projector": online["general", "projector", "0", "weight"].detach(),
-            "predictor": loss.predictor_params["static", "0", "weight"].detach(),
-        }
-        for name, value in after.items():
-            assert not torch.equal(value, before[name]), name
+        assert not torch.equal(online["general", "projector", "0", "weight"], heads["projector"])
+        assert not torch.equal(loss.predictor_params["static", "0", "weight"], heads["predictor"])
         assert (target == online.data).all()  # the EMA target restarts as a copy of the online branch
-        assert torch.isfinite(loss(pairs(4))["loss_byol"])
 
-    def test_sum_of_loss_entries_is_eq_8(self):
+    def test_the_target_gets_no_gradient(self):
         _, loss = self.make()
-        out = loss(pairs(4))
-        loss_keys = [key for key in out.keys() if key.startswith("loss")]
-        assert loss_keys == ["loss_byol"]  # the per-encoder terms are reported, not summed again
-        total = sum(out[key] for key in loss_keys)
-        torch.testing.assert_close(total, out["byol_static"] + out["byol_general"], rtol=1e-6, atol=1e-7)
-
-    def test_gradients_only_through_the_loss_entry_and_the_online_branch(self):
-        _, loss = self.make()
-        out = loss(pairs(4))
-        assert out["loss_byol"].requires_grad
-        assert not any(out[key].requires_grad for key in out.keys() if not key.startswith("loss"))
-        out["loss_byol"].backward()
+        loss(pairs(4))["loss_byol"].backward()
         assert all(t.grad is None for t in loss.target_online_network_params.values(True, True))
         for params in (loss.online_network_params, loss.predictor_params):
             for name in ("static", "general"):
@@ -387,7 +348,8 @@ class TestBYOLLoss:
 
 
 def test_bf16_autocast_gives_the_fp32_loss_to_bf16_precision_and_gradients():
-    """``autocast_dtype="bfloat16"`` (the CPU training lever) computes eq. 8 in bf16: close to fp32, finite grads."""
+    """``autocast_dtype="bfloat16"`` (the CPU training lever) computes eq. 8 in bf16: close to fp32,
+    finite grads."""
     _, fp32 = make_byol(seed=3)
     model, bf16 = make_byol(seed=3, autocast_dtype="bfloat16")
     batch = pairs(8, seed=1)

@@ -1,5 +1,5 @@
-"""ActionMSELoss (L_DT, eq. 10): hand-computed values, masking, keys, composition with the actor, and TorchRL's
-loss contract (``TestActionMSELoss``)."""
+"""ActionMSELoss (L_DT, eq. 10): hand-computed values, masking, keys, composition with the actor, and
+TorchRL's loss contract (``TestActionMSELoss``)."""
 
 import warnings
 
@@ -11,6 +11,8 @@ from torch import nn
 
 from navformer_rl.modules import NavFormerConfig, NavFormerModel, make_navformer_actor
 from navformer_rl.objectives import ActionMSELoss, masked_action_mse
+
+from .contract import LossContract, padded_trajectories
 
 
 class FixedPrediction(nn.Module):
@@ -77,8 +79,11 @@ def test_loss_with_the_navformer_actor_ignores_padding_and_backpropagates(td_fac
     assert set(loss_module.in_keys) >= {"action", "mask", "pixels", "target_pixels"}
 
 
-class TestActionMSELoss:
-    """TorchRL's loss contract, as TorchRL's own loss tests check it (``test/test_cost.py``)."""
+class TestActionMSELoss(LossContract):
+    """TorchRL's loss contract (:class:`~tests.objectives.contract.LossContract`) for L_DT (eq. 10)."""
+
+    out_keys = ("loss_dt",)
+    default_keys = {"action_target": "action", "action_pred": "action_pred", "mask": "mask"}
 
     @staticmethod
     def make(seed: int = 0, **config) -> tuple[NavFormerModel, ActionMSELoss]:
@@ -86,83 +91,27 @@ class TestActionMSELoss:
         model = NavFormerModel(NavFormerConfig(dropout=0.0, **config))  # deterministic forward passes
         return model, ActionMSELoss(make_navformer_actor(model))
 
-    @staticmethod
-    def batch(td_factory) -> TensorDict:
-        td = td_factory(2, 3, seed=1)
-        td["mask"][1, 1:] = False
-        return td
+    def batch(self) -> TensorDict:
+        return padded_trajectories()
 
-    def test_input_tensordict_is_left_unchanged(self, td_factory):
-        _, loss = self.make()
-        td = self.batch(td_factory)
-        before = td.clone()
-        loss(td)
-        assert set(td.keys(True, True)) == set(before.keys(True, True))
-        assert (td == before).all()
+    def equation(self, model, loss, td) -> torch.Tensor:
+        prediction = make_navformer_actor(model)(td.copy())["action_pred"]
+        squared = (prediction - td["action"]).pow(2).sum(-1)  # ||a - a-hat||^2 over the action dims
+        return squared[td["mask"]].mean()  # averaged over the valid steps
 
-    def test_state_dict_round_trip(self, td_factory):
-        _, loss = self.make(seed=0)
-        _, other = self.make(seed=1)
-        td = self.batch(td_factory)
-        assert not torch.equal(other(td)["loss_dt"], loss(td)["loss_dt"])
-        other.load_state_dict(loss.state_dict())
-        torch.testing.assert_close(other(td)["loss_dt"], loss(td)["loss_dt"], rtol=0, atol=0)
-
-    def test_set_keys_renames_every_key_end_to_end(self, td_factory):
-        model, loss = self.make()
-        assert loss.tensor_keys.action_target == "action"
-        assert loss.tensor_keys.action_pred == "action_pred"
-        assert loss.tensor_keys.mask == "mask"
-        td = self.batch(td_factory)
+    def renamed(self, model, td):
         prediction = make_navformer_actor(model)(td.copy())["action_pred"].detach()
-        renamed = ActionMSELoss(make_navformer_actor(model, out_keys=("my_pred",)))
-        renamed.set_keys(action_target=("expert", "action"), action_pred="my_pred", mask="valid")
-        assert {("expert", "action"), "valid"} <= set(renamed.in_keys)
+        loss = ActionMSELoss(make_navformer_actor(model, out_keys=("my_pred",)))
+        loss.set_keys(action_target=("expert", "action"), action_pred="my_pred", mask="valid")
         target = torch.zeros_like(td["action"])  # differs from the actor's input actions
         valid = torch.tensor([[True, False, True], [False, True, True]])
         td[("expert", "action")], td["valid"] = target, valid
-        expected = masked_action_mse(prediction, target, valid)
-        torch.testing.assert_close(renamed(td)["loss_dt"], expected, rtol=1e-6, atol=1e-7)
-        renamed.set_keys(mask=None)  # None restores the default key
-        assert renamed.tensor_keys.mask == "mask"
-
-    def test_select_and_reset_out_keys(self, td_factory):
-        _, loss = self.make()
-        td = self.batch(td_factory)
-        assert loss.out_keys == ["loss_dt"]
-        loss.select_out_keys("loss_dt")
-        assert loss.out_keys == ["loss_dt"] and list(loss(td).keys()) == ["loss_dt"]
-        loss.reset_out_keys()
-        assert loss.out_keys == ["loss_dt"]
-        with pytest.raises(ValueError, match="non existent key"):
-            loss.select_out_keys("loss_byol")
-
-    def test_reset_parameters_recursive_redraws_the_shared_model(self, td_factory):
-        model, loss = self.make()
-        parameters = list(model.parameters())
-        layers = [m for m in model.modules() if isinstance(m, (nn.Linear, nn.Conv2d, nn.Embedding))]
-        before = [layer.weight.detach().clone() for layer in layers]
-        loss.reset_parameters_recursive()
-        assert all(a is b for a, b in zip(model.parameters(), parameters, strict=True))  # redrawn in place
-        assert layers and all(
-            not torch.equal(layer.weight, w) for layer, w in zip(layers, before, strict=True)
-        )
-        assert torch.isfinite(loss(self.batch(td_factory))["loss_dt"])
-
-    def test_sum_of_loss_entries_is_eq_10(self, td_factory):
-        model, loss = self.make()
-        td = self.batch(td_factory)
-        out = loss(td)
-        prediction = make_navformer_actor(model)(td.copy())["action_pred"]
-        squared = (prediction - td["action"]).pow(2).sum(-1)  # ||a - a-hat||^2 over the action dims
-        eq_10 = squared[td["mask"]].mean()  # averaged over the valid steps
-        total = sum(value for key, value in out.items() if key.startswith("loss"))
-        torch.testing.assert_close(total, eq_10, rtol=1e-6, atol=1e-7)
+        return loss, td, masked_action_mse(prediction, target, valid)
 
     @pytest.mark.parametrize("detach_encoders", [False, True])
-    def test_gradients_reach_the_encoders_only_when_they_train_with_l_dt(self, td_factory, detach_encoders):
+    def test_gradients_reach_the_encoders_only_when_they_train_with_l_dt(self, detach_encoders):
         model, loss = self.make(detach_encoders=detach_encoders)
-        loss(self.batch(td_factory))["loss_dt"].backward()
+        loss(self.batch())["loss_dt"].backward()
         assert model.head.weight.grad is not None and model.head.weight.grad.abs().sum() > 0
         for encoder in (model.static_encoder, model.general_encoder):
             grads = [p.grad for p in encoder.parameters()]

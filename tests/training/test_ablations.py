@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from navformer_rl.training import ABLATIONS, build_trainer, train
+from navformer_rl.training import ABLATIONS, build_trainer, train, train_step
 from navformer_rl.training.checkpoint import load_policy_model
 
 EXPECTED_TASKS = {"no_de": ["collision_avoidance"] * 2, "no_dca": ["exploration"] * 2}
@@ -192,8 +192,8 @@ def test_length_levers_give_the_whole_batch_gradient_without_the_padding(tiny_co
                 *overrides,
             )
         )
-        loss_dt, _, _ = trainer._forward_backward(batch.clone(), None)
-        losses[name] = float(loss_dt)
+        out = train_step(trainer.learner, batch.clone(), None, trainer.backward)  # the gradients stay
+        losses[name] = float(out.loss_dt)
         grads[name] = {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
         trainer.close()
     for lever in ("by_length", "length_groups"):
@@ -215,9 +215,13 @@ def test_byol_loss_weight_scales_byols_share_of_the_gradient(tiny_config, tmp_pa
             )
         )
         task, batch, pairs = trainer.batches.next(draw_ahead=False)
-        loss_dt, loss_byol, out = trainer._forward_backward(batch, pairs)
+        out = train_step(trainer.learner, batch, pairs)  # the gradients stay after the optimisers' steps
         grads[weight] = {n: p.grad.clone() for n, p in trainer.model.named_parameters() if p.grad is not None}
-        metrics[weight] = (float(loss_dt), float(out["loss_byol"].detach()), float(loss_byol.detach()))
+        metrics[weight] = (
+            float(out.loss_dt),
+            float(out.byol["loss_byol"].detach()),
+            float(out.loss_byol.detach()),
+        )
         trainer.close()
     # the logged BYOL loss is unweighted; the one summed into L is weighted
     assert metrics[0.5][1] == pytest.approx(metrics[1.0][1], rel=1e-6)

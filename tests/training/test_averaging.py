@@ -141,7 +141,8 @@ def test_cli(tmp_path, capsys):
     assert torch.equal(load_file(str(out / ckpt.WEIGHTS_FILENAME))["w"], torch.full((2,), 2.0))
     assert main(["average-checkpoints", "--run", str(run), "--out", str(out)]) == 2
     assert capsys.readouterr().err.strip() == (
-        "navformer average-checkpoints: error: --run needs --first and --last (the iterations to average between)"
+        "navformer average-checkpoints: error: --run needs --first and --last "
+        "(the iterations to average between)"
     )
     assert main(["average-checkpoints", "--checkpoint", str(run), "--first", "1", "--out", str(out)]) == 2
     assert "with --checkpoint list them instead" in capsys.readouterr().err

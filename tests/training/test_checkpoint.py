@@ -130,7 +130,8 @@ def test_weights_that_do_not_fit_the_config_are_refused(trained):
 
 
 def _as_batchnorm_resnet18(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """The state dict the ResNet18 encoder had before GroupNorm: ``bn1``/``bn2`` names and running statistics."""
+    """The state dict the ResNet18 encoder had before GroupNorm:
+    ``bn1``/``bn2`` names and running statistics."""
     old = {}
     for key, value in state.items():
         key = key.replace(".norm1.", ".bn1.").replace(".norm2.", ".bn2.")

@@ -301,8 +301,8 @@ def test_the_recipe_under_torchrun_needs_an_output_dir(monkeypatch):
 @pytest.mark.slow
 @pytest.mark.parametrize("entry", ["navformer train", "recipe"])
 def test_torchrun_runs_the_training_commands(datasets, tmp_path, entry):
-    """``torchrun --nproc-per-node 2 -m navformer_rl train ...`` and ``torchrun ... recipes/navformer/navformer.py``:
-    the real launcher and entry points."""
+    """``torchrun --nproc-per-node 2 -m navformer_rl train ...`` and
+    ``torchrun ... recipes/navformer/navformer.py``: the real launcher and entry points."""
     out = tmp_path / "run"
     launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
     script = (

@@ -1,5 +1,6 @@
-"""Fine-tuning: ``init_from=`` starts at a source checkpoint's weights with fresh optimisers and schedules; the
-three source forms, the model check, the record in the run files, and resume winning over ``init_from``."""
+"""Fine-tuning: ``init_from=`` starts at a source checkpoint's weights with fresh optimisers and schedules;
+the three source forms, the model check, the record in the run files, and resume winning over
+``init_from``."""
 
 from __future__ import annotations
 
@@ -116,8 +117,11 @@ def test_a_source_of_another_model_is_refused_in_one_line(
     run_dir, _ = source
     with pytest.raises(
         ValueError,
-        match=r"^init_from=.*: the checkpoint's model differs from the configured one in d_embed \(checkpoint 16, "
-        r"configured 32\), d_head \(checkpoint 8, configured 16\); set ablation= / model.<key>= to",
+        match=(
+            r"^init_from=.*: the checkpoint's model differs from the configured one in "
+            r"d_embed \(checkpoint 16, "
+            r"configured 32\), d_head \(checkpoint 8, configured 16\); set ablation= / model.<key>= to"
+        ),
     ):
         build_trainer(tiny_config(f"init_from={run_dir}", "model.d_embed=32", "model.d_head=16"))
     with pytest.raises(ValueError, match=r"init_from=.*differs .* in use_static_encoder \(checkpoint True"):

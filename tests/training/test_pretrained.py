@@ -65,7 +65,8 @@ def shipped_evaluation(shipped, tmp_path_factory):
     save_episode_set(episodes, work / "episodes.json")
     out = work / "eval"
     argv = ["evaluate", "--method", "navformer", "--checkpoint", "pretrained:navformer", "--episodes",
-            str(work / "episodes.json"), "--out", str(out), "--videos", "0", "--maps", "0", "--no-progress"]  # fmt: skip
+            str(work / "episodes.json"), "--out", str(out), "--videos", "0", "--maps", "0",
+            "--no-progress"]  # fmt: skip
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv(PRETRAINED_DIR_ENV, str(shipped))
         assert main(argv) == 0
@@ -107,16 +108,14 @@ def test_pretrained_names_resolve_to_the_exact_weights(shipped, trained_run, mon
     assert all(torch.equal(policy.model.state_dict()[key], saved[key]) for key in saved)
     from navformer_rl.modules import NavFormerPolicy
 
-    by_name = NavFormerPolicy.from_pretrained("navformer", native=False)
+    by_name = load_pretrained_policy("navformer", native=False)
     assert isinstance(by_name, NavFormerPolicy) and by_name.native is False
     assert all(torch.equal(by_name.model.state_dict()[key], saved[key]) for key in saved)
 
 
 def test_weights_trained_on_short_windows_load_attending_to_them(trained_run, tmp_path, monkeypatch):
-    """Shipped weights trained with ``data.context_steps=W`` load attending to their last W steps, by either
-    loader; a ``context_steps`` option overrides it (None: the whole context)."""
-    from navformer_rl.modules import NavFormerPolicy
-
+    """Shipped weights trained with ``data.context_steps=W`` load attending to their last W steps (by the
+    short or the ``pretrained:`` name); a ``context_steps`` option overrides it (None: the whole context)."""
     source = tmp_path / "windowed"
     shutil.copytree(trained_run.checkpoint, source)
     header = json.loads((source / ckpt.CONFIG_FILENAME).read_text())
@@ -126,8 +125,8 @@ def test_weights_trained_on_short_windows_load_attending_to_them(trained_run, tm
     write_pretrained(source, "navformer_w4", out_dir=root)
     monkeypatch.setenv(PRETRAINED_DIR_ENV, str(root))
     assert load_pretrained_policy("navformer_w4").context_steps == 4
-    assert NavFormerPolicy.from_pretrained("pretrained:navformer_w4").context_steps == 4
-    assert NavFormerPolicy.from_pretrained("navformer_w4", context_steps=8).context_steps == 8
+    assert load_pretrained_policy("pretrained:navformer_w4").context_steps == 4
+    assert load_pretrained_policy("navformer_w4", context_steps=8).context_steps == 8
     assert load_pretrained_policy("navformer_w4", context_steps=None).context_steps is None
     card = (root / "navformer_w4" / "MODEL_CARD.md").read_text()
     assert (
@@ -169,7 +168,8 @@ def test_unknown_and_missing_names_are_refused_clearly(shipped, tmp_path, monkey
     root = tmp_path / "root"
     shutil.copytree(shipped, root)
     (root / "navformer" / ckpt.WEIGHTS_FILENAME).unlink()
-    with pytest.raises(FileNotFoundError, match=r"^pretrained:navformer is not shipped in this installation: .*"
+    with pytest.raises(FileNotFoundError,
+                       match=r"^pretrained:navformer is not shipped in this installation: .*"
                        rf"{ckpt.WEIGHTS_FILENAME} is missing"):  # fmt: skip
         load_pretrained("navformer", root)
     monkeypatch.setenv(PRETRAINED_DIR_ENV, str(tmp_path / "absent"))
@@ -202,7 +202,8 @@ def test_the_model_card_holds_the_measured_fields(
     (tmp_path / "card.json").write_text(json.dumps(card))
     root = tmp_path / "root"
     argv = ["pretrained", "export", "--checkpoint", str(trained_run.run_dir), "--name", "navformer",
-            "--evaluation", str(shipped_evaluation), "--card", str(tmp_path / "card.json"), "--out", str(root)]  # fmt: skip
+            "--evaluation", str(shipped_evaluation), "--card", str(tmp_path / "card.json"),
+            "--out", str(root)]  # fmt: skip
     assert main(argv) == 0
     text = (root / "navformer" / "MODEL_CARD.md").read_text()
     log = trained_run.run_dir / "logs" / "navformer" / "scalars" / "iteration_s.csv"
@@ -282,7 +283,8 @@ def test_the_evaluation_recipe_takes_a_pretrained_name(shipped, monkeypatch):
 
 
 def test_the_demo_evaluates_the_shipped_navformer_beside_its_own_models(shipped, tmp_path, monkeypatch):
-    """Stage 3 of the demo adds ``pretrained:navformer`` on the same episodes; a name not shipped is skipped."""
+    """Stage 3 of the demo adds ``pretrained:navformer`` on the same episodes;
+    a name not shipped is skipped."""
     from navformer_rl.demo import pipeline
     from navformer_rl.demo.config import DemoConfig
 
@@ -322,7 +324,8 @@ def test_the_card_names_an_evaluation_that_ran_on_a_shorter_context():
     from navformer_rl.pretrained.card import _results_markdown
 
     run = {"label": "navformer_w16", "episode_set": {"name": "table1", "episodes": 540, "max_steps": 500},
-           "seed": 0, "device": "cpu", "transformer_step": "native", "confidence": 0.95, "cluster": "trial"}  # fmt: skip
+           "seed": 0, "device": "cpu", "transformer_step": "native", "confidence": 0.95,
+           "cluster": "trial"}  # fmt: skip
     whole = "\n".join(_results_markdown({"run": run, "folder": "f", "rows": []}))
     short = "\n".join(_results_markdown({"run": {**run, "context_steps": 16}, "folder": "f", "rows": []}))
     assert "(native transformer step), " in whole and "attending" not in whole

@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
+from safetensors.torch import load_file
 
 from navformer_rl.training import TrainConfig, load_train_config
 from navformer_rl.training import checkpoint as ckpt
@@ -65,6 +67,38 @@ def test_recipe_script_smoke_run(base_overrides, tmp_path):
     assert f"run directory: {run_dir}" in proc.stdout
     check_run_files(run_dir, 3)
     assert (tmp_path / "hydra" / ".hydra" / "config.yaml").is_file()  # hydra's own record of the run
+
+
+def test_the_recipe_and_navformer_train_run_the_same_training(base_overrides, tmp_path):
+    """The recipe spells out the make_* calls that ``navformer train`` makes: the same seed gives the same
+    losses, weights and resume state (both in a subprocess, one thread)."""
+    overrides = [*base_overrides, "optim.iterations=3", "model.dropout=0.1"]
+    recipe = run_recipe(
+        tmp_path, *overrides, f"output_dir={tmp_path / 'recipe'}", f"hydra.run.dir={tmp_path}"
+    )
+    assert recipe.returncode == 0, recipe.stderr[-3000:]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "RL_WARNINGS": "0", "RL_LOGGING_LEVEL": "WARNING"}
+    command = subprocess.run(
+        [sys.executable, "-m", "navformer_rl", "train", *overrides, f"output_dir={tmp_path / 'command'}"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert command.returncode == 0, command.stderr[-3000:]
+    first, second = (ckpt.latest_checkpoint(tmp_path / name) for name in ("recipe", "command"))
+    wa, wb = (load_file(str(folder / ckpt.WEIGHTS_FILENAME)) for folder in (first, second))
+    assert wa.keys() == wb.keys() and all(torch.equal(wa[key], wb[key]) for key in wa)
+    ra, rb = ckpt.load_resume_state(first), ckpt.load_resume_state(second)
+    for key in ("optimizers", "byol", "cross_task", "pairs"):
+        assert repr(ra[key]) == repr(rb[key]), key
+    for name in ("loss", "loss_dt", "loss_byol"):
+        rows = [
+            (tmp_path / run / "logs" / "navformer" / "scalars" / f"{name}.csv").read_text()
+            for run in ("recipe", "command")
+        ]
+        assert rows[0] == rows[1], name
 
 
 @pytest.mark.parametrize(
@@ -177,9 +211,9 @@ def recipe_config(*overrides: str) -> TrainConfig:
 
 
 def changed_overrides(node: dict, prefix: str = "") -> list[str]:
-    """``key=value`` for every leaf of a train.yaml mapping, each value changed from its default where its type
-    allows (bools flipped, ints + 1, floats halved in exponent notation, null paths set; strings and other
-    nulls kept)."""
+    """``key=value`` for every leaf of a train.yaml mapping, each value changed from its default where its
+    type allows (bools flipped, ints + 1, floats halved in exponent notation, null paths set; strings and
+    other nulls kept)."""
     items = []
     for key, value in node.items():
         name = f"{prefix}{key}"

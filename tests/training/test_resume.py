@@ -88,7 +88,8 @@ def test_resumed_run_equals_uninterrupted_run(tiny_config, tmp_path, encoder_tra
 
 def test_drawing_batches_ahead_changes_nothing_but_the_wait(tiny_config, tmp_path):
     """data.prefetch draws the same batches: the same losses and weights; a run without it resumes a run
-    with it (its checkpoint holds the samplers' state of the batches trained on, not of the one drawn ahead)."""
+    with it (its checkpoint holds the samplers' state of the batches trained on, not of the one drawn
+    ahead)."""
     common = ["optim.iterations=4", "checkpoint.keep_last=0"]
     plain = train(tiny_config(*common, "data.prefetch=false", f"output_dir={tmp_path / 'plain'}"))
     ahead_dir = tmp_path / "ahead"

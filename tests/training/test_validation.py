@@ -1,5 +1,5 @@
-"""Held-out validation during training (navformer_rl.training.validation): fixed windows, the eq. 10 value, no effect
-on the training, the logged rows and their resume, and the configuration errors."""
+"""Held-out validation during training (navformer_rl.training.validation): fixed windows, the eq. 10 value, no
+effect on the training, the logged rows and their resume, and the configuration errors."""
 
 from __future__ import annotations
 

@@ -24,7 +24,8 @@ def parameter_key(versioned: Iterable[Tensor], unversioned: Iterable[Tensor] = (
 
 
 class DerivedCache(Generic[Derived]):
-    """``build()``'s result, rebuilt on ``get(build)`` whenever one of ``sources`` changed since the last build.
+    """``build()``'s result, rebuilt on ``get(build)`` whenever one of ``sources`` changed since the last
+    build.
 
     sources: the tensors (usually ``Parameter`` objects) the result is computed from, gathered once by the
     caller (``nn.Module`` attribute access costs ~2 us, more than the check itself); those made under

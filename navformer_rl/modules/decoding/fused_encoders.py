@@ -77,7 +77,8 @@ class FusedConvEncoders:
     def _build_weights(self) -> FusedWeights:
         first, second = self.encoders
         conv = tuple(
-            (torch.cat([first.convs[i].weight, second.convs[i].weight]), torch.cat([first.convs[i].bias, second.convs[i].bias]))
+            (torch.cat([first.convs[i].weight, second.convs[i].weight]),
+             torch.cat([first.convs[i].bias, second.convs[i].bias]))
             for i in (0, 2, 4)
         )  # fmt: skip
         linear_bias = torch.stack([first.linear.bias, second.linear.bias])[:, None]  # [2, 1, d]
@@ -159,7 +160,8 @@ class GemmPlan(NamedTuple):
 
 
 def make_gemm_plan(images: int, size: int, weights: FusedWeights, device: torch.device) -> GemmPlan:
-    """Allocate a ``GemmPlan`` for ``images`` images of ``size`` x ``size`` pixels (outside inference mode)."""
+    """Allocate a ``GemmPlan`` for ``images`` images of ``size`` x ``size`` pixels
+    (outside inference mode)."""
     with torch.inference_mode(False), torch.no_grad():
         pixels = torch.empty(1, images, size, size, 3, device=device)  # [G=1, M, H, W, C]
         x, patches, copies, rows, outputs = pixels, [], [], [], []
@@ -179,13 +181,15 @@ def make_gemm_plan(images: int, size: int, weights: FusedWeights, device: torch.
 
 
 def gemm_conv_weight(weight: Tensor, groups: int, scale: float = 1.0) -> Tensor:
-    """Conv weight ``[G * O, C, k, k]`` -> ``scale *`` it as ``[G, k * k * C, O]`` (rows in (kh, kw, c) order)."""
+    """Conv weight ``[G * O, C, k, k]`` -> ``scale *`` it as ``[G, k * k * C, O]``
+    (rows in (kh, kw, c) order)."""
     out_channels, in_channels, kernel, _ = weight.shape
     grouped = weight.view(groups, out_channels // groups, in_channels, kernel, kernel)
     return (grouped.permute(0, 3, 4, 2, 1) * scale).reshape(groups, kernel * kernel * in_channels, -1)
 
 
 def hwc_linear_weight(weight: Tensor, channels: int) -> Tensor:
-    """Linear weight ``[d, C * h * w]`` on NCHW-flattened features -> ``[h * w * C, d]`` for (h, w, c) order."""
+    """Linear weight ``[d, C * h * w]`` on NCHW-flattened features -> ``[h * w * C, d]``
+    for (h, w, c) order."""
     d_out, features = weight.shape
     return weight.view(d_out, channels, features // channels).transpose(1, 2).reshape(d_out, -1).T

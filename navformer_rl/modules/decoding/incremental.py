@@ -1,9 +1,10 @@
 """Incremental (one timestep per call) NavFormer decoding with a streaming key/value cache.
 
 Per robot ``b`` the cache holds ``S = 1 + W * tps`` slots (``W = window_steps``, by default
-``config.window_steps``: 256 steps of 4 tokens for the paper's 1024-token context): slot 0 is the target token, then ``W`` groups of ``tps`` slots
-used as a ring (step ``t`` lives in group ``t mod W``). ``slot_pos[b, s]`` is the token's position in the
-robot's sequence (-1 = empty); the attention mask is built from it, so slot order never matters.
+``config.window_steps``: 256 steps of 4 tokens for the paper's 1024-token context): slot 0 is the target
+token, then ``W`` groups of ``tps`` slots used as a ring (step ``t`` lives in group ``t mod W``).
+``slot_pos[b, s]`` is the token's position in the robot's sequence (-1 = empty); the attention mask is built
+from it, so slot order never matters.
 
 The call for step t feeds ``tps`` new tokens: ``[a_{t-1}, R_t, e^s_t, e^ca_t]`` (``[g, R_1, e^s_1, e^ca_1]``
 on a robot's first step). When the window is full, step t overwrites step t - W's slots and invalidates
@@ -106,7 +107,8 @@ class IncrementalNavFormer:
         # of steps done, on the host (None once robots diverge); ``slot_pos`` and ``_steps_done`` are then
         # left alone and only written when the robots diverge (``_leave_shared_path``). Until the ring wraps
         # (t < W) slot s holds position s, so the mask is the bottom-right-aligned causal mask: a column slice
-        # of ``_causal_bias`` (additive ``[1, 1, tps, S]``, query i may attend slot s iff s <= S - tps - 1 + i).
+        # of ``_causal_bias`` (additive ``[1, 1, tps, S]``, query i may attend slot s
+        # iff s <= S - tps - 1 + i).
         self._shared_step: int | None = 0
         query = torch.arange(self.tokens_per_step, device=self.device)
         causal = (

@@ -9,8 +9,8 @@ from torch import Tensor
 
 from navformer_rl.modules.decoding.derived import DerivedCache
 from navformer_rl.modules.decoding.transformer_step import layer_norm_weights
+from navformer_rl.modules.models.heads import ObservationHead, THSCHead
 from navformer_rl.modules.models.navformer import NavFormerModel
-from navformer_rl.modules.models.thsc import ObservationHead, THSCHead
 from navformer_rl.modules.models.transformer import MODALITIES
 
 
@@ -135,7 +135,8 @@ class StepLayers:
         return self._embed_norm(tokens)  # TokenEmbedding.prepare in eval mode (no dropout)
 
     def action(self, target_hidden: Tensor, obs_hidden: Tensor) -> Tensor:
-        """The head: target_hidden ``[B, d]`` (h_g), obs_hidden ``[B, d]`` (h_o) -> float actions ``[B, A]``."""
+        """The head: target_hidden ``[B, d]`` (h_g), obs_hidden ``[B, d]`` (h_o)
+        -> float actions ``[B, A]``."""
         tables = self.tables()
         if tables.head_obs is None:
             hidden = {"target": target_hidden[:, None], "observation": obs_hidden[:, None]}

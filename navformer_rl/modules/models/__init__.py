@@ -9,8 +9,8 @@ from __future__ import annotations
 from navformer_rl.utils.lazy import lazy_exports
 
 _EXPORTS = {
-    "ActionHead": "navformer_rl.modules.models.thsc",
-    "BinnedActionHead": "navformer_rl.modules.models.thsc",
+    "ActionHead": "navformer_rl.modules.models.heads",
+    "BinnedActionHead": "navformer_rl.modules.models.heads",
     "CausalTransformer": "navformer_rl.modules.models.transformer",
     "ConvEncoder": "navformer_rl.modules.models.cnn",
     "DualVisualEncoder": "navformer_rl.modules.models.dve",
@@ -23,15 +23,15 @@ _EXPORTS = {
     "MODEL_ABLATIONS": "navformer_rl.modules.models.config",
     "NavFormerConfig": "navformer_rl.modules.models.config",
     "NavFormerModel": "navformer_rl.modules.models.navformer",
-    "ObservationHead": "navformer_rl.modules.models.thsc",
+    "ObservationHead": "navformer_rl.modules.models.heads",
     "ResNet18Encoder": "navformer_rl.modules.models.resnet",
-    "THSCHead": "navformer_rl.modules.models.thsc",
+    "THSCHead": "navformer_rl.modules.models.heads",
     "TokenEmbedding": "navformer_rl.modules.models.transformer",
     "images_to_float": "navformer_rl.modules.models.cnn",
+    "init_embedding_tables": "navformer_rl.modules.models.transformer",
     "make_encoder": "navformer_rl.modules.models.dve",
-    "make_head": "navformer_rl.modules.models.thsc",
+    "make_head": "navformer_rl.modules.models.heads",
     "sliding_window_mask": "navformer_rl.modules.models.transformer",
-    "upgrade_state_dict": "navformer_rl.modules.models.navformer",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -177,7 +177,8 @@ class ConvEncoder(ImageEncoder):
         return (*super().input_layout, self.space_to_depth)
 
     def prepare(self, pixels: Tensor, dtype: torch.dtype) -> Tensor:
-        """uint8 HWC ``[M, H, W, 3]`` -> float ``[M, 3, H, W]``, or ``[M, 48, H/4, W/4]`` with space_to_depth."""
+        """uint8 HWC ``[M, H, W, 3]`` -> float ``[M, 3, H, W]``,
+        or ``[M, 48, H/4, W/4]`` with space_to_depth."""
         if not self.space_to_depth:
             return super().prepare(pixels, dtype)
         return pixels_space_to_depth(pixels).permute(0, 3, 1, 2).to(dtype).mul_(1.0 / 255.0)

@@ -56,7 +56,7 @@ class NavFormerConfig:
         action_bins: 0 (default) is the paper's head, ``tanh`` of a linear map trained with eq. 10's squared
             error. K >= 2: each action dimension as K logits over bins centred on ``linspace(-1, 1, K)``,
             trained with cross-entropy, the action read from the most probable bin
-            (:class:`~navformer_rl.modules.models.thsc.BinnedActionHead`): a state with two good turns gives
+            (:class:`~navformer_rl.modules.models.heads.BinnedActionHead`): a state with two good turns gives
             one of them, where the squared error's mean of the two may be no turn.
     """
 
@@ -121,7 +121,8 @@ class NavFormerConfig:
             )
         if self.encoder_micro_batch is not None and self.encoder_micro_batch <= 0:
             raise ValueError(
-                f"NavFormerConfig.encoder_micro_batch={self.encoder_micro_batch!r}: expected None or a positive int"
+                f"NavFormerConfig.encoder_micro_batch={self.encoder_micro_batch!r}: "
+                "expected None or a positive int"
             )
         if self.autocast_dtype is not None and self.autocast_dtype not in AUTOCAST_DTYPES:
             raise ValueError(
@@ -164,9 +165,9 @@ class NavFormerConfig:
 
     @classmethod
     def ablation(cls, name: str, **changes) -> NavFormerConfig:
-        """The model of ablation ``name`` (a key of :data:`navformer_rl.tasks.ABLATIONS`: ``none``, ``no_thsc``,
-        ``no_fs``, ``no_fg``, ``resnet18``, ``dt``, ...; the data / SSL ablations give the paper's model).
-        §VII.D (7): "a single pre-trained ResNet18" replaces the dual visual encoder."""
+        """The model of ablation ``name`` (a key of :data:`navformer_rl.tasks.ABLATIONS`: ``none``,
+        ``no_thsc``, ``no_fs``, ``no_fg``, ``resnet18``, ``dt``, ...; the data / SSL ablations give the
+        paper's model). §VII.D (7): "a single pre-trained ResNet18" replaces the dual visual encoder."""
         if name not in ABLATIONS:
             raise ValueError(f"unknown ablation {name!r}: expected one of {list(ABLATIONS)}")
         return cls(**{**ABLATIONS[name].model_switches, **changes})

@@ -1,4 +1,5 @@
-"""The causal transformer's N GPT-2 blocks (pre-LN) with an optional slot-addressed key/value cache (paper §IV.C)."""
+"""The causal transformer's N GPT-2 blocks (pre-LN) with an optional slot-addressed key/value cache
+(paper §IV.C)."""
 
 from __future__ import annotations
 
@@ -46,7 +47,7 @@ class KVCache:
         storage = [
             torch.zeros(batch, slots, 2, n_heads, d_head, device=device, dtype=dtype) for _ in range(n_blocks)
         ]
-        return cls(
+        return cls(  # [B, S, 2, H, d_head] -> keys, values [B, H, S, d_head] (views)
             keys=[block[:, :, 0].transpose(1, 2) for block in storage],
             values=[block[:, :, 1].transpose(1, 2) for block in storage],
             slot_major=storage,
@@ -82,6 +83,7 @@ class CausalSelfAttention(nn.Module):
         (bool ``[B or 1, 1, L, S']``, True = may attend, or additive float 0 / -inf; S' <= S).
         """
         batch, length, _ = x.shape
+        # [B, L, 3 * H * d_head] -> [B, L, 3, H, d_head] -> q, k, v [B, H, L, d_head]
         q, k, v = self.qkv(x).view(batch, length, 3, self.n_heads, self.d_head).permute(2, 0, 3, 1, 4)
         if cache is not None:
             cache_k, cache_v = cache
@@ -89,6 +91,7 @@ class CausalSelfAttention(nn.Module):
                 cache_k[:, :, write_index] = k
                 cache_v[:, :, write_index] = v
             else:
+                # slots [B, L] -> [B, H, L, d_head], the index of each new key / value along the slots
                 index = write_index[:, None, :, None].expand(batch, self.n_heads, length, self.d_head)
                 cache_k.scatter_(2, index, k.to(cache_k.dtype))
                 cache_v.scatter_(2, index, v.to(cache_v.dtype))
@@ -101,12 +104,15 @@ class CausalSelfAttention(nn.Module):
             y = F.scaled_dot_product_attention(
                 q, k, v, attn_mask=attn_mask, dropout_p=dropout_p, is_causal=attn_mask is None
             )
-        y = y.transpose(1, 2).reshape(batch, length, self.n_heads * self.d_head)
+        y = y.transpose(1, 2).reshape(
+            batch, length, self.n_heads * self.d_head
+        )  # [B, H, L, dh] -> [B, L, H dh]
         return self.resid_dropout(self.proj(y))
 
 
 class TransformerBlock(nn.Module):
-    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))`` with MLP = Linear(d, 4d) - GELU - Linear(4d, d).
+    """GPT-2 block: ``x + MMHA(LN(x))`` then ``x + MLP(LN(x))``
+    with MLP = Linear(d, 4d) - GELU - Linear(4d, d).
 
     GELU is the exact (erf) one: GPT-2's tanh approximation differs by < 1e-3 and costs 2-3x more on CPU."""
 

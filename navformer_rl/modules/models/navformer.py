@@ -2,43 +2,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 from torch import Tensor, nn
 
 from navformer_rl.modules.models.cnn import ImageEncoder
 from navformer_rl.modules.models.config import NavFormerConfig
 from navformer_rl.modules.models.dve import DualVisualEncoder
-from navformer_rl.modules.models.gpt import GPT2Blocks
-from navformer_rl.modules.models.thsc import ActionHead, BinnedActionHead, make_head
-from navformer_rl.modules.models.transformer import HIDDEN_NAMES, CausalTransformer, TokenEmbedding
-
-RENAMED_PREFIXES = {
-    "static_encoder.": "dve.static_encoder.",
-    "general_encoder.": "dve.general_encoder.",
-    "return_embed.": "transformer.tokens.return_embed.",
-    "action_embed.": "transformer.tokens.action_embed.",
-    "timestep_embed.": "transformer.tokens.timestep_embed.",
-    "modality_embed.": "transformer.tokens.modality_embed.",
-    "embed_ln.": "transformer.tokens.embed_ln.",
-    "transformer.blocks.": "transformer.gpt.blocks.",
-    "transformer.ln_final.": "transformer.gpt.ln_final.",
-}
-"""State-dict names of the single-module model (checkpoints of ``navformer_rl.run/1`` written before the
-model was split into its parts) -> the names of the parts."""
-
-
-def upgrade_state_dict(state: Mapping[str, Tensor]) -> dict[str, Tensor]:
-    """``state`` with the single-module model's names (``RENAMED_PREFIXES``) mapped to the current ones;
-    current names are kept as they are."""
-    upgraded = {}
-    for name, tensor in state.items():
-        for old, new in RENAMED_PREFIXES.items():
-            if name.startswith(old):
-                name = new + name[len(old) :]
-                break
-        upgraded[name] = tensor
-    return upgraded
+from navformer_rl.modules.models.heads import (
+    ActionHead,
+    BinnedActionHead,
+    ObservationHead,
+    THSCHead,
+    make_head,
+)
+from navformer_rl.modules.models.transformer import CausalTransformer, init_embedding_tables
 
 
 class NavFormerModel(nn.Module):
@@ -58,16 +34,12 @@ class NavFormerModel(nn.Module):
     def __init__(self, config: NavFormerConfig | None = None) -> None:
         super().__init__()
         self.config = config = config or NavFormerConfig()
+        # The initialisation order, fixed here once (tested: a seed gives the weights it always gave): each
+        # part draws PyTorch's default inits as it is built, then the embedding tables get GPT-2's N(0, 0.02).
         self.dve = DualVisualEncoder.from_config(config)
-        tokens = TokenEmbedding.from_config(config)
-        self.transformer = CausalTransformer(
-            tokens,
-            GPT2Blocks.from_config(config),
-            config.context_tokens,
-            autocast_dtype=config.torch_autocast_dtype,
-        )
+        self.transformer = CausalTransformer.from_config(config)
         self.head: ActionHead | BinnedActionHead = make_head(config)
-        tokens.reset_tables()  # drawn last: a seed gives the weights of the RENAMED_PREFIXES layout
+        self.apply(init_embedding_tables)
 
     @property
     def static_encoder(self) -> ImageEncoder | None:
@@ -109,9 +81,11 @@ class NavFormerModel(nn.Module):
         if pixels.dim() != 5:
             size = self.config.image_size
             raise ValueError(f"pixels: expected [B, T, {size}, {size}, 3], got {tuple(pixels.shape)}")
-        *observations, target = self.dve(pixels, target_pixels, mask)
-        hidden = self.transformer(
-            target,
+        # e^s_t, e^ca_t [B, T, d] (the encoders in use: dve.names), e_g [B, d]
+        *observations, e_g = self.dve(pixels, target_pixels, mask)
+        # the token sequence (g, R_1, e^s_1, e^ca_1, a_1, ...) through the GPT-2 blocks -> h_g, h_o [B, T, d]
+        h_g, h_o, _ = self.transformer(
+            e_g,
             return_to_go,
             action,
             step,
@@ -119,5 +93,11 @@ class NavFormerModel(nn.Module):
             window_steps=window_steps,
             **dict(zip(self.dve.names, observations, strict=True)),
         )
-        named = dict(zip(HIDDEN_NAMES, hidden, strict=True))
-        return self.head.actions(*(named[name] for name in self.head.reads), mask)
+        if self.head.reads == THSCHead.reads:  # THSC: a-hat_t = tanh(W [h_g ; h^ca_{o,t}] + b)
+            return self.head.actions(h_g, h_o, mask)
+        if self.head.reads == ObservationHead.reads:  # w/o THSC, DT: a-hat_t = tanh(W h_{o,t} + b)
+            return self.head.actions(h_o, mask)
+        raise ValueError(
+            f"NavFormerModel.forward feeds its head h_g and h_o; {type(self.head).__name__} reads "
+            f"{self.head.reads}: compose it after transformer_module (navformer_rl.modules.actors)"
+        )

@@ -30,7 +30,8 @@ def norm(channels: int) -> nn.GroupNorm:
 
 
 class BasicBlock(nn.Module):
-    """Two 3x3 conv-GN layers with an identity (or 1x1 conv-GN) shortcut: ``[M, c_in, H, W] -> [M, c_out, H/s, W/s]``."""
+    """Two 3x3 conv-GN layers with an identity (or 1x1 conv-GN) shortcut:
+    ``[M, c_in, H, W] -> [M, c_out, H/s, W/s]``."""
 
     def __init__(self, c_in: int, c_out: int, stride: int) -> None:
         super().__init__()

@@ -1,4 +1,5 @@
-"""``CausalTransformer`` (CT, paper §IV.C): the interleaved token sequence (eq. 5) through the GPT-2 blocks."""
+"""``CausalTransformer`` (CT, paper §IV.C): the interleaved token sequence
+(eq. 5) through the GPT-2 blocks."""
 
 from __future__ import annotations
 
@@ -61,8 +62,9 @@ class TokenEmbedding(nn.Module):
 
     @classmethod
     def from_config(cls, config: NavFormerConfig) -> TokenEmbedding:
-        """The token embeddings of ``config`` (observation tokens of the encoders it uses); the tables keep
-        ``nn.Embedding``'s init until ``reset_tables``."""
+        """The token embeddings of ``config`` (observation tokens of the encoders it uses), PyTorch's default
+        inits (the tables get GPT-2's from :func:`init_embedding_tables`, applied by the model after every
+        part)."""
         used = (config.use_static_encoder, config.use_general_encoder)
         names = [name for name, use in zip(ENCODER_NAMES, used, strict=True) if use]
         return cls(
@@ -73,11 +75,6 @@ class TokenEmbedding(nn.Module):
             config.dropout,
             config.action_dropout,
         )
-
-    def reset_tables(self) -> None:
-        """GPT-2's init of the timestep and modality tables: N(0, 0.02)."""
-        for table in (self.timestep_embed, self.modality_embed):
-            nn.init.normal_(table.weight, mean=0.0, std=0.02)
 
     @property
     def tokens_per_step(self) -> int:
@@ -97,8 +94,8 @@ class TokenEmbedding(nn.Module):
         observations: one ``[B, T, d]`` per name of ``observation_names``; return_to_go ``[B, T, 1]``,
         action ``[B, T, A]`` (a_t, at its own timestep), step long ``[B, T]``.
         """
-        timestep = self.timestep_embed(step)
-        modality = self.modality_embed(self.step_modalities)
+        timestep = self.timestep_embed(step)  # [B, T, d]
+        modality = self.modality_embed(self.step_modalities)  # [tps, d]: R-hat, observations.., a
         tokens = [self.return_embed(return_to_go) + modality[0] + timestep]
         tokens += [embedding + modality[i] + timestep for i, embedding in enumerate(observations, 1)]
         action_embedding = self.action_embed(action)
@@ -106,10 +103,11 @@ class TokenEmbedding(nn.Module):
             kept = torch.rand(action.shape[:-1], device=action.device) >= self.action_dropout
             action_embedding = action_embedding * kept.unsqueeze(-1).to(action_embedding.dtype)
         tokens.append(action_embedding + modality[-1] + timestep)
-        return torch.stack(tokens, dim=-2)
+        return torch.stack(tokens, dim=-2)  # tps x [B, T, d] -> [B, T, tps, d]
 
     def prepare(self, tokens: Tensor) -> Tensor:
-        """LayerNorm then dropout on token embeddings ``[..., d]`` (per token, as in the DT reference code)."""
+        """LayerNorm then dropout on token embeddings ``[..., d]`` (per token,
+        as in the DT reference code)."""
         return self.embed_dropout(self.embed_ln(tokens))
 
 
@@ -157,16 +155,16 @@ class CausalTransformer(nn.Module):
 
     @classmethod
     def from_config(cls, config: NavFormerConfig) -> CausalTransformer:
-        """A freshly initialised CT of ``config`` (observation tokens of the encoders ``config`` uses)."""
-        tokens = TokenEmbedding.from_config(config)
-        transformer = cls(
-            tokens,
+        """A fresh CT of ``config`` (observation tokens of the encoders ``config`` uses): the token
+        embeddings, then the GPT-2 blocks, each with PyTorch's default inits. ``NavFormerModel`` builds it
+        this way and then applies :func:`init_embedding_tables`; a CT used alone applies it too
+        (``transformer.apply(init_embedding_tables)``)."""
+        return cls(
+            TokenEmbedding.from_config(config),
             GPT2Blocks.from_config(config),
             config.context_tokens,
             autocast_dtype=config.torch_autocast_dtype,
         )
-        tokens.reset_tables()
-        return transformer
 
     @property
     def observation_names(self) -> tuple[str, ...]:
@@ -188,7 +186,8 @@ class CausalTransformer(nn.Module):
         general: Tensor | None = None,
         window_steps: int | None = None,
     ) -> tuple[Tensor, Tensor, Tensor]:
-        """-> ``(h_g [B, T, d], h_o [B, T, d], token hidden states [B, T, tps, d])`` (see the class docstring)."""
+        """-> ``(h_g [B, T, d], h_o [B, T, d], token hidden states [B, T, tps, d])``
+        (see the class docstring)."""
         given = {"static": static, "general": general}
         if tuple(name for name, value in given.items() if value is not None) != self.observation_names:
             raise ValueError(
@@ -212,14 +211,17 @@ class CausalTransformer(nn.Module):
             return_to_go = return_to_go.masked_fill(~mask[..., None], 0.0)
             action = action.masked_fill(~mask[..., None], 0.0)
         with autocast(return_to_go.device, self.autocast_dtype):
-            target = self.tokens.target_token(target_embedding)
-            tokens = self.tokens.step_tokens(observations, return_to_go, action, step)
+            target = self.tokens.target_token(target_embedding)  # [B, d]
+            tokens = self.tokens.step_tokens(observations, return_to_go, action, step)  # [B, T, tps, d]
+            # eq. 5: (g, R_1, e^s_1, e^ca_1, a_1, ..., R_T, e^s_T, e^ca_T) [B, tps * T, d]; a_T is never fed
             sequence = torch.cat([target.unsqueeze(1), tokens.reshape(batch, steps * tps, -1)[:, :-1]], dim=1)
             attn_mask = None
             if window_steps is not None and window_steps < steps:
                 attn_mask = sliding_window_mask(steps, tps, window_steps, sequence.device)
             hidden, _ = self.gpt(self.tokens.prepare(sequence), attn_mask=attn_mask)
+        # [B, tps * T, d] -> [B, T, tps, d]: step t's tokens (g or a_{t-1}, R_t, e.._t), shifted by the target
         token_hidden = hidden.view(batch, steps, tps, -1)
+        # h_g [B, 1, d] -> [B, T, d]; h_o = step t's last observation token [B, T, d]
         return hidden[:, :1].expand(batch, steps, -1), token_hidden[:, :, -1], token_hidden
 
     def _check_inputs(
@@ -240,8 +242,8 @@ class CausalTransformer(nn.Module):
         missing = [name for name, value in inputs.items() if value is None]
         if missing:
             raise ValueError(
-                f"CausalTransformer: {missing[0]} is None; every input but mask is required (target_embedding "
-                "[B, d], return_to_go [B, T, 1], action [B, T, A], step int64 [B, T])"
+                f"CausalTransformer: {missing[0]} is None; every input but mask is required "
+                "(target_embedding [B, d], return_to_go [B, T, 1], action [B, T, A], step int64 [B, T])"
             )
         first = observations[0]
         if first.dim() != 3:
@@ -283,6 +285,14 @@ class CausalTransformer(nn.Module):
                 f"[{int(valid_steps.min())}, {int(valid_steps.max())}]"
             )
         return batch, steps
+
+
+def init_embedding_tables(module: nn.Module) -> None:
+    """GPT-2's init of an ``nn.Embedding`` table, N(0, 0.02) (nanoGPT's ``_init_weights``), for
+    ``Module.apply``. ``NavFormerModel`` applies it once all its parts are built, so these draws come last:
+    a seed gives the same weights as the single-module model of ``navformer_rl.run/1`` checkpoints."""
+    if isinstance(module, nn.Embedding):
+        nn.init.normal_(module.weight, mean=0.0, std=0.02)
 
 
 def sliding_window_mask(steps: int, tokens_per_step: int, window_steps: int, device: torch.device) -> Tensor:

@@ -277,7 +277,8 @@ class NativeTransformerStep:
             start, stop = write_index.start, write_index.stop
             if start is None or stop != start + length or start < 0 or stop > cache.slots:
                 raise ValueError(
-                    f"write_index: expected slice(s, s + {length}) within {cache.slots} slots, got {write_index}"
+                    f"write_index: expected slice(s, s + {length}) "
+                    f"within {cache.slots} slots, got {write_index}"
                 )
         elif tuple(write_index.shape) != (batch, length) or not (
             0 <= int(write_index.min()) and int(write_index.max()) < cache.slots
@@ -332,8 +333,8 @@ class NativeTransformerStep:
             for name, tensor in zip(_BLOCK_POINTERS, tensors):
                 if not tensor.is_contiguous() or tensor.dtype != torch.float32 or tensor.device.type != "cpu":
                     raise ValueError(
-                        f"NativeTransformerStep: block {i}'s {name} must be a contiguous float32 CPU tensor, got "
-                        f"{tensor.dtype} on {tensor.device}, strides {tensor.stride()}"
+                        f"NativeTransformerStep: block {i}'s {name} must be a contiguous float32 CPU tensor, "
+                        f"got {tensor.dtype} on {tensor.device}, strides {tensor.stride()}"
                     )
                 setattr(struct, name, tensor.data_ptr())
             struct.ln_attn_eps, struct.ln_mlp_eps = block.ln_attn.module.eps, block.ln_mlp.module.eps

@@ -1,1 +1,2 @@
-"""CPU training kernels of the model: attention with dropout, dropout, the last convolution's weight gradient."""
+"""CPU training kernels of the model: attention with dropout, dropout,
+the last convolution's weight gradient."""

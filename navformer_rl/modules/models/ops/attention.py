@@ -88,7 +88,8 @@ def chunked_dropout_attention(
 
 
 class _ChunkedDropoutAttention(torch.autograd.Function):
-    """Forward and backward of ``chunked_dropout_attention``, chunk by chunk, autocast off (explicit dtypes)."""
+    """Forward and backward of ``chunked_dropout_attention``, chunk by chunk, autocast off
+    (explicit dtypes)."""
 
     @staticmethod
     def forward(ctx, q, k, v, bias, keep, scale, chunk):
@@ -127,5 +128,6 @@ def _chunks(n: int, chunk: int) -> list[slice]:
 
 
 def _as_factor(keep: Tensor, dtype: torch.dtype) -> Tensor:
-    """Bool mask -> 0 / 1 in ``dtype`` through its uint8 view (the bool conversion is not vectorised on CPU)."""
+    """Bool mask -> 0 / 1 in ``dtype`` through its uint8 view
+    (the bool conversion is not vectorised on CPU)."""
     return keep.view(torch.uint8).to(dtype)

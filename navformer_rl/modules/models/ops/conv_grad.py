@@ -5,8 +5,8 @@ encoder's last layer (3 x 3, stride 2, 9 x 9 x 64 -> 4 x 4 x 64) it reaches ~50 
 and takes more time than the layer's forward and input gradient together. Gathering the 3 x 3 x 64 input
 patches (``[M * 16, 576]``, a 9 MB copy at batch 512) and multiplying them with the output gradient
 (AMX matmul) gives the same gradient in a fraction of the time. The forward and the input gradient stay
-with oneDNN. Measured (``benchmarks/model.md``, "Training levers in the code"): forward + backward of that layer
-19.3 -> 13.6 ms at 2 threads and 31 -> 20.6 ms at 1 thread (bf16, channels_last, batch 512). For larger
+with oneDNN. Measured (``benchmarks/model.md``, "Training levers in the code"): forward + backward of that
+layer 19.3 -> 13.6 ms at 2 threads and 31 -> 20.6 ms at 1 thread (bf16, channels_last, batch 512). For larger
 output maps (the encoder's other layers) the patch copy costs more than it saves, and in float32 oneDNN's
 own kernel is as fast, so ``ConvEncoder`` uses this only for its last layer in bf16 on CPU.
 """

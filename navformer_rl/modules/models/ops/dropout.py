@@ -4,8 +4,8 @@ On CPU, ``F.dropout`` draws one Bernoulli sample per element from the serial Mer
 ~14 ns each, which made dropout the largest single cost of a NavFormer training iteration (the attention
 weights alone are ``[150, 2, 252, 252]`` per block in the paper's batch B). ``keep_mask`` draws 64-bit
 words with ``random_()`` over the full int64 range and compares their four uniform 16-bit lanes with a
-threshold: one generator call per four elements. The keep probability is quantised to 1/65536 (p = 0.1 keeps with
-probability 58982 / 65536 = 0.899994). Masks come from torch's default generator, so
+threshold: one generator call per four elements. The keep probability is quantised to 1/65536 (p = 0.1 keeps
+with probability 58982 / 65536 = 0.899994). Masks come from torch's default generator, so
 ``torch.manual_seed`` makes them reproducible and a checkpoint's saved RNG state resumes them exactly.
 Other devices use ``F.dropout`` unchanged.
 
@@ -82,7 +82,8 @@ def _mask_pool() -> ThreadPoolExecutor:
 
 
 def fast_dropout(x: Tensor, p: float, training: bool) -> Tensor:
-    """``F.dropout(x, p, training)`` with ``keep_mask`` on CPU: zero with probability p, scale by 1 / (1 - p)."""
+    """``F.dropout(x, p, training)`` with ``keep_mask`` on CPU: zero with probability p,
+    scale by 1 / (1 - p)."""
     if not training or p == 0.0:
         return x
     if x.device.type != "cpu":

@@ -1,4 +1,4 @@
-"""Failure measures over recorded robot-trials (:class:`~navformer_rl.evaluation.diagnose_trace.RobotSteps`).
+"""Failure measures over recorded robot-trials (:class:`~navformer_rl.evaluation.diagnose.trace.RobotSteps`).
 
 Every measure reads only a robot's *active* steps (up to and including its arrival) and only robots that
 are measured (Table III's obstacle robots are left out by the caller). Step ``t``'s action is the policy's
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from navformer_rl.evaluation.diagnose_trace import RobotSteps
+from navformer_rl.evaluation.diagnose.trace import RobotSteps
 
 STUCK_WINDOW = 50
 STUCK_DISPLACEMENT = 0.1
@@ -301,8 +301,8 @@ def command_statistics(
 
 
 def main_direction_share(angular: np.ndarray, starts: np.ndarray) -> float | None:
-    """Mean over the sequences of ``angular`` (``starts`` bool marks each one's first step) that turn at all of
-    the share of their summed ``|angular|`` in their main direction (see :func:`command_statistics`)."""
+    """Mean over the sequences of ``angular`` (``starts`` bool marks each one's first step) that turn at all
+    of the share of their summed ``|angular|`` in their main direction (see :func:`command_statistics`)."""
     if angular.size == 0:
         return None
     starts = np.asarray(starts, dtype=bool).copy()
@@ -319,9 +319,10 @@ def phase_measures(
     robots: Sequence[RobotSteps], starts: Sequence[int] = EPISODE_PHASES
 ) -> list[dict[str, Any]]:
     """The ``phases`` block: per span ``[starts[k], starts[k + 1])`` of active steps (the last one open),
-    ``first_step``, ``last_step`` (None: open), ``robot_steps``, ``contact_fraction``, ``free_median_abs_turn``,
-    ``free_large_fraction`` (``|turn| >`` :data:`LARGE_TURN`) and ``touching_median_abs_turn`` (steps taken
-    while the previous step ended in contact, as in :func:`wall_measures`); None where a span has no such step."""
+    ``first_step``, ``last_step`` (None: open), ``robot_steps``, ``contact_fraction``,
+    ``free_median_abs_turn``, ``free_large_fraction`` (``|turn| >`` :data:`LARGE_TURN`) and
+    ``touching_median_abs_turn`` (steps taken while the previous step ended in contact, as in
+    :func:`wall_measures`); None where a span has no such step."""
     step = np.concatenate([np.arange(r.n) for r in robots]) if robots else np.zeros(0, dtype=int)
     contact = np.concatenate([r.contact for r in robots]) if robots else np.zeros(0, dtype=bool)
     touching = (
@@ -354,7 +355,8 @@ OUTCOMES = ("success", "stuck", "circling", "other failure")
 
 def outcome(robot: RobotSteps) -> str:
     """How a robot-trial ended, one of :data:`OUTCOMES` (stuck is checked before circling; they exclude each
-    other anyway: circling drives more than 5 m in its window, stuck never leaves 0.1 m or stays in contact)."""
+    other anyway: circling drives more than 5 m in its window, stuck never leaves 0.1 m or stays in
+    contact)."""
     if robot.success:
         return "success"
     if is_stuck(robot):

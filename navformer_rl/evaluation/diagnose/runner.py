@@ -1,5 +1,6 @@
 """Running episodes with per-step recording: :class:`TraceRunner` plays an episode as the evaluation does
-(same env, policy recipe and seeds) and returns its :class:`~navformer_rl.evaluation.diagnose_trace.EpisodeTrace`.
+(same env, policy recipe and seeds) and returns its
+:class:`~navformer_rl.evaluation.diagnose.trace.EpisodeTrace`.
 
 ``_init_worker`` / ``_run_in_worker`` are what the diagnosis's spawned worker processes run.
 """
@@ -11,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from navformer_rl.evaluation.diagnose_trace import EpisodeGeometry, EpisodeTrace
+from navformer_rl.evaluation.diagnose.trace import EpisodeGeometry, EpisodeTrace
 from navformer_rl.evaluation.episodes import Episode
 from navformer_rl.evaluation.policy_spec import PolicySpec
 from navformer_rl.evaluation.runner import make_eval_env
@@ -48,7 +49,7 @@ class TraceRunner:
         self._envs.clear()
 
     def run(self, episode_json: dict[str, Any], key: str = "") -> EpisodeTrace:
-        """Play one episode (``Episode.to_json``) and record every step (see ``diagnose_trace``)."""
+        """Play one episode (``Episode.to_json``) and record every step (see ``diagnose.trace``)."""
         import torch
         from torchrl.envs.utils import step_mdp
 
@@ -122,7 +123,7 @@ def _init_worker(spec: PolicySpec, max_steps: int) -> None:
 
 def _run_in_worker(task: TraceTask) -> str:
     """Record ``task``'s episode and save its trace; returns the trace's path."""
-    from navformer_rl.evaluation.diagnose_trace import save_trace
+    from navformer_rl.evaluation.diagnose.trace import save_trace
 
     if _WORKER_RUNNER is None:
         raise RuntimeError("diagnosis worker used before its initialiser ran")

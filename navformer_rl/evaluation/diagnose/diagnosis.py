@@ -2,14 +2,14 @@
 
 ``diagnose(method, episode_set, out_dir, ...)`` plays every episode as ``navformer evaluate`` does (same
 methods, checkpoint forms and seeds: :class:`~navformer_rl.evaluation.policy_spec.PolicySpec`), records
-every robot's every step (:mod:`~navformer_rl.evaluation.diagnose_trace`) and writes into ``out_dir``:
+every robot's every step (:mod:`~navformer_rl.evaluation.diagnose.trace`) and writes into ``out_dir``:
 
 - ``traces/<episode>.npz``: one per episode, written as soon as it ends (atomic); a rerun reuses the traces
   computed with the same method, checkpoint weights, seed, trial length and package version (``resume``);
 - ``robot_trials.jsonl``: one row per measured robot-trial (episode, robot, outcome - success, stuck,
   circling or other failure -, first contact, steps to free, first sighting, geodesic at start and end), to
   find the episodes worth watching (``navformer evaluate --videos``);
-- ``diagnosis.json``: the failure measures (:mod:`~navformer_rl.evaluation.diagnose_measures`) over every
+- ``diagnosis.json``: the failure measures (:mod:`~navformer_rl.evaluation.diagnose.measures`) over every
   measured robot-trial (``all``) and per setup (``by_setup``), the experts' command distribution
   (``expert_commands``, with ``expert_data``) and the teacher-forced turns on held-out trajectories
   (``teacher_forced``, with ``held_out``; ``navformer`` / ``dt`` only);
@@ -30,8 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from navformer_rl import __version__
-from navformer_rl.evaluation.diagnose_runner import TraceRunner, TraceTask, _init_worker, _run_in_worker
-from navformer_rl.evaluation.diagnose_trace import TRACE_VERSION, load_trace, save_trace
+from navformer_rl.evaluation.diagnose.runner import TraceRunner, TraceTask, _init_worker, _run_in_worker
+from navformer_rl.evaluation.diagnose.trace import TRACE_VERSION, load_trace, save_trace
 from navformer_rl.evaluation.episodes import EpisodeSet, load_episode_set
 from navformer_rl.evaluation.policy_spec import CHECKPOINT_METHODS, PolicySpec
 from navformer_rl.utils.backends import LocalPool, run_units
@@ -68,7 +68,8 @@ def diagnose(
     """Record ``method`` on every episode of ``episode_set`` and write the diagnosis (module docstring).
 
     Args:
-        method: ``navformer``, ``dt``, ``vrw`` or ``fca`` (:data:`~navformer_rl.evaluation.policy_spec.METHODS`).
+        method: ``navformer``, ``dt``, ``vrw`` or ``fca``
+            (:data:`~navformer_rl.evaluation.policy_spec.METHODS`).
         episode_set: an :class:`EpisodeSet` or the path of an episode-set file.
         out_dir: output folder (one diagnosis at a time: a second is refused while one runs).
         checkpoint: for ``navformer`` / ``dt``: run dir, checkpoint folder, ``model.safetensors`` or
@@ -92,7 +93,7 @@ def diagnose(
     Returns:
         The content of ``diagnosis.json``.
     """
-    from navformer_rl.evaluation.diagnose_report import diagnosis_markdown
+    from navformer_rl.evaluation.diagnose.report import diagnosis_markdown
 
     if isinstance(episode_set, str | os.PathLike):
         episode_set = load_episode_set(episode_set)
@@ -179,11 +180,11 @@ def diagnose(
             "episodes_computed": computed,
         }
         if expert_data:
-            from navformer_rl.evaluation.diagnose_actions import expert_command_statistics
+            from navformer_rl.evaluation.diagnose.actions import expert_command_statistics
 
             summary["expert_commands"] = expert_command_statistics(expert_data)
         if held_out:
-            from navformer_rl.evaluation.diagnose_actions import teacher_forced_turns
+            from navformer_rl.evaluation.diagnose.actions import teacher_forced_turns
 
             summary["teacher_forced"] = teacher_forced_turns(spec.checkpoint, held_out, device=device)
         summary["seconds"] = round(time.perf_counter() - started, 3)
@@ -194,7 +195,7 @@ def diagnose(
 
 def _measure(traces) -> dict[str, Any]:
     """``{"all": ..., "by_setup": {setup: ...}}`` of :func:`summarize_robots` over the measured robots."""
-    from navformer_rl.evaluation.diagnose_measures import summarize_robots
+    from navformer_rl.evaluation.diagnose.measures import summarize_robots
 
     by_setup: dict[str, list] = {}
     for trace in traces:
@@ -209,7 +210,7 @@ def _measure(traces) -> dict[str, Any]:
 
 def _robot_rows(traces) -> str:
     """``robot_trials.jsonl``: one :func:`robot_row` per measured robot-trial, with its episode and robot."""
-    from navformer_rl.evaluation.diagnose_measures import robot_row
+    from navformer_rl.evaluation.diagnose.measures import robot_row
 
     rows = [
         {"episode_id": trace.episode_id, "setup": trace.setup, "robot": i, **robot_row(trace.robot(i))}

@@ -5,19 +5,19 @@ a smaller, centred turn. Two signatures are measured here:
 
 - :func:`expert_command_statistics`: the distribution of the actions in D_e / D_ca (``action`` of every
   row, normalised), to set beside the policy's closed-loop commands
-  (:func:`~navformer_rl.evaluation.diagnose_measures.command_statistics`): a narrower ``|angular|``
+  (:func:`~navformer_rl.evaluation.diagnose.measures.command_statistics`): a narrower ``|angular|``
   distribution than the experts' is what averaging modes would give.
 - :func:`teacher_forced_turns`: on held-out expert trajectories (the windows ``navformer validate`` scores,
-  :class:`~navformer_rl.training.validation.FixedTrajectoryBatches`), the model's predicted angular action at the
-  steps where the expert turns hard (``|a_angular| >`` :data:`~navformer_rl.evaluation.diagnose_measures.LARGE_TURN`):
-  ``magnitude_ratio`` = mean ``|predicted|`` / mean ``|expert|`` (1 = as hard as the expert, near 0 = the
-  turn averaged away) and ``sign_agreement`` (the fraction turning the expert's way); and, with
-  :func:`edge_of_view_turns`, the same steps' turns towards the target where it lies in the camera's cone
-  near its edge (whether the model has learned to steer at a target at the side of its image, where the
-  closed-loop diagnosis finds it does not); and, with :func:`turn_changes`, the steps where the expert
-  changes its turn: a model that copies the previous action in its context (the "copycat" shortcut of
-  behaviour cloning with action history) keeps the old turn there, while one that reads the image follows
-  the expert.
+  :class:`~navformer_rl.training.validation.FixedTrajectoryBatches`), the model's predicted angular action at
+  the steps where the expert turns hard (``|a_angular| >``
+  :data:`~navformer_rl.evaluation.diagnose.measures.LARGE_TURN`): ``magnitude_ratio`` = mean ``|predicted|`` /
+  mean ``|expert|`` (1 = as hard as the expert, near 0 = the turn averaged away) and ``sign_agreement`` (the
+  fraction turning the expert's way); and, with :func:`edge_of_view_turns`, the same steps' turns towards the
+  target where it lies in the camera's cone near its edge (whether the model has learned to steer at a target
+  at the side of its image, where the closed-loop diagnosis finds it does not); and, with
+  :func:`turn_changes`, the steps where the expert changes its turn: a model that copies the previous action
+  in its context (the "copycat" shortcut of behaviour cloning with action history) keeps the old turn there,
+  while one that reads the image follows the expert.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from navformer_rl.envs.robots import JACKAL
-from navformer_rl.evaluation.diagnose_measures import (
+from navformer_rl.evaluation.diagnose.measures import (
     LARGE_TURN,
     OFF_CENTRE,
     SIGHTING_RANGES,
@@ -115,7 +115,7 @@ def edge_of_view_turns(
     max_range: float = SIGHTING_RANGES[-1],
 ) -> dict[str, Any]:
     """Turns towards the target at the steps whose target lies in the camera's cone between
-    :data:`~navformer_rl.evaluation.diagnose_measures.OFF_CENTRE` and :data:`HALF_FIELD_OF_VIEW` off the
+    :data:`~navformer_rl.evaluation.diagnose.measures.OFF_CENTRE` and :data:`HALF_FIELD_OF_VIEW` off the
     heading, within ``max_range`` metres (walls are not checked: some of these targets are hidden).
 
     Args:
@@ -150,7 +150,8 @@ def turn_changes(
     valid predecessor in its window).
 
     A model that copies the previous action in its context predicts the old turn there (``captured`` near 0,
-    ``moves_expert_way`` near half); one that reads the change from the image follows the expert (both near 1).
+    ``moves_expert_way`` near half); one that reads the change from the image follows the expert (both near
+    1).
 
     Returns:
         ``steps``; ``captured``: the median of ``(predicted - previous) / (expert - previous)``, the part of
@@ -184,13 +185,13 @@ def teacher_forced_turns(
     """``{kind: turn_agreement(...) + loss_dt}`` of a checkpoint's teacher-forced predictions on held-out
     trajectories; ``loss_dt`` is eq. 10 over every valid step (``navformer validate``'s number).
 
-    The windows are those of :func:`navformer_rl.training.validation.score_checkpoints` with the same ``seed`` /
-    ``max_trajectories`` (one per trajectory, at most the model's context); the model runs in eval mode
+    The windows are those of :func:`navformer_rl.training.validation.score_checkpoints` with the same ``seed``
+    / ``max_trajectories`` (one per trajectory, at most the model's context); the model runs in eval mode
     and reads the expert's past actions (teacher forcing), writing ``action_pred`` ``[N, T, 2]``.
 
     Args:
-        checkpoint: any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes (``pretrained:NAME``
-            too).
+        checkpoint: any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes
+            (``pretrained:NAME`` too).
         datasets: ``{kind: folder}`` of held-out D_e (``e``) / D_ca (``ca``).
     """
 

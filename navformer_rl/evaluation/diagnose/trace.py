@@ -1,4 +1,5 @@
-"""Per-step records of evaluated episodes, for diagnosing how a policy fails (``navformer evaluate diagnose``).
+"""Per-step records of evaluated episodes, for diagnosing how a policy fails
+(``navformer evaluate diagnose``).
 
 An :class:`EpisodeTrace` holds, for every robot of one episode and every step, what the policy commanded,
 what the robot did and what it could see. Step ``t`` (0-based, ``T`` steps) is the policy's action on the
@@ -137,7 +138,8 @@ class RobotSteps:
 
 
 def save_trace(trace: EpisodeTrace, path: str | os.PathLike) -> Path:
-    """Write ``trace`` as a compressed ``.npz`` at ``path`` (atomic: the file is complete whenever it exists)."""
+    """Write ``trace`` as a compressed ``.npz`` at ``path`` (atomic:
+    the file is complete whenever it exists)."""
     path = Path(path)
     meta = {
         "version": TRACE_VERSION,
@@ -214,7 +216,8 @@ class EpisodeGeometry:
         )
 
     def measure(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(distance, geodesic, visible)`` float ``[R]``, float ``[R]``, bool ``[R]`` at ``poses`` ``[R, 3]``."""
+        """``(distance, geodesic, visible)`` float ``[R]``, float ``[R]``,
+        bool ``[R]`` at ``poses`` ``[R, 3]``."""
         poses = np.asarray(poses, dtype=np.float64)
         distance = np.hypot(*(poses[:, :2] - self.targets).T)
         geodesic = np.array([self.geodesic(i, p[:2]) for i, p in enumerate(poses)])

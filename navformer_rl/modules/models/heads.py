@@ -88,9 +88,9 @@ class ObservationHead(ActionHead):
 
 
 class BinnedActionHead(nn.Module):
-    """Opt-in head (``NavFormerConfig.action_bins`` = K): each action dimension as K logits over bins centred on
-    ``centres = linspace(-1, 1, K)``, read from ``reads`` (``("target", "observation")`` concatenated as THSC's
-    ``[h_g ; h_o]``, or ``("observation",)``).
+    """Opt-in head (``NavFormerConfig.action_bins`` = K): each action dimension as K logits over bins centred
+    on ``centres = linspace(-1, 1, K)``, read from ``reads`` (``("target", "observation")`` concatenated as
+    THSC's ``[h_g ; h_o]``, or ``("observation",)``).
 
     ``forward(*hidden, mask=None) -> (action [B, T, A], logits [B, T, A, K])``, both float32 and 0 on padded
     steps; ``actions(*hidden, mask=None)`` returns the first only. The action of a dimension is the most
@@ -128,7 +128,8 @@ class BinnedActionHead(nn.Module):
             )
         if any(h.shape != hidden[0].shape for h in hidden):
             raise ValueError(
-                f"BinnedActionHead: hidden states {[list(h.shape) for h in hidden]} must have one shape [B, T, d]"
+                f"BinnedActionHead: hidden states {[list(h.shape) for h in hidden]} must "
+                "have one shape [B, T, d]"
             )
         features = torch.cat(hidden, dim=-1) if len(hidden) > 1 else hidden[0]
         with autocast(features.device, self.autocast_dtype):
@@ -136,7 +137,8 @@ class BinnedActionHead(nn.Module):
         return logits.unflatten(-1, (self.action_dim, self.bins))
 
     def decode(self, logits: Tensor) -> Tensor:
-        """logits ``[..., A, K]`` -> actions ``[..., A]``: the most probable bin, refined over its neighbours."""
+        """logits ``[..., A, K]`` -> actions ``[..., A]``: the most probable bin,
+        refined over its neighbours."""
         probs = logits.softmax(-1)
         mode = probs.argmax(-1, keepdim=True)
         window = mode + torch.arange(-1, 2, device=logits.device)

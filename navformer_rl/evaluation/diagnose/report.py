@@ -1,6 +1,6 @@
 """``diagnosis.md``: the failure measures of one or more diagnoses of the same episodes as markdown tables.
 
-One column per diagnosis (its label); rows as in :mod:`~navformer_rl.evaluation.diagnose_measures`. The
+One column per diagnosis (its label); rows as in :mod:`~navformer_rl.evaluation.diagnose.measures`. The
 experts' command distribution and the teacher-forced turns get their own tables, for the diagnoses that
 measured them.
 """
@@ -11,8 +11,8 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from navformer_rl.evaluation.diagnose_actions import HALF_FIELD_OF_VIEW
-from navformer_rl.evaluation.diagnose_measures import (
+from navformer_rl.evaluation.diagnose.actions import HALF_FIELD_OF_VIEW
+from navformer_rl.evaluation.diagnose.measures import (
     APPROACH_WINDOW,
     ARRIVAL_WINDOW,
     LARGE_TURN,
@@ -215,7 +215,8 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
     if forced:
         lines += [
             "",
-            f"## Teacher-forced turns on held-out expert trajectories (expert \\|angular\\| > {LARGE_TURN:g})",
+            "## Teacher-forced turns on held-out expert trajectories "
+            f"(expert \\|angular\\| > {LARGE_TURN:g})",
             "",
         ]
         rows = [
@@ -238,8 +239,8 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
         lines += [
             "",
             f"Teacher-forced, the target in the camera's cone {math.degrees(OFF_CENTRE):g}-"
-            f"{math.degrees(HALF_FIELD_OF_VIEW):g}° off the heading within {SIGHTING_RANGES[-1]:g} m (walls not "
-            "checked): turn towards it",
+            f"{math.degrees(HALF_FIELD_OF_VIEW):g}° off the heading within {SIGHTING_RANGES[-1]:g} m (walls "
+            "not checked): turn towards it",
             "",
         ]
         rows = [
@@ -256,8 +257,8 @@ def diagnosis_markdown(summaries: Sequence[dict[str, Any]]) -> str:
         lines += _table(["model, data", "steps", "expert", "predicted", "same sign"], rows)
         lines += [
             "",
-            f"Teacher-forced where the expert's angular action changes by more than {TURN_CHANGE:g} from the step "
-            "before (a model copying its previous action captures none of the change)",
+            f"Teacher-forced where the expert's angular action changes by more than {TURN_CHANGE:g} from the "
+            "step before (a model copying its previous action captures none of the change)",
             "",
         ]
         rows = [

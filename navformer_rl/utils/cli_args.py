@@ -11,8 +11,8 @@ from navformer_rl.utils.checks import check_seed
 
 
 def seed(text: str) -> int:
-    """A seed: an integer >= 0 (:func:`navformer_rl.utils.checks.check_seed`; numpy's generators refuse negative
-    ones)."""
+    """A seed: an integer >= 0 (:func:`navformer_rl.utils.checks.check_seed`; numpy's generators refuse
+    negative ones)."""
     try:
         value: int | str = int(text)
     except ValueError:
