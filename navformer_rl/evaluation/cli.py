@@ -281,7 +281,8 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
         help="evenly spaced frames of an evaluation video side by side in one PNG",
         description=(
             "Write a frame strip of an evaluation video (videos/*.mp4): --frames evenly spaced frames, "
-            "first and last included, side by side and scaled to --width pixels, each labelled with its time."
+            "first and last included, side by side and scaled to --width pixels, each labelled with its step "
+            "and its time in the trial (frame i is step i, 0.2 s per step; not the video's playback time)."
         ),
     )
     strip.add_argument("strip_video", type=Path, metavar="VIDEO", help="an mp4 from an evaluation's videos/")

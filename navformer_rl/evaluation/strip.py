@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from navformer_rl.constants import CONTROL_DT
 from navformer_rl.utils.mp4 import read_mp4_frames
 
 GAP = 6
@@ -26,9 +27,17 @@ def strip_frame_indices(n_frames: int, frames: int) -> list[int]:
     return [round(i * (n_frames - 1) / (frames - 1)) for i in range(frames)]
 
 
+def frame_label(index: int, step_seconds: float = CONTROL_DT) -> str:
+    """The label of frame ``index`` of a video written one frame per control step (``navformer evaluate``'s
+    and ``navformer world-demo``'s): its step and the trial's time at that step, ``step 167, t = 33.4 s``.
+    The time is ``index * step_seconds`` (0.2 s per step, ``CONTROL_DT``), not the video's playback time."""
+    return f"step {index}, t = {index * step_seconds:.1f} s"
+
+
 def frame_strip(video: str | os.PathLike, out: str | os.PathLike, frames: int = 5, width: int = 1600) -> Path:
     """Write ``frames`` evenly spaced frames of the mp4 ``video`` side by side to the PNG ``out``, scaled to
-    ``width`` pixels in all, each with its time (``t = 12.3 s``) in a corner; returns ``out``.
+    ``width`` pixels in all, each labelled in a corner with its step and its time in the trial
+    (:func:`frame_label`: frame i is step i, at 0.2 s per step); returns ``out``.
 
     Raises:
         ValueError: ``frames`` < 1, ``width`` too small for the frames, or ``out`` not a ``.png`` path.
@@ -45,7 +54,7 @@ def frame_strip(video: str | os.PathLike, out: str | os.PathLike, frames: int = 
     out = Path(out)
     if out.suffix.lower() != ".png":
         raise ValueError(f"out={str(out)!r}: expected a .png path")
-    fps, all_frames = read_mp4_frames(video)
+    _, all_frames = read_mp4_frames(video)
     chosen = strip_frame_indices(len(all_frames), frames)
     height, frame_width = all_frames[0].shape[:2]
     tile_width = (width - GAP * (len(chosen) - 1)) // len(chosen)
@@ -53,7 +62,7 @@ def frame_strip(video: str | os.PathLike, out: str | os.PathLike, frames: int = 
     tiles = []
     for index in chosen:
         tile = cv2.resize(all_frames[index], (tile_width, tile_height), interpolation=cv2.INTER_AREA)
-        label = f"t = {index / fps:.1f} s"
+        label = frame_label(index)
         scale = max(0.4, tile_width / 600)
         origin = (8, tile_height - 10)
         cv2.putText(tile, label, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 3, cv2.LINE_AA)

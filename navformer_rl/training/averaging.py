@@ -3,7 +3,7 @@
 An opt-in beyond the paper (``docs/deviations.md``), after stochastic weight averaging (Izmailov et al., UAI
 2018) and latest-weight averaging (Kaddour, 2022): a policy's closed-loop success can swing by several points
 between checkpoints a few hundred iterations apart while the offline loss falls smoothly
-(``docs/results.md``), and the mean of a run's last checkpoints is one model instead of one draw. Measured on
+(``docs/studies.md``), and the mean of a run's last checkpoints is one model instead of one draw. Measured on
 the paper's 10,000-iteration run, the mean of the last 1,000 iterations' checkpoints follows the last one it
 averages (the same SR within 2.5 points at 2,000-5,000; +5.0 [-5.6, +15.3] at 9,000-10,000, and -5.0
 [-14.1, +4.2] for the DT baseline's run) rather than removing the swings.

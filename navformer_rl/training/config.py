@@ -75,7 +75,7 @@ class ValidationConfig:
         training_trajectories: how many training trajectories (a seeded subset) ``compare_training``
             scores. Per-trajectory losses vary widely, so a small subset's mean sits off the whole
             dataset's by a fixed amount; 256 keeps that within ~10 % at the medium scale of
-            docs/results_medium.md.
+            docs/studies.md.
         seed: the subsets and window offsets (independent of the run's ``seed``, so runs compare on the
             same windows).
     """
@@ -154,7 +154,7 @@ class SSLConfig:
     """BYOL settings (eqs. 6-8). ``projection_dim`` / ``hidden_dim``: projector and predictor MLP sizes;
     ``tau_base``: EMA rate at iteration 0, raised to 1 by BYOL's cosine schedule over the run;
     ``loss_weight``: w in L = L_DT + w L_BYOL (eq. 11 has w = 1; BYOL's loss is ~15x L_DT in the medium run
-    of docs/results_medium.md, so with ``encoder_training=joint`` its gradient dominates the shared
+    of docs/studies.md, so with ``encoder_training=joint`` its gradient dominates the shared
     encoders)."""
 
     projection_dim: int = 128

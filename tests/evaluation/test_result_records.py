@@ -1,5 +1,6 @@
 """The evaluation records kept in ``docs/results/`` stay readable by the evaluation tools and still give the
-numbers docs/results.md quotes from them."""
+numbers docs/results.md (its tables and sentences), docs/studies.md, the README's caption and the model cards
+quote from them."""
 
 from __future__ import annotations
 
@@ -624,3 +625,515 @@ def test_the_shipped_policies_on_table3(record: str, expected_sr_difference: flo
     _, difference = unseen_obstacle_differences(PAPER10K / "table3" / record, n_resamples=200)
     assert difference.n_robot_trials == 60
     assert difference.difference["sr"] == pytest.approx(expected_sr_difference, abs=5e-4)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The pages: every number of ours in results.md's tables, the README's caption and the model cards' result
+# tables is recomputed from the committed records (the paper's from paper_results), so a page that drifts from
+# its records fails here.
+
+ROOT = DATA_SCALING.parents[2]
+RESULTS_PAGE = ROOT / "docs" / "results.md"
+BASELINES = DATA_SCALING.parent / "baselines"
+T1 = {
+    "navformer": PAPER10K / "table1" / "navformer_10k_s0_runb_it10000",
+    "dt": PAPER10K / "table1" / "dt_10k_s0_it10000",
+    "vrw": BASELINES / "table1" / "vrw",
+    "fca": BASELINES / "table1" / "fca",
+}
+T2 = {
+    "navformer": PAPER10K / "table2" / "navformer_10k_s0_runb_it10000",
+    "dt": PAPER10K / "table2" / "dt_10k_s0_it10000",
+    "vrw": BASELINES / "table2" / "vrw",
+    "fca": BASELINES / "table2" / "fca",
+}
+T3 = {
+    "navformer": PAPER10K / "table3" / "navformer_10k_s0_runb_it10000",
+    "dt": PAPER10K / "table3" / "dt_10k_s0_it10000",
+    "vrw": BASELINES / "table3" / "vrw",
+    "fca": BASELINES / "table3" / "fca",
+}
+PAPER_NAMES = {
+    "navformer": "NavFormer",
+    "dt": "DT",
+    "vrw": "VRW",
+    "fca": "FCA",
+    "dsac": "DSAC",
+    "matdn": "MA-TDN",
+}
+
+
+def _page_tables(path: Path) -> list[tuple[str, list[list[str]]]]:
+    """``(heading, rows)`` of every markdown table of ``path`` in order: ``heading`` the last ``#`` line above
+    it ("" before the first), ``rows`` the cells of each row after the separator, bold and escapes removed."""
+    tables: list[tuple[str, list[list[str]]]] = []
+    heading, rows, in_table = "", None, False
+    for line in path.read_text().splitlines():
+        if line.startswith("#") and not in_table:
+            heading = line.lstrip("#").strip()
+        if line.startswith("|"):
+            cells = [
+                c.strip().replace("**", "").replace("\\*", "*") for c in line.strip().strip("|").split("|")
+            ]
+            if not in_table:
+                rows, in_table = [], True
+                tables.append((heading, rows))
+            elif not all(set(c) <= set("-: ") for c in cells):
+                rows.append(cells)
+        else:
+            in_table = False
+    return tables
+
+
+def _table_under(heading: str, index: int = 0) -> list[list[str]]:
+    found = [rows for title, rows in _page_tables(RESULTS_PAGE) if title == heading]
+    assert len(found) > index, f"results.md has no table {index} under {heading!r}"
+    return found[index]
+
+
+def _summaries(folder: Path) -> dict:
+    from navformer_rl.evaluation.tables import read_records, summarize_by_setup
+
+    return {s.setup: s.metrics for s in summarize_by_setup(read_records(folder / "episodes.jsonl"))}
+
+
+def _ours(m) -> str:
+    """SR [95 % interval] / SPL / CR, as results.md writes a measured cell."""
+    return f"{100 * m.sr:.1f} % [{100 * m.sr_ci[0]:.1f}, {100 * m.sr_ci[1]:.1f}] / {m.spl:.2f} / {m.cr:.2f}"
+
+
+def _paired(row, metric: str = "sr") -> str:
+    """A paired difference with its interval (SR in points), ``*`` where the interval excludes zero."""
+    low, high = row.interval[metric]
+    scale, digits = (100, 1) if metric == "sr" else (1, 3)
+    difference, low, high = (f"{scale * x:+.{digits}f}" for x in (row.difference[metric], low, high))
+    text = f"{difference} [{low}, {high}]"
+    return text + (" *" if row.excludes_zero(metric) else "")
+
+
+def _percent(fraction: float) -> str:
+    """A paper SR (published to two decimals of a percent) to one decimal, halves rounded up."""
+    from decimal import ROUND_HALF_UP, Decimal
+
+    return str(Decimal(f"{100 * fraction:.2f}").quantize(Decimal("0.1"), rounding=ROUND_HALF_UP))
+
+
+def _paper(sr: float, spl: float, cr: float) -> str:
+    return f"{_percent(sr)} % / {spl:.2f} / {cr:.2f}"
+
+
+def _paper_table1_pooled(method: str) -> tuple[float, float, float]:
+    """Table I's nine rows pooled as ours are: each setup weighted by its robot-trials (60 x robots)."""
+    from navformer_rl.evaluation.paper_results import TABLE1
+
+    weight = sum(robots for _, robots in TABLE1)
+    return tuple(
+        sum(robots * TABLE1[(size, robots)][method][k] for size, robots in TABLE1) / weight for k in range(3)
+    )
+
+
+def _setup_key(setup: str) -> tuple[float, int]:
+    size, robots = setup.split("m-")
+    return float(size), int(robots.rstrip("r"))
+
+
+def test_the_headline_table_is_the_records_beside_the_paper() -> None:
+    """results.md's first table: per paper table, the paper's NavFormer and DT, ours, and NavFormer - DT."""
+    from navformer_rl.evaluation.paper_results import TABLE2, TABLE3, TABLE4
+
+    (title, rows), *_ = _page_tables(RESULTS_PAGE)
+    assert title == "Results" and [row[0].split(":")[0] for row in rows] == [
+        "[I](#table-i-unseen-mazes-viia)", "[II](#table-ii-furnished-worlds-viib)",
+        "[III](#table-iii-unseen-obstacle-robots-viic)", "[III](#table-iii-unseen-obstacle-robots-viic)",
+        "[IV](#table-iv-ablations-viid)",
+    ]  # fmt: skip
+    paper_rows = [
+        (_paper_table1_pooled("NavFormer"), _paper_table1_pooled("DT")),
+        (TABLE2["NavFormer"], TABLE2["DT"]),
+        (TABLE3["seen"]["NavFormer"], TABLE3["seen"]["DT"]),
+        (TABLE3["unseen"]["NavFormer"], TABLE3["unseen"]["DT"]),
+    ]
+    ours = [(T1, "all"), (T2, "all"), (T3, "12.5m-4r-seen"), (T3, "12.5m-4r-unseen")]
+    for row, (paper_nf, paper_dt), (table, setup) in zip(rows, paper_rows, ours):
+        nf, dt = _summaries(table["navformer"])[setup], _summaries(table["dt"])[setup]
+        pairs = {r.setup: r for r in paired_differences(table["navformer"], table["dt"])[1]}
+        paper_difference = f"{100 * (paper_nf[0] - paper_dt[0]):+.1f}"
+        expected = [_paper(*paper_nf).replace(" ¹", ""), _ours(nf), _paper(*paper_dt), _ours(dt)]
+        assert [cell.replace(" ¹", "") for cell in row[1:5]] == expected, row[0]
+        assert row[5] == f"{paper_difference} / {_paired(pairs[setup])}", row[0]
+    table4 = rows[4]
+    assert table4[1] == _paper(*TABLE4["NavFormer"]) + " (full model)" and table4[2] == "running"
+
+
+def test_table1_section_is_the_records_per_setup() -> None:
+    """Table I's per-setup table: NavFormer, DT, their paired difference, VRW and FCA from the records; the
+    paper's six columns from paper_results; DSAC and MA-TDN marked as not re-measured."""
+    from navformer_rl.evaluation.paper_results import TABLE1
+
+    rows = _table_under("Table I: unseen mazes (§VII.A)")
+    summaries = {name: _summaries(folder) for name, folder in T1.items()}
+    pairs = {r.setup: r for r in paired_differences(T1["navformer"], T1["dt"])[1]}
+    setups = list(summaries["navformer"])
+    assert [row[0] for row in rows] == setups[:-1] + ["all 540 trials"] and len(setups) == 10
+    for row, setup in zip(rows, setups):
+        expected = [_ours(summaries[name][setup]) for name in ("navformer", "dt")] + [_paired(pairs[setup])]
+        expected += [_ours(summaries["vrw"][setup]), _ours(summaries["fca"][setup]), "not re-measured"]
+        paper = (
+            ""
+            if setup == "all"
+            else " / ".join(
+                _percent(TABLE1[_setup_key(setup)][PAPER_NAMES[m]][0])
+                for m in ("navformer", "dt", "vrw", "fca", "dsac", "matdn")
+            )
+        )
+        assert row[1:] == expected + [paper], setup
+
+
+def test_table1_verdicts_follow_from_the_records() -> None:
+    """The verdicts of 'What the numbers say', recomputed: DT ahead everywhere (significantly in six setups),
+    the paper's DT inside or below our DT's interval, the paper's NavFormer above our NavFormer's, SR falling
+    with world size at every robot count, NavFormer's CR above DT's."""
+    from navformer_rl.evaluation.paper_results import TABLE1
+
+    nf, dt = _summaries(T1["navformer"]), _summaries(T1["dt"])
+    rows = paired_differences(T1["navformer"], T1["dt"])[1]
+    assert all(r.difference["sr"] < 0 for r in rows)
+    assert sorted(r.setup for r in rows[:-1] if not r.excludes_zero("sr")) == [
+        "12.5m-4r",
+        "12.5m-6r",
+        "7.5m-2r",
+    ]
+    below_dt = []
+    for setup in list(nf)[:-1]:
+        paper = TABLE1[_setup_key(setup)]
+        assert paper["DT"][0] <= dt[setup].sr_ci[1], setup  # inside or below our interval
+        if paper["DT"][0] < dt[setup].sr_ci[0]:
+            below_dt.append(setup)
+        assert paper["NavFormer"][0] > nf[setup].sr_ci[1], setup  # above our interval
+    assert below_dt == ["7.5m-2r", "12.5m-2r", "12.5m-4r", "17.5m-4r"]
+    for summaries in (nf, dt):
+        for robots in (2, 4, 6):
+            srs = [summaries[f"{size}m-{robots}r"].sr for size in ("7.5", "12.5", "17.5")]
+            assert srs == sorted(srs, reverse=True), robots
+    assert _paired(rows[-1], "cr") == "+0.030 [+0.014, +0.046] *"
+    text = RESULTS_PAGE.read_text()
+    world = paired_differences(T1["navformer"], T1["dt"], cluster="world")[1][-1]
+    low, high = world.interval["sr"]
+    assert f"resampling whole mazes\n  instead of trials: [{100 * low:.1f}, {100 * high:.1f}]" in text
+
+
+def test_table3_seen_row_is_table1s_12_5m_4r_setup() -> None:
+    """Table III's seen trials are Table I's 12.5m-4r robot-trials: the same outcomes, robot by robot."""
+    from navformer_rl.evaluation.tables import read_records
+
+    for name in ("navformer", "dt"):
+        seen = {
+            (r.episode_id.split("/", 1)[1], r.robot): (r.success, r.spl, r.collision_rate, r.world_seed)
+            for r in read_records(T3[name] / "episodes.jsonl")
+            if r.setup == "12.5m-4r-seen"
+        }
+        table1 = {
+            (r.episode_id.split("/", 1)[1], r.robot): (r.success, r.spl, r.collision_rate, r.world_seed)
+            for r in read_records(T1[name] / "episodes.jsonl")
+            if r.setup == "12.5m-4r"
+        }
+        assert len(seen) == 240 and seen == table1, name
+
+
+CARDS = ROOT / "navformer_rl" / "pretrained" / "weights"
+CONTEXT_T1, CONTEXT_T3, WINDOW16_T1, WINDOW16_T3 = (
+    CONTEXT / "table1",
+    CONTEXT / "table3",
+    WINDOW16 / "table1",
+    WINDOW16 / "table3",
+)
+CARD_RECORDS = {
+    "navformer": [PAPER10K / "navformer_10k_s0_runb_it10000", T1["navformer"], T3["navformer"]],
+    "dt": [PAPER10K / "dt_10k_s0_it10000", T1["dt"], T3["dt"]],
+    "navformer_tenth": [
+        PAPER10K / "navformer_tenth_it02500",
+        CONTEXT_T1 / "navformer",
+        CONTEXT_T1 / "navformer_w16",
+        CONTEXT_T3 / "navformer",
+    ],
+    "dt_tenth": [PAPER10K / "dt_tenth_it02500", CONTEXT_T1 / "dt", CONTEXT_T3 / "dt"],
+    "navformer_window16": [
+        WINDOW16 / "navformer_ctx16_it2500",
+        WINDOW16_T1 / "navformer_ctx16",
+        WINDOW16_T3 / "navformer_ctx16",
+    ],
+    "dt_window16": [WINDOW16 / "dt_ctx16_it2500", WINDOW16_T1 / "dt_ctx16", WINDOW16_T3 / "dt_ctx16"],
+}
+"""Each shipped model's card result sections, in order, and the committed record each one reports."""
+
+
+def _card_sections(text: str) -> list[tuple[str, list[list[str]]]]:
+    """``(the line under the heading, table rows)`` of every ``### ... on `protocol``` section of a card."""
+    sections = []
+    for block in text.split("\n### ")[1:]:
+        lines = block.splitlines()
+        rows = [
+            [c.strip() for c in line.strip().strip("|").split("|")]
+            for line in lines
+            if line.startswith("|") and not line.startswith("|---")
+        ][1:]
+        sections.append((lines[2], rows))
+    return sections
+
+
+@pytest.mark.parametrize("name", sorted(CARD_RECORDS))
+def test_every_model_card_result_table_is_a_committed_record(name: str) -> None:
+    """A card's result tables (written from run folders outside git) equal the committed records, row by
+    row: the same episode set, trial counts, SR, SPL and CR with their intervals."""
+    import json
+
+    from navformer_rl.evaluation.tables import format_ratio, format_sr
+
+    card = (CARDS / name / "MODEL_CARD.md").read_text()
+    sections = _card_sections(card.split("## Results", 1)[1].split("\n## ", 1)[0])
+    assert len(sections) == len(CARD_RECORDS[name])
+    for (header, rows), record in zip(sections, CARD_RECORDS[name]):
+        digest = json.loads((record / "run.json").read_text())["episode_set"]["content_sha256"]
+        assert f"episode set sha256 {digest[:16]}..." in header, record
+        summaries = _summaries(record)
+        assert [row[0] for row in rows] == list(summaries), record
+        for row in rows:
+            m = summaries[row[0]]
+            expected = [str(m.n_trials), str(m.n_robot_trials), format_sr(m.sr, m.sr_ci),
+                        format_ratio(m.spl, m.spl_ci), format_ratio(m.cr, m.cr_ci)]  # fmt: skip
+            assert row[1:] == expected, (record, row[0])
+        assert f"`{record.relative_to(ROOT)}`" in card, (
+            f"the card names its record {record.relative_to(ROOT)}"
+        )
+
+
+def test_the_readme_caption_quotes_the_records() -> None:
+    """The README's three caption lines: the shipped NavFormer's and DT's Table I SR, the paper's range."""
+    from navformer_rl.evaluation.paper_results import TABLE1
+
+    caption = (ROOT / "README.md").read_text().split("\n\n*The shipped", 1)[1].split("*\n", 1)[0]
+    assert len(caption.splitlines()) == 3
+    nf, dt = _summaries(T1["navformer"])["all"].sr, _summaries(T1["dt"])["all"].sr
+    paper = [TABLE1[setup]["NavFormer"][0] for setup in TABLE1]
+    assert f"it reaches {100 * nf:.1f} % SR over Table I" in caption
+    assert f"DT trained the same way {100 * dt:.1f} %" in caption
+    assert f"{100 * min(paper):.0f}-{100 * max(paper):.0f} % per setup" in caption
+    assert "steps 0, 167, 333 and 500\n(0-100 s of the trial)" in caption  # 0.2 s per step
+
+
+@pytest.mark.parametrize(
+    ("name", "phrases"),
+    [
+        (
+            "navformer",
+            (
+                "It reaches {nf:.1f} % SR over Table I's nine setups",
+                "({nf75:.1f} % at 7.5 m with 2 robots",
+                "{nf_tenth:.1f} points above pretrained:navformer_tenth",
+                "{nf_dt_tenth:.1f} above pretrained:dt_tenth",
+                "but {dt_nf:.1f} points below pretrained:dt",
+            ),
+        ),
+        (
+            "dt",
+            (
+                "It reaches {dt:.1f} % SR over Table I's nine setups",
+                "({dt75:.1f} % at 7.5 m with 2 robots",
+                "{dt_nf:.1f} points above pretrained:navformer and {dt_tenth:.1f} above pretrained:dt_tenth",
+            ),
+        ),
+    ],
+)
+def test_the_model_card_summaries_quote_the_records(name: str, phrases: tuple[str, ...]) -> None:
+    nf, dt = _summaries(T1["navformer"]), _summaries(T1["dt"])
+
+    def pooled(a: Path, b: Path) -> float:
+        return 100 * paired_differences(a, b, n_resamples=200)[1][-1].difference["sr"]
+
+    values = {
+        "nf": 100 * nf["all"].sr,
+        "nf75": 100 * nf["7.5m-2r"].sr,
+        "dt": 100 * dt["all"].sr,
+        "dt75": 100 * dt["7.5m-2r"].sr,
+        "nf_tenth": pooled(T1["navformer"], CONTEXT_T1 / "navformer"),
+        "nf_dt_tenth": pooled(T1["navformer"], CONTEXT_T1 / "dt"),
+        "dt_nf": pooled(T1["dt"], T1["navformer"]),
+        "dt_tenth": pooled(T1["dt"], CONTEXT_T1 / "dt"),
+    }
+    summary = (CARDS / name / "MODEL_CARD.md").read_text().split("\n\n")[1]
+    for phrase in phrases:
+        assert phrase.format(**values) in summary, phrase.format(**values)
+
+
+def test_table2_section_is_the_records_per_world_kind() -> None:
+    """Table II's table: each method over all 90 trials and per world kind, NavFormer - DT paired, the paper's
+    pooled row beside; DSAC and MA-TDN not re-measured."""
+    from navformer_rl.evaluation.paper_results import TABLE2
+
+    rows = _table_under("Table II: furnished worlds (§VII.B)")
+    summaries = {name: _summaries(folder) for name, folder in T2.items()}
+    kinds = ["all", "bookstore", "house", "cafe"]  # the records' order: by the world's side
+    assert all(list(s) == kinds[1:] + ["all"] for s in summaries.values())
+    labels = ["NavFormer", "DT", "VRW", "FCA", "DSAC", "MA-TDN", "NavFormer - DT, paired (points)"]
+    assert [row[0] for row in rows] == labels
+    for row, name in zip(rows, ("navformer", "dt", "vrw", "fca")):
+        s = summaries[name]
+        expected = [_ours(s["all"])] + [f"{100 * s[kind].sr:.1f} %" for kind in kinds[1:]]
+        assert row[1:] == expected + [_paper(*TABLE2[PAPER_NAMES[name]])], name
+    for row, name in zip(rows[4:6], ("DSAC", "MA-TDN")):
+        assert row[1:] == ["not re-measured", "", "", "", _paper(*TABLE2[name])], name
+    pairs = {r.setup: r for r in paired_differences(T2["navformer"], T2["dt"])[1]}
+    paper_difference = f"{100 * (TABLE2['NavFormer'][0] - TABLE2['DT'][0]):+.1f}"
+    assert rows[6][1:] == [_paired(pairs[kind]) for kind in kinds] + [paper_difference]
+
+
+def test_table3_section_is_the_records_seen_and_unseen() -> None:
+    """Table III's two tables: each method among seen and unseen obstacle robots, and unseen - seen for the
+    same robot, maze, start and target (`navformer evaluate unseen`) beside the paper's unpaired ones."""
+    from navformer_rl.evaluation.paired import unseen_obstacle_differences
+    from navformer_rl.evaluation.paper_results import TABLE3
+
+    rows = _table_under("Table III: unseen obstacle robots (§VII.C)")
+    summaries = {name: _summaries(folder) for name, folder in T3.items()}
+    assert [row[0] for row in rows] == ["seen", "unseen"]
+    for row, kind in zip(rows, ("seen", "unseen")):
+        expected = [_ours(summaries[name][f"12.5m-4r-{kind}"]) for name in T3] + ["not re-measured"]
+        paper = " / ".join(
+            _percent(TABLE3[kind][PAPER_NAMES[m]][0])
+            for m in ("navformer", "dt", "vrw", "fca", "dsac", "matdn")
+        )
+        assert row[1:] == expected + [paper], kind
+    rows = _table_under("Table III: unseen obstacle robots (§VII.C)", 1)
+    assert [row[0] for row in rows] == ["NavFormer", "DT", "VRW", "FCA", "paper NavFormer / DT (unpaired)"]
+    for row, name in zip(rows, T3):
+        _, d = unseen_obstacle_differences(T3[name])
+        assert d.n_robot_trials == 60
+        seen_unseen = f"{100 * d.b['sr']:.1f} % -> {100 * d.a['sr']:.1f} %"
+        assert row[1:] == [seen_unseen, _paired(d), _paired(d, "spl"), _paired(d, "cr")], name
+    both_rows = paired_differences(T3["navformer"], T3["dt"])[1][-1]
+    assert f"both rows {_paired(both_rows)}" in " ".join(RESULTS_PAGE.read_text().split())
+    paper = {m: [TABLE3[k][m] for k in ("seen", "unseen")] for m in ("NavFormer", "DT")}
+    assert rows[4][1:] == [
+        " / ".join(f"{_percent(seen[0])} % -> {_percent(unseen[0])} %" for seen, unseen in paper.values()),
+        " / ".join(f"{100 * (unseen[0] - seen[0]):+.1f}" for seen, unseen in paper.values()),
+        " / ".join(f"{unseen[1] - seen[1]:+.3f}" for seen, unseen in paper.values()),
+        " / ".join(f"{unseen[2] - seen[2]:+.3f}" for seen, unseen in paper.values()),
+    ]
+
+
+def test_table4_section_lays_out_every_ablation_beside_the_paper() -> None:
+    """Table IV's rows in the paper's order with its numbers; ours: the full NavFormer's 12.5m-4r row of
+    Table I (Table IV's trials), the ablations marked as running until their records land."""
+    from navformer_rl.evaluation.paper_results import ABLATION_TO_TABLE4, TABLE4
+
+    rows = _table_under("Table IV: ablations (§VII.D)")
+    assert [row[1].strip("`") for row in rows] == ["-", *ABLATION_TO_TABLE4]
+    for row, paper_row in zip(rows, TABLE4):
+        sr, spl, cr = TABLE4[paper_row]
+        assert row[2] == f"{_percent(sr)} % / {spl:.3f} / {cr:.3f}", paper_row
+    assert rows[0][3] == _ours(_summaries(T1["navformer"])["12.5m-4r"])
+    assert {row[3] for row in rows[1:]} == {"running"}
+    pairs = {r.setup: r for r in paired_differences(T1["dt"], T1["navformer"])[1]}
+    text = " ".join(RESULTS_PAGE.read_text().split())
+    assert f"DT - NavFormer is {_paired(pairs['12.5m-4r'])} points" in text
+
+
+def test_the_prose_of_results_md_quotes_the_records() -> None:
+    """The numbers in results.md's sentences, each recomputed from its record."""
+    from navformer_rl.evaluation.diagnose import load_diagnosis
+
+    text = " ".join(RESULTS_PAGE.read_text().split())
+    nf, dt = _summaries(T1["navformer"]), _summaries(T1["dt"])
+    rows = {r.setup: r for r in paired_differences(T1["navformer"], T1["dt"])[1]}
+    assert f"SPL is lower too ({_paired(rows['all'], 'spl')})" in text.replace("\\*", "*")
+
+    def span(summaries: dict, size: str) -> str:
+        srs = [100 * summaries[f"{size}m-{robots}r"].sr for robots in (2, 4, 6)]
+        return f"{int(min(srs) + 0.5)}-{int(max(srs) + 0.5)} %"  # halves rounded up
+
+    assert (
+        f"NavFormer {span(nf, '7.5')} at 7.5 m, {span(nf, '12.5')} at 12.5 m, {span(nf, '17.5')} at 17.5 m; "
+        f"DT {span(dt, '7.5')[:-2]} %, {span(dt, '12.5')[:-2]} %, {span(dt, '17.5')[:-2]} %)" in text
+    )
+    assert f"{100 * nf['7.5m-2r'].sr:.1f} % against its 80.8 % at 7.5m-2r" in text
+    vrw, fca = _summaries(T1["vrw"]), _summaries(T1["fca"])
+    setups = [setup for setup in nf if setup != "all"]
+    spans = {}
+    for name, summaries in (("FCA", fca), ("VRW", vrw)):
+        srs = [100 * summaries[setup].sr for setup in setups]
+        spans[name] = f"{int(min(srs) + 0.5)}-{int(max(srs) + 0.5)} %"
+    assert f"(FCA {spans['FCA']}, VRW {spans['VRW']} per setup;" in text
+    assert f"reaches {spans['FCA']} per setup ({100 * fca['all'].sr:.1f} % overall)" in text
+    assert f"VRW reaches {spans['VRW']} ({100 * vrw['all'].sr:.1f} %)" in text
+    for setup in setups:  # FCA above both learned policies, VRW below, in every setup
+        assert fca[setup].sr > max(nf[setup].sr, dt[setup].sr) and vrw[setup].sr < min(
+            nf[setup].sr, dt[setup].sr
+        )
+    checkpoints = [
+        _summaries(PAPER10K / "table1" / f"navformer_10k_s0_runb_it{i}")["all"].sr
+        for i in ("05000", "06000", "07000")
+    ]
+    assert "reach {:.1f} / {:.1f} / {:.1f} %".format(*(100 * sr for sr in checkpoints)) in text
+    window = PAPER10K / "table1" / "dt_10k_s0_it10000_w256"
+    w256 = paired_differences(window, T1["dt"])[1][-1]
+    assert f"reaches {100 * w256.a['sr']:.1f} % on Table I, paired {_paired(w256)}" in text
+    diagnoses = {
+        name: load_diagnosis(PAPER10K / "diagnosis" / f"{name}_it10000")["all"]
+        for name in ("dt_10k_s0", "navformer_10k_s0_runb")
+    }
+    dt_d, nf_d = diagnoses["dt_10k_s0"], diagnoses["navformer_10k_s0_runb"]
+    hidden = f"DT gets {dt_d['progress']['per_step_target_hidden']:.3f} m closer per step"
+    assert hidden in text and f"NavFormer {nf_d['progress']['per_step_target_hidden']:.3f}" in text
+    sight = [d["sightings"][0] for d in (dt_d, nf_d)]
+    assert (
+        "about as often ({:.0f} and {:.0f} % of robot-trials)".format(
+            *(100 * s["robot_trials_with_sighting_fraction"] for s in sight)
+        )
+        in text
+    )
+    assert (
+        "about as often once they have ({:.0f} and {:.0f} %)".format(
+            *(100 * s["robot_trials_with_sighting_success_fraction"] for s in sight)
+        )
+        in text
+    )
+    (expert,) = summarize_seed_groups({"frontier": [EXPERT / "table1" / "frontier"]})
+    m = expert.runs[0].metrics
+    assert (
+        f"reaches {100 * m.sr:.1f} % [{100 * m.sr_ci[0]:.1f}, {100 * m.sr_ci[1]:.1f}] on the same 540 trials"
+        in text
+    )
+    table2 = paired_differences(T2["navformer"], T2["dt"])[1][-1]
+    assert f"CR is level too ({_paired(table2, 'cr')})" in text
+    t2 = {name: _summaries(folder)["all"].sr for name, folder in T2.items()}
+    assert (
+        f"NavFormer falls from {100 * nf['all'].sr:.1f} % on Table I to {100 * t2['navformer']:.1f} %" in text
+    )
+    assert f"DT from {100 * dt['all'].sr:.1f} % to {100 * t2['dt']:.1f} %" in text
+    assert (
+        f"solves {100 * t2['fca']:.1f} % of these trials" in text
+        and f"VRW reaches {100 * t2['vrw']:.1f} %" in text
+    )
+    t3 = {name: _summaries(folder) for name, folder in T3.items()}
+    seen_unseen = [
+        100 * t3[name][f"12.5m-4r-{kind}"].sr for name in ("fca", "vrw") for kind in ("seen", "unseen")
+    ]
+    assert (
+        "above both rows ({:.1f} and {:.1f} %), VRW below ({:.1f} and {:.1f} %)".format(*seen_unseen) in text
+    )
+
+
+def test_the_records_table_names_existing_folders_of_the_named_episode_sets() -> None:
+    import json
+    import re
+
+    rows = _table_under("Records")
+    assert len(rows) >= 9
+    for row in rows:
+        digest = re.search(r"\(`([0-9a-f]{12})`\)", row[2]).group(1)
+        for folder in re.findall(r"`([a-z0-9_/.-]+)`", row[1]):
+            path = DATA_SCALING.parent / folder
+            run = json.loads(
+                next(f for f in (path / "run.json", path / "diagnosis.json") if f.is_file()).read_text()
+            )
+            assert run["episode_set"]["content_sha256"].startswith(digest), folder

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from navformer_rl.cli import main
-from navformer_rl.evaluation.strip import GAP, frame_strip, strip_frame_indices
+from navformer_rl.evaluation import strip
+from navformer_rl.evaluation.strip import GAP, frame_label, frame_strip, strip_frame_indices
 from navformer_rl.utils.mp4 import Mp4Writer
 
 
@@ -37,6 +38,21 @@ def test_the_strip_holds_the_chosen_frames_in_order(grey_ramp, tmp_path):
         x = tile * (128 + GAP) + 64
         assert abs(int(image[20, x, 0]) - (20 * frame + 20)) <= 4
     assert (image[:, 128 : 128 + GAP] == 255).all()  # the white gap
+
+
+def test_a_frame_is_labelled_with_its_step_and_trial_time():
+    """Frame i of an evaluation video is control step i, at 0.2 s per step (CONTROL_DT)."""
+    assert frame_label(0) == "step 0, t = 0.0 s"
+    assert frame_label(167) == "step 167, t = 33.4 s"
+    assert frame_label(500) == "step 500, t = 100.0 s"
+
+
+def test_the_labels_follow_the_steps_not_the_playback_rate(grey_ramp, tmp_path, monkeypatch):
+    """The ramp plays at 10 fps, so its frame 10 is at 1 s of playback; it is step 10, 2 s into the trial."""
+    labels = []
+    monkeypatch.setattr(strip, "frame_label", lambda index: labels.append(frame_label(index)) or labels[-1])
+    frame_strip(grey_ramp, tmp_path / "strip.png", frames=3, width=3 * 128 + 2 * GAP)
+    assert labels == ["step 0, t = 0.0 s", "step 5, t = 1.0 s", "step 10, t = 2.0 s"]
 
 
 def test_bad_input_is_one_line(grey_ramp, tmp_path, capsys):

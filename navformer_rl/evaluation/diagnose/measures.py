@@ -274,7 +274,7 @@ def command_statistics(
     ``main_direction_share``: per sequence, the share of its summed ``|angular|`` turned in its main direction
     (``(1 + |sum a| / sum |a|) / 2``: 0.5 as much left as right, 1 only one way), averaged over the sequences
     that turn at all (None without one). A policy circling one way scores near 1; the experts' trials score
-    0.74-0.76 on the 40 trials of ``docs/results.md``."""
+    0.74-0.76 on the 40 trials of ``docs/studies.md``."""
     actions = np.asarray(actions, dtype=np.float64).reshape(-1, 2)
     follows = np.ones(actions.shape[0], dtype=bool) if starts is None else ~np.asarray(starts, dtype=bool)
     follows[:1] = False
