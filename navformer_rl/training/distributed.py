@@ -1,9 +1,10 @@
 """Data-parallel training over processes: ``torchrun --nproc-per-node N -m navformer_rl train ...``.
 
 Launch. ``torchrun`` starts N processes with ``RANK`` / ``WORLD_SIZE`` / ``LOCAL_RANK`` (and the rendezvous
-address) in their environment; :func:`session` (entered by :func:`~navformer_rl.training.train`) reads them,
-starts the process group - gloo on CPU, NCCL on CUDA with ``cuda:LOCAL_RANK`` - and destroys it at the end,
-also on an error. Without those variables (or with ``WORLD_SIZE=1``) training runs in one process as usual.
+address) in their environment; :func:`process_group` (entered by :func:`~navformer_rl.training.train`) reads
+them, starts the process group - gloo on CPU, NCCL on CUDA with ``cuda:LOCAL_RANK`` - and destroys it at the
+end, also on an error. Without those variables (or with ``WORLD_SIZE=1``) training runs in one process as
+usual.
 
 The split. The configured batch sizes are **global** (the paper's 25 / 150 trajectories and 512 pairs per
 iteration). Every process draws the *same* global batch from the same seeded sampler stream and gathers only
@@ -244,8 +245,8 @@ def _device_and_backend(device: str, local_rank: int, world_size: int) -> tuple[
 
 
 def current(device: str) -> Distributed:
-    """The :class:`Distributed` of a process group already started (by :func:`session` or the caller), or of
-    one process when none is.
+    """The :class:`Distributed` of a process group already started (by :func:`process_group` or the caller),
+    or of one process when none is.
 
     Raises:
         RuntimeError: ``torchrun`` started several processes but no process group is (every process would
@@ -257,7 +258,7 @@ def current(device: str) -> Distributed:
             raise RuntimeError(
                 f"torchrun started {launch[1]} processes but no process group is initialised: train with "
                 "navformer_rl.training.train (it starts one) "
-                "or inside navformer_rl.training.distributed.session"
+                "or inside navformer_rl.training.distributed.process_group"
             )
         return Distributed()
     world_size, rank = dist.get_world_size(), dist.get_rank()
@@ -275,7 +276,7 @@ def current(device: str) -> Distributed:
 
 
 @contextlib.contextmanager
-def session(device: str) -> Iterator[Distributed]:
+def process_group(device: str) -> Iterator[Distributed]:
     """Start the process group ``torchrun``'s environment describes (gloo on CPU, NCCL on CUDA with
     ``cuda:LOCAL_RANK``) and destroy it on leaving, also on an error. Yields the :class:`Distributed` of this
     process; without ``torchrun`` (or with ``WORLD_SIZE=1``, or when the caller has started a group already)

@@ -230,16 +230,16 @@ def train(cfg: TrainConfig) -> TrainResult:
     :mod:`navformer_rl.training` for one iteration. ``navformer train`` calls it; the recipe makes the same
     calls.
 
-    Under ``torchrun`` every process calls it: :func:`~navformer_rl.training.distributed.session` starts the
-    process group (and destroys it at the end, also on an error); rank 0 alone writes checkpoints, logs,
+    Under ``torchrun`` every process calls it: :func:`~navformer_rl.training.distributed.process_group` starts
+    the process group (and destroys it at the end, also on an error); rank 0 alone writes checkpoints, logs,
     run files and the progress bar; every process returns the same :class:`TrainResult`.
     """
-    with dist.session(cfg.device):
+    with dist.process_group(cfg.device):
         return _train(cfg)
 
 
 def _train(cfg: TrainConfig) -> TrainResult:
-    return train_loop(build_trainer(cfg))  # in the process group the session started
+    return train_loop(build_trainer(cfg))  # inside the process group started above
 
 
 def train_loop(trainer: Trainer) -> TrainResult:

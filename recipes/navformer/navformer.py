@@ -46,7 +46,7 @@ from navformer_rl.training import (  # noqa: E402
     start_run,
     train_loop,
 )
-from navformer_rl.training.distributed import is_main_process, session  # noqa: E402
+from navformer_rl.training.distributed import is_main_process, process_group  # noqa: E402
 from navformer_rl.training.factories import TRAJECTORY_KEYS, context_steps, start_alike  # noqa: E402
 from navformer_rl.training.validation import make_validator  # noqa: E402
 
@@ -58,7 +58,7 @@ def main(cfg: DictConfig) -> None:
     with user_errors("navformer.py"):
         # train.yaml + overrides -> TrainConfig (output_dir: hydra's run folder unless given)
         train_cfg = make_train_config(cfg)
-        with session(train_cfg.device):  # under torchrun: the process group
+        with process_group(train_cfg.device):  # under torchrun: one process of the group
             result = train(train_cfg)
     if is_main_process():  # under torchrun every process trains; rank 0 reports
         print(result.summary())

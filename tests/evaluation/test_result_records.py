@@ -1137,3 +1137,20 @@ def test_the_records_table_names_existing_folders_of_the_named_episode_sets() ->
                 next(f for f in (path / "run.json", path / "diagnosis.json") if f.is_file()).read_text()
             )
             assert run["episode_set"]["content_sha256"].startswith(digest), folder
+
+
+def test_deviations_quote_dts_window_from_the_records() -> None:
+    """docs/deviations.md's DT-window row: DT at 256 steps against its own 341 and against NavFormer."""
+    text = " ".join((ROOT / "docs" / "deviations.md").read_text().split())
+    window = PAPER10K / "table1" / "dt_10k_s0_it10000_w256"
+    own = paired_differences(window, T1["dt"])[1][-1]
+    navformer = paired_differences(window, T1["navformer"])[1][-1]
+
+    def bracket(row) -> str:
+        return _paired(row).removesuffix(" *")
+
+    assert (
+        f"scores {100 * own.a['sr']:.1f} % on Table I's {own.n_robot_trials:,} robot-trials against "
+        f"{100 * own.b['sr']:.1f} % with 341, paired {bracket(own)} points"
+    ) in text
+    assert f"still {bracket(navformer)} above `pretrained:navformer`" in text

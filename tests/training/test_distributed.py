@@ -84,7 +84,7 @@ def _worker(rank: int, base: list[str], out: str, ports: list[int]) -> None:
     train(config(f"output_dir={out}/straight", "checkpoint.interval=2"))
     interrupted = [f"output_dir={out}/interrupted", "checkpoint.interval=2"]
     os.environ["MASTER_PORT"] = str(ports[1])
-    with distributed.session("cpu") as process:
+    with distributed.process_group("cpu") as process:
         trainer = build(config(*interrupted), process)
         for _ in range(2):
             trainer.record(trainer.step())
