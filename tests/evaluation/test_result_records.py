@@ -4,6 +4,7 @@ quote from them."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -1154,3 +1155,43 @@ def test_deviations_quote_dts_window_from_the_records() -> None:
         f"{100 * own.b['sr']:.1f} % with 341, paired {bracket(own)} points"
     ) in text
     assert f"still {bracket(navformer)} above `pretrained:navformer`" in text
+
+
+STUDIES_PAGE = ROOT / "docs" / "studies.md"
+DEMO_OPTIMISER = ROOT / "docs" / "results" / "demo_optimiser"
+
+
+def _final_validation_loss(record: str, task: str) -> float:
+    """The held-out action loss at a training record's last validation (iteration 200)."""
+    rows = (DEMO_OPTIMISER / record / "validation" / f"loss_dt_{task}.csv").read_text().split()
+    iteration, loss = rows[-1].split(",")
+    assert int(iteration) == 200
+    return float(loss)
+
+
+def test_the_demo_scale_optimiser_table_quotes_its_training_records() -> None:
+    """studies.md's table of the encoders' optimiser at the demo's scale: each row's records (named in the
+    row) give its held-out losses, and each record trained with the setting its row names."""
+    (rows,) = [
+        r for title, r in _page_tables(STUDIES_PAGE) if title == "The encoders' optimiser at the demo's scale"
+    ]
+    assert len(rows) == 6
+    for setting, records, exploration, collision in rows:
+        names = [name.strip(" `") for name in records.split(",")]
+        for task, cell in (("exploration", exploration), ("collision_avoidance", collision)):
+            assert cell == ", ".join(f"{_final_validation_loss(n, task):.3f}" for n in names), (setting, task)
+        for name in names:
+            config = json.loads((DEMO_OPTIMISER / name / "train_config.json").read_text())
+            assert config["optim"]["iterations"] == 200
+            assert config["seed"] == int(name.rsplit("_s", 1)[1])
+            expected = {
+                "adam": ("none", "adam", 0.0004, 0.0004),
+                "adam_wd0": ("none", "adam", 0.0004, 0.0),
+                "adam_lr2e-4": ("none", "adam", 0.0002, 0.0004),
+                "adamw": ("none", "adamw", 0.0004, 0.0004),
+                "no_ssl": ("no_ssl", "adam", 0.0004, 0.0004),
+                "dt": ("dt", "adamw", 0.0004, 0.0004),
+            }[name.rsplit("_s", 1)[0]]
+            optim = config["optim"]
+            got = (config["ablation"], optim["encoder_optimizer"], optim["dve_lr"], optim["dve_weight_decay"])
+            assert got == expected, name
