@@ -145,14 +145,12 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "SR, the mean ± standard deviation over seeds of SR / SPL / CR, and the pooled SR / CR with "
         "trial-clustered intervals. Every folder must have run the same episode set.",
     )
-    seeds.add_argument(
+    _add_named_folders(
+        seeds,
         "--group",
-        dest="seed_groups",
-        nargs="+",
-        action="append",
+        "seed_groups",
+        "a configuration's name, then its evaluation folders (one per trained seed); repeat per group",
         required=True,
-        metavar=("NAME", "FOLDER"),
-        help="a configuration's name, then its evaluation folders (one per trained seed); repeat per group",
     )
     seeds.add_argument(
         "--out",
@@ -200,13 +198,12 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     compare.add_argument(
         "compare_b", type=Path, nargs="?", metavar="B", help="evaluation folder of the second method"
     )
-    compare.add_argument(
+    _add_named_folders(
+        compare,
         "--group",
-        dest="compare_groups",
-        nargs="+",
-        action="append",
-        metavar=("NAME", "FOLDER"),
-        help="instead of A B: a model's name, then its evaluation folders (one per training seed); give two",
+        "compare_groups",
+        "instead of A B: a model's name, then its evaluation folders (one per training seed); give two",
+        required=False,
     )
     compare.add_argument(
         "--out",
@@ -217,6 +214,40 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     _add_cluster_option(compare, "trial")
     compare.set_defaults(run=_run_compare)
+
+    ablations = commands.add_parser(
+        "ablations",
+        help="Table IV: each ablation - the full model on one setup, with a verdict on the paper's sign",
+        description="Each ablation against the full model on the same robot-trials of one setup (Table IV's "
+        "12.5m-4r by default, 'all' pools every setup): its SR / SPL / CR, the paired SR difference pooled "
+        "over each side's seeds, the full model's seed-to-seed SR spread and a verdict on the paper's claim "
+        "that removing the part lowers SR: holds / does not hold / cannot tell (docs/evaluation.md, "
+        "'Ablation verdicts').",
+    )
+    ablations.add_argument(
+        "--full",
+        dest="ablations_full",
+        nargs="+",
+        required=True,
+        type=Path,
+        metavar="FOLDER",
+        help="the full model's evaluation folders, one per training seed",
+    )
+    _add_named_folders(
+        ablations,
+        "--ablation",
+        "ablations_groups",
+        "an ablation's name, then its evaluation folders (one per training seed); repeat per ablation",
+        required=True,
+    )
+    ablations.add_argument(
+        "--setup", dest="ablations_setup", default="12.5m-4r", help="the setup judged, or 'all' (12.5m-4r)"
+    )
+    ablations.add_argument(
+        "--out", dest="ablations_out", type=Path, metavar="FILE", help="also write the markdown table here"
+    )
+    _add_cluster_option(ablations, "trial")
+    ablations.set_defaults(run=_run_ablations)
 
     unseen = commands.add_parser(
         "unseen",
@@ -290,6 +321,21 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
     strip.add_argument("--frames", dest="strip_frames", type=cli_args.int_at_least(1), default=5)
     strip.add_argument("--width", dest="strip_width", type=cli_args.int_at_least(16), default=1600)
     strip.set_defaults(run=_run_strip)
+
+
+def _add_named_folders(
+    parser: argparse.ArgumentParser, option: str, dest: str, help: str, required: bool
+) -> None:
+    """A repeatable ``option NAME FOLDER...`` (a model's or an ablation's name, then its folders)."""
+    parser.add_argument(
+        option,
+        dest=dest,
+        nargs="+",
+        action="append",
+        required=required,
+        metavar=("NAME", "FOLDER"),
+        help=help,
+    )
 
 
 def _add_cluster_option(parser: argparse.ArgumentParser, default: str | None) -> None:
@@ -500,6 +546,24 @@ def _run_compare(args: argparse.Namespace) -> int:
             "compare needs two evaluation folders A B, or two --group NAME FOLDER... (one folder per seed)"
         )
     table = paired_markdown(labels, rows, cluster=args.cluster_by)
+    if out is not None:
+        atomic_write_text(out, table)
+    print(table, end="")
+    return 0
+
+
+def _run_ablations(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.ablations import ablation_verdicts, ablations_markdown
+    from navformer_rl.utils.durable import atomic_write_text
+
+    out = _output_file(args.ablations_out, "--out") if args.ablations_out is not None else None
+    groups = []
+    for name, *folders in args.ablations_groups:
+        if not folders:
+            raise ValueError(f"--ablation {name}: give the ablation's evaluation folders after its name")
+        groups.append((name, [Path(folder) for folder in folders]))
+    rows = ablation_verdicts(args.ablations_full, groups, setup=args.ablations_setup, cluster=args.cluster_by)
+    table = ablations_markdown(rows)
     if out is not None:
         atomic_write_text(out, table)
     print(table, end="")
