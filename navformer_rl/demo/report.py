@@ -157,7 +157,10 @@ def _validation_table(train_dirs: dict[str, Path]) -> list[str]:
         "",
         "A held-out loss well above the training one means the model fits the mazes it was trained on better "
         "than new ones: at this demo's scale (a few dozen trajectories) expect a wide gap. These sets hold a "
-        "few dozen trajectories, so their means are good to a few tens of percent.\n",
+        "few dozen trajectories, so their means are good to a few tens of percent. At this scale a model's "
+        "held-out loss can also stay at its first validation's level for all of the demo's iterations and "
+        "leave it later, at an iteration the training seed decides (docs/studies.md, 'The encoders' "
+        "optimiser at the demo's scale'): one demo run says little about NavFormer against DT.\n",
     ]
 
 

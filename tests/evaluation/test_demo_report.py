@@ -1,6 +1,7 @@
 """The demo's stage times describe the computation that produced each stage's result, not the last rerun."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -182,6 +183,10 @@ def test_the_training_section_tables_the_last_validation_of_each_model(tmp_path)
     assert "| navformer | 10 | 0.100 | 0.400 | - | - |" in text
     assert "| dt |" not in text
     assert (tmp_path / "figures" / "training_losses.png").is_file()
+    # the study the table points to for the demo's plateau exists under that title
+    studies = (Path(__file__).resolve().parents[2] / "docs" / "studies.md").read_text()
+    title = "The encoders' optimiser at the demo's scale"
+    assert f"'{title}'" in text.replace("\n", " ") and f"## {title}\n" in studies
 
 
 def test_the_training_figure_gives_each_curve_one_colour_and_no_hidden_duplicate(tmp_path, monkeypatch):
