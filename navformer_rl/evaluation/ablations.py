@@ -35,6 +35,7 @@ TABLE4_SETUP = "12.5m-4r"
 """Table IV's setting: 12.5 m mazes with 4 robots (Table I's 12.5m-4r trials)."""
 
 VERDICTS = ("holds", "does not hold", "cannot tell")
+"""The verdicts on the paper's sign (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,7 @@ def ablation_verdicts(
     if not ablations:
         raise ValueError("no ablation given: name at least one ablation and its evaluation folders")
     full_folders = [Path(f) for f in full]
-    out = []
+    differences = []
     for name, folders in ablations:
         _, rows = pooled_paired_differences(
             [Path(f) for f in folders], full_folders, (name, "full"), cluster, confidence, seed, n_resamples
@@ -113,9 +114,9 @@ def ablation_verdicts(
                 f"setup {setup!r} is not among the evaluated episodes' setups ({', '.join(by_setup)}); "
                 "name one of them"
             )
-        spread = _seed_spread(full_folders, setup)
-        out.append(AblationVerdict(name, by_setup[setup], spread, verdict(by_setup[setup], spread)))
-    return out
+        differences.append((name, by_setup[setup]))
+    spread = _seed_spread(full_folders, setup)  # the full model's, the same for every ablation
+    return [AblationVerdict(name, d, spread, verdict(d, spread)) for name, d in differences]
 
 
 def ablations_markdown(rows: Sequence[AblationVerdict], confidence: float = 0.95) -> str:

@@ -636,24 +636,20 @@ def test_the_shipped_policies_on_table3(record: str, expected_sr_difference: flo
 ROOT = DATA_SCALING.parents[2]
 RESULTS_PAGE = ROOT / "docs" / "results.md"
 BASELINES = DATA_SCALING.parent / "baselines"
-T1 = {
-    "navformer": PAPER10K / "table1" / "navformer_10k_s0_runb_it10000",
-    "dt": PAPER10K / "table1" / "dt_10k_s0_it10000",
-    "vrw": BASELINES / "table1" / "vrw",
-    "fca": BASELINES / "table1" / "fca",
-}
-T2 = {
-    "navformer": PAPER10K / "table2" / "navformer_10k_s0_runb_it10000",
-    "dt": PAPER10K / "table2" / "dt_10k_s0_it10000",
-    "vrw": BASELINES / "table2" / "vrw",
-    "fca": BASELINES / "table2" / "fca",
-}
-T3 = {
-    "navformer": PAPER10K / "table3" / "navformer_10k_s0_runb_it10000",
-    "dt": PAPER10K / "table3" / "dt_10k_s0_it10000",
-    "vrw": BASELINES / "table3" / "vrw",
-    "fca": BASELINES / "table3" / "fca",
-}
+
+
+def _shipped_and_baselines(table: str) -> dict[str, Path]:
+    """One paper table's records: the shipped NavFormer and DT (seed 0, iteration 10,000), VRW, FCA."""
+    return {
+        "navformer": PAPER10K / table / "navformer_10k_s0_runb_it10000",
+        "dt": PAPER10K / table / "dt_10k_s0_it10000",
+        "vrw": BASELINES / table / "vrw",
+        "fca": BASELINES / table / "fca",
+    }
+
+
+T1, T2, T3 = (_shipped_and_baselines(table) for table in ("table1", "table2", "table3"))
+
 PAPER_NAMES = {
     "navformer": "NavFormer",
     "dt": "DT",
