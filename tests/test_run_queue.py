@@ -1,9 +1,10 @@
 """recipes/paper_scale/run_queue.sh: the queue of long jobs runs each job once, in order, skips a failed one,
 stops on STOP, leaves a job killed by a signal to the next start, and the committed study queue is well
-formed."""
+formed; publish_record.sh copies a finished run into the committed records."""
 
 from __future__ import annotations
 
+import gzip
 import os
 import signal
 import subprocess
@@ -76,10 +77,98 @@ def test_stop_file_and_a_job_killed_by_a_signal_resume_at_the_next_start(tmp_pat
 )
 def test_the_study_queue_names_committed_code_and_known_commands(line):
     name, code, command = line.split("\t")
-    assert name.isidentifier() and command.startswith("navformer ")
+    assert name.isidentifier()
+    if name.startswith("pub_"):  # copies records in the working tree: test_each_study_publish_job_...
+        assert code == "-" and command.startswith("recipes/paper_scale/publish_record.sh ")
+        return
+    assert command.startswith("navformer ")
     shallow = subprocess.run(
         ["git", "-C", str(ROOT), "rev-parse", "--is-shallow-repository"], capture_output=True, text=True
     )
     if shallow.returncode != 0 or shallow.stdout.strip() != "false":
         pytest.skip("not a full git clone: the queue's revisions cannot be checked")
     assert subprocess.run(["git", "-C", str(ROOT), "cat-file", "-e", f"{code}^{{commit}}"]).returncode == 0
+
+
+PUBLISH = ROOT / "recipes" / "paper_scale" / "publish_record.sh"
+
+
+def study_jobs() -> list[tuple[str, str, str]]:
+    return [
+        tuple(line.split("\t"))
+        for line in STUDY.read_text().splitlines()
+        if line and not line.startswith("#")
+    ]
+
+
+def test_each_study_publish_job_copies_the_evaluation_before_it_into_its_label():
+    jobs = study_jobs()
+    published = 0
+    for before, (name, code, command) in zip(jobs, jobs[1:]):
+        if not name.startswith("pub_"):
+            continue
+        published += 1
+        assert code == "-" and name == f"pub_{before[0]}"
+        script, eval_dir, record, *train = command.split()
+        assert script == "recipes/paper_scale/publish_record.sh"
+        words = before[2].split()
+        assert eval_dir == words[words.index("--out") + 1]
+        assert record.startswith("docs/results/") and record.endswith("/" + words[words.index("--label") + 1])
+        checkpoint = words[words.index("--checkpoint") + 1]
+        assert train == (
+            [checkpoint.split("/checkpoints/")[0]]
+            if before[0].startswith("t1_") and "/train/" in checkpoint
+            else []
+        )
+    assert published == sum(1 for name, _, _ in jobs if name.startswith("pub_")) > 0
+
+
+def fake_runs(tmp_path: Path) -> tuple[Path, Path]:
+    evaluation = tmp_path / "eval"
+    evaluation.mkdir()
+    (evaluation / "run.json").write_text('{"label": "x"}\n')
+    (evaluation / "summary.md").write_text("| SR |\n")
+    (evaluation / "episodes.jsonl").write_text('{"success": true}\n{"success": false}\n')
+    train = tmp_path / "train"
+    scalars = train / "logs" / "navformer" / "scalars"
+    (scalars / "validation").mkdir(parents=True)
+    (train / "train_config.json").write_text('{"seed": 1}\n')
+    (scalars / "loss_dt.csv").write_text("10,0.5\n")
+    (scalars / "lr.csv").write_text("10,0.0002\n")
+    (scalars / "validation" / "loss_dt_exploration.csv").write_text("1000,0.1\n")
+    return evaluation, train
+
+
+def test_publish_record_copies_the_evaluation_and_the_training_losses(tmp_path):
+    evaluation, train = fake_runs(tmp_path)
+    record = tmp_path / "docs" / "label"
+    done = subprocess.run(
+        [str(PUBLISH), str(evaluation), str(record), str(train)], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    assert (record / "run.json").read_text() == '{"label": "x"}\n'
+    assert (record / "summary.md").read_text() == "| SR |\n"
+    assert (
+        gzip.decompress((record / "episodes.jsonl.gz").read_bytes())
+        == (evaluation / "episodes.jsonl").read_bytes()
+    )
+    copied = sorted(
+        str(p.relative_to(record / "training")) for p in (record / "training").rglob("*") if p.is_file()
+    )
+    assert copied == [
+        "scalars/loss_dt.csv",
+        "scalars/validation/loss_dt_exploration.csv",
+        "train_config.json",
+    ]
+    assert not list(record.rglob("*.tmp"))
+
+
+@pytest.mark.parametrize("missing", ["eval/episodes.jsonl", "train/train_config.json"])
+def test_publish_record_refuses_an_unfinished_folder_in_one_line(tmp_path, missing):
+    evaluation, train = fake_runs(tmp_path)
+    (tmp_path / missing).unlink()
+    done = subprocess.run(
+        [str(PUBLISH), str(evaluation), str(tmp_path / "record"), str(train)], capture_output=True, text=True
+    )
+    assert done.returncode == 2 and not (tmp_path / "record").exists()
+    assert done.stderr.count("\n") == 1 and missing.split("/")[1] in done.stderr
