@@ -104,7 +104,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser.set_defaults(run=_run_evaluate)
 
     commands = parser.add_subparsers(
-        dest="evaluate_command", metavar="{make-episodes,report,seeds,compare,unseen,diagnose,strip}"
+        dest="evaluate_command",
+        metavar="{make-episodes,report,seeds,compare,ablations,unseen,diagnose,probe,strip}",
     )
     make = commands.add_parser(
         "make-episodes",
@@ -306,6 +307,33 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
         "--fresh", dest="diag_fresh", action="store_true", help="recompute every episode's trace"
     )
     diagnose.set_defaults(run=_run_diagnose)
+
+    probe = commands.add_parser(
+        "probe",
+        help="what checkpoints' encoders keep of a frame: linear probes on held-out D_e",
+        description="Fit linear probes from each checkpoint's frame embeddings (every encoder alone and all "
+        "together) to the expert's action, whether the target is in view and its bearing, on half of the "
+        "held-out trajectories, scored on the other half; write probe.json / probe.md (docs/evaluation.md, "
+        "'Probing the encoders').",
+    )
+    probe.add_argument(
+        "--model", dest="probe_models", nargs=2, action="append", required=True,
+        metavar=("LABEL", "CHECKPOINT"),
+        help="a name for the table and a checkpoint (a run folder, a checkpoint folder, pretrained:NAME); "
+        "repeat for each model",
+    )  # fmt: skip
+    probe.add_argument(
+        "--held-out", dest="probe_held_out", type=Path, required=True, metavar="DIR_E",
+        help="a D_e folder from mazes the checkpoints did not train on",
+    )  # fmt: skip
+    probe.add_argument("--out", dest="probe_out", type=cli_args.output_folder, required=True)
+    probe.add_argument(
+        "--max-trajectories", dest="probe_max_trajectories", type=cli_args.int_at_least(2), default=None,
+        help="the first N trajectories of the seeded permutation (default: all)",
+    )  # fmt: skip
+    probe.add_argument("--seed", dest="probe_seed", type=cli_args.seed, default=0, help="the windows' seed")
+    probe.add_argument("--device", dest="probe_device", default="cpu")
+    probe.set_defaults(run=_run_probe)
 
     strip = commands.add_parser(
         "strip",
@@ -639,4 +667,24 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     )
     print((args.diag_out / SUMMARY_MD).read_text(), end="")
     print(f"diagnosis in {args.diag_out / SUMMARY_MD}")
+    return 0
+
+
+def _run_probe(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.diagnose.probe import PROBE_MD, probe
+
+    labels = [label for label, _ in args.probe_models]
+    repeated = sorted({label for label in labels if labels.count(label) > 1})
+    if repeated:
+        raise ValueError(f"--model labels {repeated} repeat: expected one checkpoint per label")
+    probe(
+        dict(args.probe_models),
+        args.probe_held_out,
+        args.probe_out,
+        max_trajectories=args.probe_max_trajectories,
+        seed=args.probe_seed,
+        device=args.probe_device,
+    )
+    print((args.probe_out / PROBE_MD).read_text(), end="")
+    print(f"probes in {args.probe_out / PROBE_MD}")
     return 0

@@ -1,0 +1,269 @@
+"""Linear probes of what a checkpoint's visual encoders keep of a camera frame.
+
+NavFormer's and DT's policies see the world only through their encoders' frame embeddings (e^s = f_s(o),
+e^ca = f_g(o); DT's single e). Whether an encoder keeps what the navigation network needs is read here with
+linear probes (Alain & Bengio, 2016): ridge regressions from one frame's embedding to quantities of that
+frame, fitted on half of the held-out trajectories and scored on the other half, so a probe measures what the
+embedding carries on mazes neither the probe nor the policy was fitted on. No closed loop and no training of
+the policy: the probes read a checkpoint as it is.
+
+The probed quantities, per frame of held-out D_e (one robot and one target per maze):
+
+- ``angular`` / ``linear``: the expert's action at that frame (R²): how much of the expert's command one
+  frame's embedding explains linearly (walls ahead, open corridors, the target in view); the navigation
+  network adds the history and the target token to it.
+- ``in_view``: whether the target lies in the camera's 90° cone within :data:`PROBE_RANGE` metres (walls are
+  not checked, as in the teacher-forced edge-of-view measure: some of these targets are hidden), scored as the
+  area under the ROC curve of the probe's output (0.5: the embedding does not tell).
+- ``bearing``: at the frames with the target in that cone, its bearing (R², and ``bearing_sign``: the share of
+  frames whose probe puts the target on the correct side of the image): whether the embedding keeps where in
+  the image the target is, the cue a policy needs to turn towards a target at the edge of its view.
+
+Each is probed from every encoder alone (``static``, ``general``, DT's ``general``) and from all of a model's
+frame embeddings together (``all``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from navformer_rl.evaluation.diagnose.actions import HALF_FIELD_OF_VIEW
+from navformer_rl.evaluation.diagnose.measures import bearing_to
+
+PROBE_RANGE = 3.0
+"""Metres from the robot's centre to the target's within which a target in the camera cone counts as in
+view."""
+
+RIDGE = 1e-2
+"""Ridge penalty per fitted row on the standardised embeddings (the fit minimises the mean squared error plus
+``RIDGE`` times the squared weights)."""
+
+PROBE_JSON, PROBE_MD = "probe.json", "probe.md"
+
+QUANTITIES = ("angular", "linear", "in_view", "bearing", "bearing_sign")
+
+
+def frame_embeddings(
+    checkpoint: str | os.PathLike,
+    exploration: str | os.PathLike,
+    max_trajectories: int | None = None,
+    batch_trajs: int = 16,
+    seed: int = 0,
+    device: str = "cpu",
+) -> dict[str, np.ndarray]:
+    """Every encoder's embedding of every frame of held-out D_e windows, with the frame's labels.
+
+    The windows are those ``navformer validate`` scores (one per trajectory, at most the model's context,
+    drawn with ``seed`` from the first ``max_trajectories`` of a seeded permutation), encoded in eval mode
+    under the model's autocast dtype.
+
+    Args:
+        checkpoint: any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes.
+        exploration: a D_e folder (held out from the checkpoint's training).
+
+    Returns:
+        ``{"<encoder name>": float32 [N, d] per encoder of the model (``static``, ``general``), "action":
+        [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N]}`` over the N valid frames.
+    """
+    from navformer_rl.data import open_dataset
+    from navformer_rl.data.fit import check_model_reads
+    from navformer_rl.modules.models.config import autocast
+    from navformer_rl.training import checkpoint as ckpt
+    from navformer_rl.training.validation import FixedTrajectoryBatches, evaluation_mode
+    from navformer_rl.utils.devices import check_device, resolve_device
+
+    torch_device = resolve_device(check_device(device))
+    if not os.path.exists(exploration):
+        raise FileNotFoundError(f"e dataset {str(exploration)!r} does not exist")
+    dataset = open_dataset(exploration, kind="e")
+    config, model = ckpt.load_policy_model(ckpt.resolve_checkpoint(checkpoint))
+    check_model_reads(config, {"e": dataset}, {"e": f"e dataset {str(exploration)!r}"}, tunable=False)
+    model.to(torch_device)
+    dve = model.dve
+    rows: dict[str, list[np.ndarray]] = {
+        k: [] for k in (*dve.names, "action", "pose", "target", "trajectory")
+    }
+    batches = FixedTrajectoryBatches(
+        dataset, batch_trajs, config.window_steps, seed, max_trajectories=max_trajectories
+    )
+    with evaluation_mode(model):
+        for batch in batches:
+            batch = batch.to(torch_device)
+            mask = batch["mask"]
+            with autocast(torch_device, dve.autocast_dtype):
+                embedding = dve.encode_observations(batch["pixels"][mask])  # [N, n_encoders, d]
+            for i, name in enumerate(dve.names):
+                rows[name].append(embedding[:, i].float().cpu().numpy())
+            rows["action"].append(batch["action"][mask].float().cpu().numpy())
+            rows["pose"].append(batch["privileged", "pose"][mask].float().cpu().numpy())
+            rows["target"].append(batch["privileged", "target_position"][mask].float().cpu().numpy())
+            trajectory = batch["trajectory"].unsqueeze(1).expand_as(mask)
+            rows["trajectory"].append(trajectory[mask].cpu().numpy().astype(np.int64))
+    return {key: np.concatenate(parts) for key, parts in rows.items()}
+
+
+def ridge_predict(
+    x_fit: np.ndarray, y_fit: np.ndarray, x_test: np.ndarray, ridge: float = RIDGE
+) -> np.ndarray:
+    """Fit ``y = x w + b`` by ridge regression on standardised ``x`` and predict ``x_test``.
+
+    Args:
+        x_fit: float ``[N, d]``; y_fit: float ``[N]`` or ``[N, k]``; x_test: float ``[M, d]``.
+        ridge: penalty per fitted row (:data:`RIDGE`).
+
+    Returns:
+        float ``[M]`` or ``[M, k]``, the shape of ``y_fit`` beyond its first dimension.
+    """
+    x_fit, x_test = np.asarray(x_fit, dtype=np.float64), np.asarray(x_test, dtype=np.float64)
+    y = np.asarray(y_fit, dtype=np.float64)
+    mean, scale = x_fit.mean(axis=0), x_fit.std(axis=0)
+    scale[scale == 0] = 1.0
+    a, b = (x_fit - mean) / scale, (x_test - mean) / scale
+    y_mean = y.mean(axis=0)
+    gram = a.T @ a + ridge * len(a) * np.eye(a.shape[1])
+    weights = np.linalg.solve(gram, a.T @ (y - y_mean))
+    return b @ weights + y_mean
+
+
+def r_squared(predicted: np.ndarray, actual: np.ndarray) -> float:
+    """1 - SSE / SST of one quantity (NaN when ``actual`` is constant)."""
+    predicted, actual = np.asarray(predicted, dtype=np.float64), np.asarray(actual, dtype=np.float64)
+    total = float(np.sum((actual - actual.mean()) ** 2))
+    return float("nan") if total == 0 else 1.0 - float(np.sum((actual - predicted) ** 2)) / total
+
+
+def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
+    """Area under the ROC curve of ``score`` for the bool labels ``positive`` (ties count half; NaN with one
+    class only): the probability that a positive frame scores above a negative one."""
+    score, positive = np.asarray(score, dtype=np.float64), np.asarray(positive, dtype=bool)
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    order = np.argsort(score, kind="mergesort")
+    _, start, count = np.unique(score[order], return_index=True, return_counts=True)
+    ranks = np.empty(len(score))
+    ranks[order] = np.repeat(start + (count + 1) / 2, count)  # 1-based ranks, ties averaged
+    return (float(ranks[positive].sum()) - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg)
+
+
+def probe_scores(
+    frames: Mapping[str, np.ndarray], ridge: float = RIDGE, max_range: float = PROBE_RANGE
+) -> dict[str, Any]:
+    """The probes of :func:`frame_embeddings`' output: fitted on the frames of even-numbered trajectories,
+    scored on the odd-numbered ones.
+
+    Returns:
+        ``{"frames": {"fit", "test", "in_view_test"}, "probes": {features: {quantity: value}}}`` for each
+        encoder alone and ``all`` of them concatenated; quantities as in :data:`QUANTITIES` (NaN where the
+        test half has no frame with its target in view).
+    """
+    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory")]
+    if not names:
+        raise ValueError("frames: expected at least one encoder's embeddings beside action / pose / target")
+    fit = frames["trajectory"] % 2 == 0
+    test = ~fit
+    if not fit.any() or not test.any():
+        raise ValueError("frames: the probes need frames of at least two trajectories")
+    bearing = bearing_to(frames["pose"], frames["target"])
+    distance = np.hypot(*(frames["target"][:, :2] - frames["pose"][:, :2]).T)
+    in_view = (np.abs(bearing) <= HALF_FIELD_OF_VIEW) & (distance <= max_range)
+    feature_sets = {name: frames[name] for name in names}
+    if len(names) > 1:
+        feature_sets["all"] = np.concatenate([frames[name] for name in names], axis=1)
+    probes = {}
+    for label, x in feature_sets.items():
+        action = ridge_predict(x[fit], frames["action"][fit], x[test], ridge)
+        seen = ridge_predict(x[fit], in_view[fit].astype(np.float64), x[test], ridge)
+        scores = {
+            "angular": r_squared(action[:, 1], frames["action"][test, 1]),
+            "linear": r_squared(action[:, 0], frames["action"][test, 0]),
+            "in_view": roc_auc(seen, in_view[test]),
+            "bearing": float("nan"),
+            "bearing_sign": float("nan"),
+        }
+        if (fit & in_view).sum() > x.shape[1] and (test & in_view).any():
+            side = ridge_predict(x[fit & in_view], bearing[fit & in_view], x[test & in_view], ridge)
+            scores["bearing"] = r_squared(side, bearing[test & in_view])
+            scores["bearing_sign"] = float(np.mean(np.sign(side) == np.sign(bearing[test & in_view])))
+        probes[label] = scores
+    return {
+        "frames": {
+            "fit": int(fit.sum()),
+            "test": int(test.sum()),
+            "in_view_test": int((test & in_view).sum()),
+        },
+        "probes": probes,
+    }
+
+
+def probe_markdown(results: Mapping[str, Mapping[str, Any]]) -> str:
+    """One table row per model and feature set of :func:`probe_scores` results ``{model label: result}``."""
+
+    def cell(value: float) -> str:
+        return "n/a" if value != value else f"{value:.3f}"
+
+    lines = [
+        "| model | embedding | angular R² | linear R² | in view, AUC | bearing R² | bearing side |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for label, result in results.items():
+        for features, scores in result["probes"].items():
+            lines.append(
+                f"| {label} | {features} | "
+                + " | ".join(
+                    cell(scores[q]) for q in ("angular", "linear", "in_view", "bearing", "bearing_sign")
+                )
+                + " |"
+            )
+    first = next(iter(results.values()))["frames"]
+    lines.append(
+        f"\nFitted on {first['fit']:,} frames (even-numbered held-out trajectories), scored on "
+        f"{first['test']:,} "
+        f"({first['in_view_test']:,} with the target in the camera cone within {PROBE_RANGE:g} m)."
+    )
+    return "\n".join(lines) + "\n"
+
+
+def probe(
+    models: Mapping[str, str | os.PathLike],
+    exploration: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    max_trajectories: int | None = None,
+    seed: int = 0,
+    device: str = "cpu",
+) -> dict[str, Any]:
+    """:func:`probe_scores` of each checkpoint of ``models`` (``{label: checkpoint}``) on the same held-out
+    D_e windows, written to ``out_dir/probe.json`` and ``out_dir/probe.md``; returns the JSON's content."""
+    if not models:
+        raise ValueError("models: expected at least one LABEL CHECKPOINT pair")
+    out = Path(out_dir)
+    results = {
+        label: probe_scores(
+            frame_embeddings(checkpoint, exploration, max_trajectories, seed=seed, device=device)
+        )
+        for label, checkpoint in models.items()
+    }
+    record = {
+        "exploration": str(exploration),
+        "max_trajectories": max_trajectories,
+        "seed": seed,
+        "ridge": RIDGE,
+        "probe_range": PROBE_RANGE,
+        "checkpoints": {label: str(checkpoint) for label, checkpoint in models.items()},
+        "results": results,
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    for name, text in (
+        (PROBE_JSON, json.dumps(record, indent=2) + "\n"),
+        (PROBE_MD, probe_markdown(results)),
+    ):
+        partial = out / f".{name}.partial"
+        partial.write_text(text)
+        os.replace(partial, out / name)
+    return record
