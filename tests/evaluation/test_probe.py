@@ -126,7 +126,8 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     run = checkpoint_factory(tmp_path / "run", config)
     frames = frame_embeddings(str(run), held_out_e, batch_trajs=4)
     names = ["general"] if dt else ["static", "general"]
-    assert set(frames) == {*names, "action", "pose", "target", "trajectory"}
+    assert set(frames) == {*names, "head", "action", "pose", "target", "trajectory"}
+    assert frames["head"].shape[1] == (16 if dt else 32)  # h_o; THSC's [h_g; h^ca_o]
     dataset = open_dataset(held_out_e, kind="e")
     assert all(len(v) == len(dataset) for v in frames.values())  # windows cover the short trajectories whole
     assert sorted(set(frames["trajectory"].tolist())) == list(range(dataset.num_trajectories))
@@ -138,6 +139,18 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
         direct = model.dve.encode_observations(dataset.rows["pixels"][start : start + length])
     on_first = frames["trajectory"] == first
     np.testing.assert_allclose(frames[names[-1]][on_first], direct[:, -1].numpy(), rtol=1e-4, atol=1e-5)
+    # the head's own read-out of the probed features is the model's teacher-forced prediction
+    from navformer_rl.modules import make_navformer_actor
+    from navformer_rl.training.validation import FixedTrajectoryBatches
+
+    actor = make_navformer_actor(model)
+    predicted = []
+    with torch.no_grad():
+        for batch in FixedTrajectoryBatches(dataset, 4, model.config.window_steps, 0):
+            predicted.append(actor(batch.copy())["action_pred"][batch["mask"]].numpy())
+    head = torch.as_tensor(frames["head"])
+    read_out = torch.tanh(head @ model.head.weight.T + model.head.bias).detach().numpy()
+    np.testing.assert_allclose(read_out, np.concatenate(predicted), rtol=1e-4, atol=1e-5)
 
 
 def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
@@ -154,9 +167,10 @@ def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
     assert code == 0
     record = json.loads((out / PROBE_JSON).read_text())
     assert list(record["results"]) == ["NavFormer", "DT"]
-    assert set(record["results"]["NavFormer"]["probes"]) == {"static", "general", "all"}
+    assert set(record["results"]["NavFormer"]["probes"]) == {"static", "general", "all", "head"}
+    assert set(record["results"]["DT"]["probes"]) == {"general", "head"}
     table = (out / PROBE_MD).read_text()
-    assert "| NavFormer | all |" in table and "| DT | general |" in table
+    assert "| NavFormer | all |" in table and "| DT | general |" in table and "| DT | head |" in table
     capsys.readouterr()
     code = main(["evaluate", "probe", "--model", "DT", str(dt), "--held-out", str(tmp_path / "nowhere"),
                  "--out", str(tmp_path / "p2")])  # fmt: skip

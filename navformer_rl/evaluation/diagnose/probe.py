@@ -19,8 +19,10 @@ The probed quantities, per frame of held-out D_e (one robot and one target per m
   frames whose probe puts the target on the correct side of the image): whether the embedding keeps where in
   the image the target is, the cue a policy needs to turn towards a target at the edge of its view.
 
-Each is probed from every encoder alone (``static``, ``general``, DT's ``general``) and from all of a model's
-frame embeddings together (``all``).
+Each is probed from every encoder alone (``static``, ``general``, DT's ``general``), from all of a model's
+frame embeddings together (``all``), and from what the action head reads at that step (``head``: THSC's
+``[h_g; h^ca_o]``, or ``h_o`` without THSC), the navigation network's output teacher-forced on the window so
+far: whether what the encoders keep reaches the head.
 """
 
 from __future__ import annotations
@@ -68,12 +70,16 @@ def frame_embeddings(
         exploration: a D_e folder (held out from the checkpoint's training).
 
     Returns:
-        ``{"<encoder name>": float32 [N, d] per encoder of the model (``static``, ``general``), "action":
-        [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N]}`` over the N valid frames.
+        ``{"<encoder name>": float32 [N, d] per encoder of the model (``static``, ``general``), "head":
+        [N, d'] what the action head reads at that step (``[h_g; h^ca_o]``, d' = 2d, with THSC; ``h_o``
+        without), "action": [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N]}`` over the
+        N valid frames. ``head`` is teacher-forced: the navigation network reads the window's frames, the
+        target image and the expert's actions up to that step, as in training.
     """
+    import torch
+
     from navformer_rl.data import open_dataset
     from navformer_rl.data.fit import check_model_reads
-    from navformer_rl.modules.models.config import autocast
     from navformer_rl.training import checkpoint as ckpt
     from navformer_rl.training.validation import FixedTrajectoryBatches, evaluation_mode
     from navformer_rl.utils.devices import check_device, resolve_device
@@ -92,14 +98,25 @@ def frame_embeddings(
     batches = FixedTrajectoryBatches(
         dataset, batch_trajs, config.window_steps, seed, max_trajectories=max_trajectories
     )
+    rows["head"] = []
     with evaluation_mode(model):
         for batch in batches:
             batch = batch.to(torch_device)
             mask = batch["mask"]
-            with autocast(torch_device, dve.autocast_dtype):
-                embedding = dve.encode_observations(batch["pixels"][mask])  # [N, n_encoders, d]
-            for i, name in enumerate(dve.names):
-                rows[name].append(embedding[:, i].float().cpu().numpy())
+            *observations, e_g = dve(batch["pixels"], batch["target_pixels"], mask)  # [B, T, d] each, [B, d]
+            h_g, h_o, _ = model.transformer(
+                e_g,
+                batch["return_to_go"],
+                batch["action"],
+                batch["step"],
+                mask,
+                **dict(zip(dve.names, observations, strict=True)),
+            )
+            hidden = {"target": h_g, "observation": h_o}
+            head = torch.cat([hidden[name] for name in model.head.reads], dim=-1)
+            rows["head"].append(head[mask].float().cpu().numpy())
+            for name, embedding in zip(dve.names, observations, strict=True):
+                rows[name].append(embedding[mask].float().cpu().numpy())
             rows["action"].append(batch["action"][mask].float().cpu().numpy())
             rows["pose"].append(batch["privileged", "pose"][mask].float().cpu().numpy())
             rows["target"].append(batch["privileged", "target_position"][mask].float().cpu().numpy())
@@ -160,10 +177,10 @@ def probe_scores(
 
     Returns:
         ``{"frames": {"fit", "test", "in_view_test"}, "probes": {features: {quantity: value}}}`` for each
-        encoder alone and ``all`` of them concatenated; quantities as in :data:`QUANTITIES` (NaN where the
-        test half has no frame with its target in view).
+        encoder alone, ``all`` of them concatenated and (when given) ``head``; quantities as in
+        :data:`QUANTITIES` (NaN where the test half has no frame with its target in view).
     """
-    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory")]
+    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory", "head")]
     if not names:
         raise ValueError("frames: expected at least one encoder's embeddings beside action / pose / target")
     fit = frames["trajectory"] % 2 == 0
@@ -176,6 +193,8 @@ def probe_scores(
     feature_sets = {name: frames[name] for name in names}
     if len(names) > 1:
         feature_sets["all"] = np.concatenate([frames[name] for name in names], axis=1)
+    if "head" in frames:
+        feature_sets["head"] = frames["head"]
     probes = {}
     for label, x in feature_sets.items():
         action = ridge_predict(x[fit], frames["action"][fit], x[test], ridge)
