@@ -12,7 +12,9 @@ import pytest
 from navformer_rl.evaluation.diagnose.probe import (
     PROBE_JSON,
     PROBE_MD,
+    QUANTITIES,
     frame_embeddings,
+    paired_probe_differences,
     probe_scores,
     r_squared,
     ridge_predict,
@@ -105,6 +107,24 @@ def test_a_one_encoder_model_has_no_all_row_and_too_few_in_view_frames_give_no_b
         probe_scores({**frames, "trajectory": np.zeros_like(frames["trajectory"])})
 
 
+def test_paired_differences_are_zero_against_itself_and_exclude_zero_where_one_model_keeps_more():
+    frames = synthetic_frames()
+    same = paired_probe_differences(frames, frames, features=("all",), resamples=200)
+    for quantity in QUANTITIES:
+        assert same["all"][quantity] == {"difference": 0.0, "low": 0.0, "high": 0.0}
+    rng = np.random.default_rng(5)
+    blind = {**frames, "general": rng.normal(size=frames["general"].shape).astype(np.float32)}
+    better = paired_probe_differences(frames, blind, features=("all", "head"), resamples=200)
+    assert set(better) == {"all"}  # neither holds a head
+    for quantity in ("angular", "in_view", "bearing", "bearing_sign"):
+        assert better["all"][quantity]["low"] > 0.1, quantity
+        assert better["all"][quantity]["low"] <= better["all"][quantity]["difference"]
+        assert better["all"][quantity]["difference"] <= better["all"][quantity]["high"]
+    shifted = {**frames, "trajectory": frames["trajectory"][::-1].copy()}
+    with pytest.raises(ValueError, match="same frames.*'trajectory'"):
+        paired_probe_differences(frames, shifted)
+
+
 @pytest.fixture(scope="module")
 def held_out_e(tmp_path_factory):
     from navformer_rl.data import make_synthetic_dataset
@@ -138,6 +158,8 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     with torch.no_grad():
         direct = model.dve.encode_observations(dataset.rows["pixels"][start : start + length])
     on_first = frames["trajectory"] == first
+    with pytest.raises(ValueError, match="context_steps=1000"):
+        frame_embeddings(str(run), held_out_e, context_steps=1000)
     np.testing.assert_allclose(frames[names[-1]][on_first], direct[:, -1].numpy(), rtol=1e-4, atol=1e-5)
     # the head's own read-out of the probed features is the model's teacher-forced prediction
     from navformer_rl.modules import make_navformer_actor
@@ -166,11 +188,16 @@ def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
                  "--held-out", str(held_out_e), "--out", str(out)])  # fmt: skip
     assert code == 0
     record = json.loads((out / PROBE_JSON).read_text())
-    assert list(record["results"]) == ["NavFormer", "DT"]
+    assert list(record["results"]) == ["NavFormer", "DT"] and record["reference"] == "NavFormer"
+    assert record["context_steps"] == 256  # NavFormer's 256 steps, not DT's 341: the same windows for both
+    paired = record["results"]["DT"]["paired"]
+    assert set(paired) == {"all", "head"} and set(paired["head"]) == set(QUANTITIES)
+    assert "paired" not in record["results"]["NavFormer"]
     assert set(record["results"]["NavFormer"]["probes"]) == {"static", "general", "all", "head"}
     assert set(record["results"]["DT"]["probes"]) == {"general", "head"}
     table = (out / PROBE_MD).read_text()
     assert "| NavFormer | all |" in table and "| DT | general |" in table and "| DT | head |" in table
+    assert "Minus NavFormer, paired on the same frames" in table
     capsys.readouterr()
     code = main(["evaluate", "probe", "--model", "DT", str(dt), "--held-out", str(tmp_path / "nowhere"),
                  "--out", str(tmp_path / "p2")])  # fmt: skip

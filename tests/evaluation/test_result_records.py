@@ -1191,3 +1191,55 @@ def test_the_demo_scale_optimiser_table_quotes_its_training_records() -> None:
             optim = config["optim"]
             got = (config["ablation"], optim["encoder_optimizer"], optim["dve_lr"], optim["dve_weight_decay"])
             assert got == expected, name
+
+
+PROBE_RECORDS = ROOT / "docs" / "results" / "probe"
+
+
+def _probe_cells(record: str, features: str, quantity: str) -> tuple[str, str]:
+    """``("NavFormer / DT", "DT - NavFormer [interval]")`` of a committed probe record."""
+    probe = json.loads((PROBE_RECORDS / record / "probe.json").read_text())
+    reference = probe["reference"]
+    (other,) = [label for label in probe["results"] if label != reference]
+    own = probe["results"][reference]["probes"][features][quantity]
+    theirs = probe["results"][other]["probes"]["general" if features == "all" else features][quantity]
+    paired = probe["results"][other]["paired"][features][quantity]
+    return (
+        f"{own:.3f} / {theirs:.3f}",
+        f"{paired['difference']:+.3f} [{paired['low']:+.3f}, {paired['high']:+.3f}]",
+    )
+
+
+def test_the_probe_table_quotes_its_records() -> None:
+    """studies.md's probe table: every cell is its record's probe (NavFormer the reference, DT paired on the
+    same frames), and the records probed the shipped weights on the same held-out frames."""
+    (rows,) = [
+        r
+        for title, r in _page_tables(STUDIES_PAGE)
+        if title == "What the encoders and the action head keep of a frame"
+    ]
+    expected = [
+        ("paper10k", "all"),
+        ("paper10k", "head"),
+        ("tenth", "all"),
+        ("tenth", "head"),
+    ]
+    assert len(rows) == len(expected)
+    for row, (record, features) in zip(rows, expected, strict=True):
+        cells = [
+            c
+            for quantity in ("linear", "in_view", "bearing")
+            for c in _probe_cells(record, features, quantity)
+        ]
+        assert row[1] == {"all": "frames", "head": "head"}[features]
+        assert row[2:] == cells, (record, features)
+    for record, names in (("paper10k", ["navformer", "dt"]), ("tenth", ["navformer_tenth", "dt_tenth"])):
+        probe = json.loads((PROBE_RECORDS / record / "probe.json").read_text())
+        assert list(probe["checkpoints"].values()) == [f"pretrained:{n}" for n in names]
+        assert probe["exploration"] == "data/paper_val/e" and probe["context_steps"] == 256
+        frames = {label: r["frames"] for label, r in probe["results"].items()}
+        assert all(f == {"fit": 16386, "test": 14245, "in_view_test": 1153} for f in frames.values())
+    results = RESULTS_PAGE.read_text()
+    _, paired = _probe_cells("paper10k", "head", "bearing")
+    own_and_dt = _probe_cells("paper10k", "head", "bearing")[0].split(" / ")
+    assert f"(bearing R² {own_and_dt[0]} against {own_and_dt[1]}, paired {paired} for DT;" in results

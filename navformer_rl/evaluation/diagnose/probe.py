@@ -58,6 +58,7 @@ def frame_embeddings(
     batch_trajs: int = 16,
     seed: int = 0,
     device: str = "cpu",
+    context_steps: int | None = None,
 ) -> dict[str, np.ndarray]:
     """Every encoder's embedding of every frame of held-out D_e windows, with the frame's labels.
 
@@ -68,6 +69,7 @@ def frame_embeddings(
     Args:
         checkpoint: any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes.
         exploration: a D_e folder (held out from the checkpoint's training).
+        context_steps: the windows' length (default: the model's context, ``window_steps``); at most that.
 
     Returns:
         ``{"<encoder name>": float32 [N, d] per encoder of the model (``static``, ``general``), "head":
@@ -95,9 +97,10 @@ def frame_embeddings(
     rows: dict[str, list[np.ndarray]] = {
         k: [] for k in (*dve.names, "action", "pose", "target", "trajectory")
     }
-    batches = FixedTrajectoryBatches(
-        dataset, batch_trajs, config.window_steps, seed, max_trajectories=max_trajectories
-    )
+    window = config.window_steps if context_steps is None else int(context_steps)
+    if not 1 <= window <= config.window_steps:
+        raise ValueError(f"context_steps={context_steps!r}: expected 1 to the model's {config.window_steps}")
+    batches = FixedTrajectoryBatches(dataset, batch_trajs, window, seed, max_trajectories=max_trajectories)
     rows["head"] = []
     with evaluation_mode(model):
         for batch in batches:
@@ -169,6 +172,71 @@ def roc_auc(score: np.ndarray, positive: np.ndarray) -> float:
     return (float(ranks[positive].sum()) - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg)
 
 
+class _Probe:
+    """One probed quantity's test-half predictions: ``predicted`` and ``actual`` over the test frames where
+    ``on`` holds, scored by ``metric(predicted, actual)``."""
+
+    def __init__(self, predicted: np.ndarray, actual: np.ndarray, on: np.ndarray, metric: Any) -> None:
+        self.predicted, self.actual, self.on, self.metric = predicted, actual, on, metric
+
+    def score(self, frames: np.ndarray | None = None) -> float:
+        """The metric over every test frame, or over ``frames`` (indices into the test half, repeats kept)."""
+        if frames is None:
+            return float(self.metric(self.predicted, self.actual)) if self.on.any() else float("nan")
+        position = np.cumsum(self.on) - 1  # test frame -> index into predicted / actual
+        kept = frames[self.on[frames]]
+        if not kept.size:
+            return float("nan")
+        return float(self.metric(self.predicted[position[kept]], self.actual[position[kept]]))
+
+
+def _side_agreement(predicted: np.ndarray, actual: np.ndarray) -> float:
+    return float(np.mean(np.sign(predicted) == np.sign(actual)))
+
+
+def _feature_sets(frames: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory", "head")]
+    if not names:
+        raise ValueError("frames: expected at least one encoder's embeddings beside action / pose / target")
+    sets = {name: frames[name] for name in names}
+    sets["all"] = np.concatenate([frames[name] for name in names], axis=1)
+    if "head" in frames:
+        sets["head"] = frames["head"]
+    return sets
+
+
+def _fit_probes(
+    frames: Mapping[str, np.ndarray], ridge: float, max_range: float
+) -> tuple[dict[str, dict[str, _Probe]], dict[str, np.ndarray]]:
+    """``({features: {quantity: _Probe}}, {"fit", "test", "in_view"} bool masks over the frames)``."""
+    fit = frames["trajectory"] % 2 == 0
+    test = ~fit
+    if not fit.any() or not test.any():
+        raise ValueError("frames: the probes need frames of at least two trajectories")
+    bearing = bearing_to(frames["pose"], frames["target"])
+    distance = np.hypot(*(frames["target"][:, :2] - frames["pose"][:, :2]).T)
+    in_view = (np.abs(bearing) <= HALF_FIELD_OF_VIEW) & (distance <= max_range)
+    every, seen_test = np.ones(int(test.sum()), dtype=bool), in_view[test]
+    probes = {}
+    for label, x in _feature_sets(frames).items():
+        action = ridge_predict(x[fit], frames["action"][fit], x[test], ridge)
+        seen = ridge_predict(x[fit], in_view[fit].astype(np.float64), x[test], ridge)
+        probes[label] = {
+            "angular": _Probe(action[:, 1], frames["action"][test, 1], every, r_squared),
+            "linear": _Probe(action[:, 0], frames["action"][test, 0], every, r_squared),
+            "in_view": _Probe(seen, in_view[test], every, roc_auc),
+        }
+        side, nothing = np.zeros(int(seen_test.sum())), np.zeros(int(test.sum()), dtype=bool)
+        enough = (fit & in_view).sum() > x.shape[1] and seen_test.any()
+        if enough:
+            side = ridge_predict(x[fit & in_view], bearing[fit & in_view], x[test & in_view], ridge)
+        for quantity, metric in (("bearing", r_squared), ("bearing_sign", _side_agreement)):
+            probes[label][quantity] = _Probe(
+                side, bearing[test & in_view], seen_test if enough else nothing, metric
+            )
+    return probes, {"fit": fit, "test": test, "in_view": in_view}
+
+
 def probe_scores(
     frames: Mapping[str, np.ndarray], ridge: float = RIDGE, max_range: float = PROBE_RANGE
 ) -> dict[str, Any]:
@@ -177,56 +245,83 @@ def probe_scores(
 
     Returns:
         ``{"frames": {"fit", "test", "in_view_test"}, "probes": {features: {quantity: value}}}`` for each
-        encoder alone, ``all`` of them concatenated and (when given) ``head``; quantities as in
-        :data:`QUANTITIES` (NaN where the test half has no frame with its target in view).
+        encoder alone, ``all`` of them concatenated (with two encoders) and (when given) ``head``;
+        quantities as in :data:`QUANTITIES` (NaN where the test half has no frame with its target in view).
     """
-    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory", "head")]
-    if not names:
-        raise ValueError("frames: expected at least one encoder's embeddings beside action / pose / target")
-    fit = frames["trajectory"] % 2 == 0
-    test = ~fit
-    if not fit.any() or not test.any():
-        raise ValueError("frames: the probes need frames of at least two trajectories")
-    bearing = bearing_to(frames["pose"], frames["target"])
-    distance = np.hypot(*(frames["target"][:, :2] - frames["pose"][:, :2]).T)
-    in_view = (np.abs(bearing) <= HALF_FIELD_OF_VIEW) & (distance <= max_range)
-    feature_sets = {name: frames[name] for name in names}
-    if len(names) > 1:
-        feature_sets["all"] = np.concatenate([frames[name] for name in names], axis=1)
-    if "head" in frames:
-        feature_sets["head"] = frames["head"]
-    probes = {}
-    for label, x in feature_sets.items():
-        action = ridge_predict(x[fit], frames["action"][fit], x[test], ridge)
-        seen = ridge_predict(x[fit], in_view[fit].astype(np.float64), x[test], ridge)
-        scores = {
-            "angular": r_squared(action[:, 1], frames["action"][test, 1]),
-            "linear": r_squared(action[:, 0], frames["action"][test, 0]),
-            "in_view": roc_auc(seen, in_view[test]),
-            "bearing": float("nan"),
-            "bearing_sign": float("nan"),
-        }
-        if (fit & in_view).sum() > x.shape[1] and (test & in_view).any():
-            side = ridge_predict(x[fit & in_view], bearing[fit & in_view], x[test & in_view], ridge)
-            scores["bearing"] = r_squared(side, bearing[test & in_view])
-            scores["bearing_sign"] = float(np.mean(np.sign(side) == np.sign(bearing[test & in_view])))
-        probes[label] = scores
+    probes, split = _fit_probes(frames, ridge, max_range)
     return {
         "frames": {
-            "fit": int(fit.sum()),
-            "test": int(test.sum()),
-            "in_view_test": int((test & in_view).sum()),
+            "fit": int(split["fit"].sum()),
+            "test": int(split["test"].sum()),
+            "in_view_test": int((split["test"] & split["in_view"]).sum()),
         },
-        "probes": probes,
+        "probes": {
+            label: {q: p.score() for q, p in quantities.items()}
+            for label, quantities in probes.items()
+            if label != "all" or len(probes) - ("head" in probes) > 2  # one encoder: "all" is that one
+        },
     }
 
 
-def probe_markdown(results: Mapping[str, Mapping[str, Any]]) -> str:
-    """One table row per model and feature set of :func:`probe_scores` results ``{model label: result}``."""
+def paired_probe_differences(
+    frames: Mapping[str, np.ndarray],
+    reference: Mapping[str, np.ndarray],
+    features: tuple[str, ...] = ("all", "head"),
+    resamples: int = 1000,
+    seed: int = 0,
+    ridge: float = RIDGE,
+    max_range: float = PROBE_RANGE,
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Each probe of ``frames`` minus the same probe of ``reference`` (another model's
+    :func:`frame_embeddings` of the same frames), with a 95 % interval from resampling whole test
+    trajectories (the same resample for both models: a paired cluster bootstrap).
 
-    def cell(value: float) -> str:
-        return "n/a" if value != value else f"{value:.3f}"
+    Returns:
+        ``{features: {quantity: {"difference", "low", "high"}}}`` for each of ``features`` both models have.
 
+    Raises:
+        ValueError: the two hold other frames (another dataset, seed or window).
+    """
+    for key in ("trajectory", "action", "pose"):
+        if frames[key].shape != reference[key].shape or not np.array_equal(frames[key], reference[key]):
+            raise ValueError(
+                f"paired probes need the same frames: the two models' {key!r} differ (another dataset, "
+                "seed or window)"
+            )
+    mine, _ = _fit_probes(frames, ridge, max_range)
+    theirs, split = _fit_probes(reference, ridge, max_range)
+    test_trajectory = frames["trajectory"][split["test"]]
+    groups = [np.flatnonzero(test_trajectory == t) for t in np.unique(test_trajectory)]
+    rng = np.random.default_rng(seed)
+    draws = [
+        np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
+        for _ in range(resamples)
+    ]
+    out = {}
+    for label in features:
+        if label not in mine or label not in theirs:
+            continue
+        out[label] = {}
+        for quantity in QUANTITIES:
+            a, b = mine[label][quantity], theirs[label][quantity]
+            spread = np.array([a.score(d) - b.score(d) for d in draws])
+            spread = spread[np.isfinite(spread)]
+            low, high = np.quantile(spread, [0.025, 0.975]) if spread.size else (float("nan"),) * 2
+            out[label][quantity] = {
+                "difference": a.score() - b.score(),
+                "low": float(low),
+                "high": float(high),
+            }
+    return out
+
+
+def _cell(value: float) -> str:
+    return "n/a" if value != value else f"{value:.3f}"
+
+
+def probe_markdown(results: Mapping[str, Mapping[str, Any]], reference: str | None = None) -> str:
+    """One table row per model and feature set of :func:`probe_scores` results ``{model label: result}``;
+    with ``reference``, a second table of each other model's paired differences (``result["paired"]``)."""
     lines = [
         "| model | embedding | angular R² | linear R² | in view, AUC | bearing R² | bearing side |",
         "|---|---|---|---|---|---|---|",
@@ -234,18 +329,30 @@ def probe_markdown(results: Mapping[str, Mapping[str, Any]]) -> str:
     for label, result in results.items():
         for features, scores in result["probes"].items():
             lines.append(
-                f"| {label} | {features} | "
-                + " | ".join(
-                    cell(scores[q]) for q in ("angular", "linear", "in_view", "bearing", "bearing_sign")
-                )
-                + " |"
+                f"| {label} | {features} | " + " | ".join(_cell(scores[q]) for q in QUANTITIES) + " |"
             )
     first = next(iter(results.values()))["frames"]
     lines.append(
         f"\nFitted on {first['fit']:,} frames (even-numbered held-out trajectories), scored on "
-        f"{first['test']:,} "
-        f"({first['in_view_test']:,} with the target in the camera cone within {PROBE_RANGE:g} m)."
+        f"{first['test']:,} ({first['in_view_test']:,} with the target in the camera cone within "
+        f"{PROBE_RANGE:g} m)."
     )
+    paired = [(label, r["paired"]) for label, r in results.items() if r.get("paired")]
+    if reference is not None and paired:
+        lines += [
+            f"\nMinus {reference}, paired on the same frames (95 % interval, test trajectories resampled):\n",
+            "| model | embedding | angular R² | linear R² | in view, AUC | bearing R² | bearing side |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for label, by_features in paired:
+            for features, quantities in by_features.items():
+                cells = [
+                    f"{q['difference']:+.3f} [{q['low']:+.3f}, {q['high']:+.3f}]"
+                    if q["difference"] == q["difference"]
+                    else "n/a"
+                    for q in (quantities[name] for name in QUANTITIES)
+                ]
+                lines.append(f"| {label} | {features} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -256,31 +363,51 @@ def probe(
     max_trajectories: int | None = None,
     seed: int = 0,
     device: str = "cpu",
+    resamples: int = 1000,
 ) -> dict[str, Any]:
     """:func:`probe_scores` of each checkpoint of ``models`` (``{label: checkpoint}``) on the same held-out
-    D_e windows, written to ``out_dir/probe.json`` and ``out_dir/probe.md``; returns the JSON's content."""
+    D_e windows, and each later model's :func:`paired_probe_differences` against the first one, written to
+    ``out_dir/probe.json`` and ``out_dir/probe.md``; returns the JSON's content.
+
+    Every model reads windows of the shortest context among them (DT's 341 steps otherwise give it other
+    windows of the long trajectories than NavFormer's 256), so all probes score the same frames.
+    """
+    from navformer_rl.training import checkpoint as ckpt
+
     if not models:
         raise ValueError("models: expected at least one LABEL CHECKPOINT pair")
     out = Path(out_dir)
-    results = {
-        label: probe_scores(
-            frame_embeddings(checkpoint, exploration, max_trajectories, seed=seed, device=device)
+    window = min(ckpt.load_policy_model(ckpt.resolve_checkpoint(c))[0].window_steps for c in models.values())
+    frames = {
+        label: frame_embeddings(
+            checkpoint, exploration, max_trajectories, seed=seed, device=device, context_steps=window
         )
         for label, checkpoint in models.items()
     }
+    reference = next(iter(models))
+    results = {}
+    for label, embedded in frames.items():
+        results[label] = probe_scores(embedded)
+        if label != reference:
+            results[label]["paired"] = paired_probe_differences(
+                embedded, frames[reference], resamples=resamples, seed=seed
+            )
     record = {
         "exploration": str(exploration),
         "max_trajectories": max_trajectories,
         "seed": seed,
+        "context_steps": window,
         "ridge": RIDGE,
         "probe_range": PROBE_RANGE,
+        "resamples": resamples,
+        "reference": reference,
         "checkpoints": {label: str(checkpoint) for label, checkpoint in models.items()},
         "results": results,
     }
     out.mkdir(parents=True, exist_ok=True)
     for name, text in (
         (PROBE_JSON, json.dumps(record, indent=2) + "\n"),
-        (PROBE_MD, probe_markdown(results)),
+        (PROBE_MD, probe_markdown(results, reference)),
     ):
         partial = out / f".{name}.partial"
         partial.write_text(text)
