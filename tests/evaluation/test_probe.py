@@ -203,3 +203,15 @@ def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
                  "--out", str(tmp_path / "p2")])  # fmt: skip
     err = capsys.readouterr().err.strip()
     assert code != 0 and "nowhere" in err and err.count("\n") == 0
+
+
+def test_probe_cli_refuses_a_repeated_label_in_one_line(tmp_path, held_out_e, checkpoint_factory, capsys):
+    from navformer_rl.cli import main
+    from navformer_rl.modules import NavFormerConfig
+
+    dt = checkpoint_factory(tmp_path / "dt", NavFormerConfig.dt_baseline(**TINY_MODEL))
+    code = main(["evaluate", "probe", "--model", "A", str(dt), "--model", "A", str(dt),
+                 "--held-out", str(held_out_e), "--out", str(tmp_path / "p")])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "['A'] repeat" in err and err.count("\n") == 0
+    assert not (tmp_path / "p").exists()
