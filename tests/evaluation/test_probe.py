@@ -146,7 +146,8 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     run = checkpoint_factory(tmp_path / "run", config)
     frames = frame_embeddings(str(run), held_out_e, batch_trajs=4)
     names = ["general"] if dt else ["static", "general"]
-    assert set(frames) == {*names, "head", "action", "pose", "target", "trajectory"}
+    assert set(frames) == {*names, "head", "h_o", "action", "pose", "target", "trajectory"}
+    np.testing.assert_array_equal(frames["head"][:, -16:], frames["h_o"])  # THSC reads [h_g; h_o]
     assert frames["head"].shape[1] == (16 if dt else 32)  # h_o; THSC's [h_g; h^ca_o]
     dataset = open_dataset(held_out_e, kind="e")
     assert all(len(v) == len(dataset) for v in frames.values())  # windows cover the short trajectories whole
@@ -191,9 +192,9 @@ def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
     assert list(record["results"]) == ["NavFormer", "DT"] and record["reference"] == "NavFormer"
     assert record["context_steps"] == 256  # NavFormer's 256 steps, not DT's 341: the same windows for both
     paired = record["results"]["DT"]["paired"]
-    assert set(paired) == {"all", "head"} and set(paired["head"]) == set(QUANTITIES)
+    assert set(paired) == {"all", "head", "h_o"} and set(paired["head"]) == set(QUANTITIES)
     assert "paired" not in record["results"]["NavFormer"]
-    assert set(record["results"]["NavFormer"]["probes"]) == {"static", "general", "all", "head"}
+    assert set(record["results"]["NavFormer"]["probes"]) == {"static", "general", "all", "head", "h_o"}
     assert set(record["results"]["DT"]["probes"]) == {"general", "head"}
     table = (out / PROBE_MD).read_text()
     assert "| NavFormer | all |" in table and "| DT | general |" in table and "| DT | head |" in table

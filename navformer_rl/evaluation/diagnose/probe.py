@@ -22,7 +22,8 @@ The probed quantities, per frame of held-out D_e (one robot and one target per m
 Each is probed from every encoder alone (``static``, ``general``, DT's ``general``), from all of a model's
 frame embeddings together (``all``), and from what the action head reads at that step (``head``: THSC's
 ``[h_g; h^ca_o]``, or ``h_o`` without THSC), the navigation network's output teacher-forced on the window so
-far: whether what the encoders keep reaches the head.
+far: whether what the encoders keep reaches the head; and with THSC from ``h_o`` alone, the part of the head's
+input that changes from step to step.
 """
 
 from __future__ import annotations
@@ -74,8 +75,9 @@ def frame_embeddings(
     Returns:
         ``{"<encoder name>": float32 [N, d] per encoder of the model (``static``, ``general``), "head":
         [N, d'] what the action head reads at that step (``[h_g; h^ca_o]``, d' = 2d, with THSC; ``h_o``
-        without), "action": [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N]}`` over the
-        N valid frames. ``head`` is teacher-forced: the navigation network reads the window's frames, the
+        without), "h_o": [N, d] the observation's hidden state alone (``head`` without THSC), "action":
+        [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N]}`` over the N valid frames.
+        ``head`` and ``h_o`` are teacher-forced: the navigation network reads the window's frames, the
         target image and the expert's actions up to that step, as in training.
     """
     import torch
@@ -101,7 +103,7 @@ def frame_embeddings(
     if not 1 <= window <= config.window_steps:
         raise ValueError(f"context_steps={context_steps!r}: expected 1 to the model's {config.window_steps}")
     batches = FixedTrajectoryBatches(dataset, batch_trajs, window, seed, max_trajectories=max_trajectories)
-    rows["head"] = []
+    rows["head"], rows["h_o"] = [], []
     with evaluation_mode(model):
         for batch in batches:
             batch = batch.to(torch_device)
@@ -118,6 +120,7 @@ def frame_embeddings(
             hidden = {"target": h_g, "observation": h_o}
             head = torch.cat([hidden[name] for name in model.head.reads], dim=-1)
             rows["head"].append(head[mask].float().cpu().numpy())
+            rows["h_o"].append(h_o[mask].float().cpu().numpy())
             for name, embedding in zip(dve.names, observations, strict=True):
                 rows[name].append(embedding[mask].float().cpu().numpy())
             rows["action"].append(batch["action"][mask].float().cpu().numpy())
@@ -195,13 +198,14 @@ def _side_agreement(predicted: np.ndarray, actual: np.ndarray) -> float:
 
 
 def _feature_sets(frames: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory", "head")]
+    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory", "head", "h_o")]
     if not names:
         raise ValueError("frames: expected at least one encoder's embeddings beside action / pose / target")
     sets = {name: frames[name] for name in names}
     sets["all"] = np.concatenate([frames[name] for name in names], axis=1)
-    if "head" in frames:
-        sets["head"] = frames["head"]
+    for hidden in ("head", "h_o"):
+        if hidden in frames:
+            sets[hidden] = frames[hidden]
     return sets
 
 
@@ -237,6 +241,16 @@ def _fit_probes(
     return probes, {"fit": fit, "test": test, "in_view": in_view}
 
 
+def _repeated_rows(frames: Mapping[str, np.ndarray]) -> set[str]:
+    """Feature sets that repeat another: ``all`` of a one-encoder model, ``h_o`` of a head without THSC."""
+    repeated = set()
+    if len(_feature_sets(frames)) - ("head" in frames) - ("h_o" in frames) == 2:  # one encoder + all
+        repeated.add("all")
+    if "h_o" in frames and "head" in frames and np.array_equal(frames["h_o"], frames["head"]):
+        repeated.add("h_o")
+    return repeated
+
+
 def probe_scores(
     frames: Mapping[str, np.ndarray], ridge: float = RIDGE, max_range: float = PROBE_RANGE
 ) -> dict[str, Any]:
@@ -245,7 +259,8 @@ def probe_scores(
 
     Returns:
         ``{"frames": {"fit", "test", "in_view_test"}, "probes": {features: {quantity: value}}}`` for each
-        encoder alone, ``all`` of them concatenated (with two encoders) and (when given) ``head``;
+        encoder alone, ``all`` of them concatenated (with two encoders), and (when given) ``head`` and
+        ``h_o`` (when it differs from ``head``: with THSC);
         quantities as in :data:`QUANTITIES` (NaN where the test half has no frame with its target in view).
     """
     probes, split = _fit_probes(frames, ridge, max_range)
@@ -258,7 +273,7 @@ def probe_scores(
         "probes": {
             label: {q: p.score() for q, p in quantities.items()}
             for label, quantities in probes.items()
-            if label != "all" or len(probes) - ("head" in probes) > 2  # one encoder: "all" is that one
+            if label not in _repeated_rows(frames)
         },
     }
 
@@ -266,7 +281,7 @@ def probe_scores(
 def paired_probe_differences(
     frames: Mapping[str, np.ndarray],
     reference: Mapping[str, np.ndarray],
-    features: tuple[str, ...] = ("all", "head"),
+    features: tuple[str, ...] = ("all", "head", "h_o"),
     resamples: int = 1000,
     seed: int = 0,
     ridge: float = RIDGE,
