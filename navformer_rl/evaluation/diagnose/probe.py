@@ -97,13 +97,12 @@ def frame_embeddings(
     model.to(torch_device)
     dve = model.dve
     rows: dict[str, list[np.ndarray]] = {
-        k: [] for k in (*dve.names, "action", "pose", "target", "trajectory")
+        k: [] for k in (*dve.names, "head", "h_o", "action", "pose", "target", "trajectory")
     }
     window = config.window_steps if context_steps is None else int(context_steps)
     if not 1 <= window <= config.window_steps:
         raise ValueError(f"context_steps={context_steps!r}: expected 1 to the model's {config.window_steps}")
     batches = FixedTrajectoryBatches(dataset, batch_trajs, window, seed, max_trajectories=max_trajectories)
-    rows["head"], rows["h_o"] = [], []
     with evaluation_mode(model):
         for batch in batches:
             batch = batch.to(torch_device)
