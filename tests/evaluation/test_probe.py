@@ -146,7 +146,12 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     run = checkpoint_factory(tmp_path / "run", config)
     frames = frame_embeddings(str(run), held_out_e, batch_trajs=4)
     names = ["general"] if dt else ["static", "general"]
-    assert set(frames) == {*names, "head", "h_o", "action", "pose", "target", "trajectory"}
+    readings = {"attention_to_target", "attention_keys", "observation_term"} | (
+        set() if dt else {"target_term"}
+    )
+    assert set(frames) == {*names, "head", "h_o", "action", "pose", "target", "trajectory", *readings}
+    assert frames["attention_to_target"].shape == (len(frames["head"]), 1)  # one block
+    assert np.all((frames["attention_to_target"] > 0) & (frames["attention_to_target"] <= 1))
     np.testing.assert_array_equal(frames["head"][:, -16:], frames["h_o"])  # THSC reads [h_g; h_o]
     assert frames["head"].shape[1] == (16 if dt else 32)  # h_o; THSC's [h_g; h^ca_o]
     dataset = open_dataset(held_out_e, kind="e")
@@ -174,6 +179,8 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     head = torch.as_tensor(frames["head"])
     read_out = torch.tanh(head @ model.head.weight.T + model.head.bias).detach().numpy()
     np.testing.assert_allclose(read_out, np.concatenate(predicted), rtol=1e-4, atol=1e-5)
+    terms = frames["observation_term"] + frames.get("target_term", 0.0) + model.head.bias.detach().numpy()
+    np.testing.assert_allclose(np.tanh(terms), read_out, rtol=1e-4, atol=1e-5)
 
 
 def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
@@ -199,6 +206,13 @@ def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
     table = (out / PROBE_MD).read_text()
     assert "| NavFormer | all |" in table and "| DT | general |" in table and "| DT | head |" in table
     assert "Minus NavFormer, paired on the same frames" in table
+    reading = record["results"]["NavFormer"]["target_reading"]
+    assert (
+        len(reading["attention_to_target"]["all"]) == 1 and len(reading["head_terms"]["target_term_sd"]) == 2
+    )
+    assert "target_term_mean" not in record["results"]["DT"]["target_reading"]["head_terms"]
+    assert "| NavFormer | W_g h_g" not in table and table.count("| NavFormer | ") == 5 + 1 + 1
+    assert "Attention of the token the action head reads" in table
     capsys.readouterr()
     code = main(["evaluate", "probe", "--model", "DT", str(dt), "--held-out", str(tmp_path / "nowhere"),
                  "--out", str(tmp_path / "p2")])  # fmt: skip

@@ -1253,3 +1253,45 @@ def test_the_probe_table_quotes_its_records() -> None:
     _, paired = _probe_cells("paper10k", "head", "bearing")
     own_and_dt = _probe_cells("paper10k", "head", "bearing")[0].split(" / ")
     assert f"(bearing R² {own_and_dt[0]} against {own_and_dt[1]}, paired {paired} for DT;" in results
+
+
+def _target_reading(record: str, label: str) -> dict:
+    probe = json.loads((PROBE_RECORDS / record / "probe.json").read_text())
+    (result,) = [r for name, r in probe["results"].items() if name.split(",")[0] == label]
+    return result["target_reading"]
+
+
+def test_the_target_reading_sentences_quote_their_records() -> None:
+    """studies.md's THSC-term and attention bullets and results.md's THSC sentence: every number is the probe
+    record's ``target_reading`` of the shipped weights."""
+
+    def pair(values: list[float], digits: int) -> str:
+        return "(" + ", ".join(f"{v:.{digits}f}" for v in values) + ")"
+
+    studies = " ".join(STUDIES_PAGE.read_text().split())
+    terms = {r: _target_reading(r, "NavFormer")["head_terms"] for r in ("paper10k", "tenth")}
+    paper, tenth = terms["paper10k"], terms["tenth"]
+    assert (
+        f"it is {pair(paper['target_term_mean'], 3)} on (linear, angular) and varies between targets by a "
+        f"standard deviation of {pair(paper['target_term_sd'], 4)}, against "
+        f"{pair(paper['observation_term_sd'], 3)} for W_o h^ca_o between frames (tenth scale: "
+        f"{pair(tenth['target_term_mean'], 3)}, {pair(tenth['target_term_sd'], 4)} against "
+        f"{pair(tenth['observation_term_sd'], 3)})" in studies
+    )
+    navformer, dt = (_target_reading("paper10k", m)["attention_to_target"] for m in ("NavFormer", "DT"))
+
+    def blocks(values: list[float]) -> str:
+        return f"{values[0]:.3f}, {values[1]:.3f} and {values[2]:.3f}"
+
+    assert (
+        f"puts {blocks(navformer['all'])} of its attention on the target token in the three blocks, DT's "
+        f"{blocks(dt['all'])}, and neither more when the target is in view (NavFormer "
+        f"{navformer['in_view'][0]:.3f}, DT {dt['in_view'][0]:.3f} in the first block)" in studies
+    )
+    assert navformer["in_view"][0] <= navformer["out_of_view"][0] and dt["in_view"][0] <= dt["out_of_view"][0]
+    assert navformer["all"][0] > dt["all"][0]
+    results = " ".join(RESULTS_PAGE.read_text().split())
+    assert (
+        f"varies between targets by {paper['target_term_sd'][0]:.4f} (linear command) against "
+        f"{paper['observation_term_sd'][0]:.3f} for the observation's term between frames" in results
+    )

@@ -23,7 +23,9 @@ Each is probed from every encoder alone (``static``, ``general``, DT's ``general
 frame embeddings together (``all``), and from what the action head reads at that step (``head``: THSC's
 ``[h_g; h^ca_o]``, or ``h_o`` without THSC), the navigation network's output teacher-forced on the window so
 far: whether what the encoders keep reaches the head; and with THSC from ``h_o`` alone, the part of the head's
-input that changes from step to step.
+input that changes from step to step. Beside the probes,
+:mod:`~navformer_rl.evaluation.diagnose.target_reading` reads how the navigation network attends to the target
+token and what THSC's target term adds.
 """
 
 from __future__ import annotations
@@ -38,6 +40,13 @@ import numpy as np
 
 from navformer_rl.evaluation.diagnose.actions import HALF_FIELD_OF_VIEW
 from navformer_rl.evaluation.diagnose.measures import bearing_to
+from navformer_rl.evaluation.diagnose.target_reading import (
+    READINGS,
+    TargetAttentionRecorder,
+    head_terms,
+    target_reading_markdown,
+    target_reading_summary,
+)
 
 PROBE_RANGE = 3.0
 """Metres from the robot's centre to the target's within which a target in the camera cone counts as in
@@ -50,6 +59,9 @@ RIDGE = 1e-2
 PROBE_JSON, PROBE_MD = "probe.json", "probe.md"
 
 QUANTITIES = ("angular", "linear", "in_view", "bearing", "bearing_sign")
+
+LABELS = ("action", "pose", "target", "trajectory")
+"""The per-frame arrays of :func:`frame_embeddings` that are labels, not features."""
 
 
 def frame_embeddings(
@@ -76,7 +88,10 @@ def frame_embeddings(
         ``{"<encoder name>": float32 [N, d] per encoder of the model (``static``, ``general``), "head":
         [N, d'] what the action head reads at that step (``[h_g; h^ca_o]``, d' = 2d, with THSC; ``h_o``
         without), "h_o": [N, d] the observation's hidden state alone (``head`` without THSC), "action":
-        [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N]}`` over the N valid frames.
+        [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N], "attention_to_target": [N,
+        n_blocks], "attention_keys": int64 [N], "observation_term": [N, 2] and with THSC "target_term":
+        [N, 2]}`` over the N valid frames (the last four: :mod:`.target_reading`; no ``*_term`` with the
+        binned head).
         ``head`` and ``h_o`` are teacher-forced: the navigation network reads the window's frames, the
         target image and the expert's actions up to that step, as in training.
     """
@@ -96,9 +111,7 @@ def frame_embeddings(
     check_model_reads(config, {"e": dataset}, {"e": f"e dataset {str(exploration)!r}"}, tunable=False)
     model.to(torch_device)
     dve = model.dve
-    rows: dict[str, list[np.ndarray]] = {
-        k: [] for k in (*dve.names, "head", "h_o", "action", "pose", "target", "trajectory")
-    }
+    rows: dict[str, list[np.ndarray]] = {k: [] for k in (*dve.names, "head", "h_o", *LABELS, *READINGS)}
     window = config.window_steps if context_steps is None else int(context_steps)
     if not 1 <= window <= config.window_steps:
         raise ValueError(f"context_steps={context_steps!r}: expected 1 to the model's {config.window_steps}")
@@ -108,14 +121,19 @@ def frame_embeddings(
             batch = batch.to(torch_device)
             mask = batch["mask"]
             *observations, e_g = dve(batch["pixels"], batch["target_pixels"], mask)  # [B, T, d] each, [B, d]
-            h_g, h_o, _ = model.transformer(
-                e_g,
-                batch["return_to_go"],
-                batch["action"],
-                batch["step"],
-                mask,
-                **dict(zip(dve.names, observations, strict=True)),
-            )
+            with TargetAttentionRecorder(model.transformer) as attention:
+                h_g, h_o, _ = model.transformer(
+                    e_g,
+                    batch["return_to_go"],
+                    batch["action"],
+                    batch["step"],
+                    mask,
+                    **dict(zip(dve.names, observations, strict=True)),
+                )
+            rows["attention_to_target"].append(attention.weights[mask].cpu().numpy())
+            rows["attention_keys"].append(attention.keys.expand_as(mask.cpu())[mask.cpu()].numpy())
+            for name, term in head_terms(model.head, h_g, h_o).items():
+                rows[name].append(term[mask].cpu().numpy())
             hidden = {"target": h_g, "observation": h_o}
             head = torch.cat([hidden[name] for name in model.head.reads], dim=-1)
             rows["head"].append(head[mask].float().cpu().numpy())
@@ -127,7 +145,7 @@ def frame_embeddings(
             rows["target"].append(batch["privileged", "target_position"][mask].float().cpu().numpy())
             trajectory = batch["trajectory"].unsqueeze(1).expand_as(mask)
             rows["trajectory"].append(trajectory[mask].cpu().numpy().astype(np.int64))
-    return {key: np.concatenate(parts) for key, parts in rows.items()}
+    return {key: np.concatenate(parts) for key, parts in rows.items() if parts}
 
 
 def ridge_predict(
@@ -197,7 +215,7 @@ def _side_agreement(predicted: np.ndarray, actual: np.ndarray) -> float:
 
 
 def _feature_sets(frames: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    names = [k for k in frames if k not in ("action", "pose", "target", "trajectory", "head", "h_o")]
+    names = [k for k in frames if k not in (*LABELS, *READINGS, "head", "h_o")]
     if not names:
         raise ValueError("frames: expected at least one encoder's embeddings beside action / pose / target")
     sets = {name: frames[name] for name in names}
@@ -206,6 +224,13 @@ def _feature_sets(frames: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         if hidden in frames:
             sets[hidden] = frames[hidden]
     return sets
+
+
+def _in_view(frames: Mapping[str, np.ndarray], max_range: float) -> np.ndarray:
+    """bool ``[N]``: the target in the camera's cone within ``max_range`` metres (walls not checked)."""
+    bearing = bearing_to(frames["pose"], frames["target"])
+    distance = np.hypot(*(frames["target"][:, :2] - frames["pose"][:, :2]).T)
+    return (np.abs(bearing) <= HALF_FIELD_OF_VIEW) & (distance <= max_range)
 
 
 def _fit_probes(
@@ -217,8 +242,7 @@ def _fit_probes(
     if not fit.any() or not test.any():
         raise ValueError("frames: the probes need frames of at least two trajectories")
     bearing = bearing_to(frames["pose"], frames["target"])
-    distance = np.hypot(*(frames["target"][:, :2] - frames["pose"][:, :2]).T)
-    in_view = (np.abs(bearing) <= HALF_FIELD_OF_VIEW) & (distance <= max_range)
+    in_view = _in_view(frames, max_range)
     every, seen_test = np.ones(int(test.sum()), dtype=bool), in_view[test]
     probes = {}
     for label, x in _feature_sets(frames).items():
@@ -260,9 +284,12 @@ def probe_scores(
         ``{"frames": {"fit", "test", "in_view_test"}, "probes": {features: {quantity: value}}}`` for each
         encoder alone, ``all`` of them concatenated (with two encoders), and (when given) ``head`` and
         ``h_o`` (when it differs from ``head``: with THSC);
-        quantities as in :data:`QUANTITIES` (NaN where the test half has no frame with its target in view).
+        quantities as in :data:`QUANTITIES` (NaN where the test half has no frame with its target in view);
+        and ``"target_reading"``: :func:`.target_reading.target_reading_summary` over all the frames (nothing
+        is fitted), when the frames hold its readings.
     """
     probes, split = _fit_probes(frames, ridge, max_range)
+    reading = target_reading_summary(frames, split["in_view"])
     return {
         "frames": {
             "fit": int(split["fit"].sum()),
@@ -274,6 +301,7 @@ def probe_scores(
             for label, quantities in probes.items()
             if label not in _repeated_rows(frames)
         },
+        **({"target_reading": reading} if reading else {}),
     }
 
 
@@ -367,6 +395,9 @@ def probe_markdown(results: Mapping[str, Mapping[str, Any]], reference: str | No
                     for q in (quantities[name] for name in QUANTITIES)
                 ]
                 lines.append(f"| {label} | {features} | " + " | ".join(cells) + " |")
+    readings = {label: r["target_reading"] for label, r in results.items() if r.get("target_reading")}
+    if readings:
+        lines.append("\n" + target_reading_markdown(readings).rstrip("\n"))
     return "\n".join(lines) + "\n"
 
 
