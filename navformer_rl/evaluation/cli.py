@@ -310,7 +310,7 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
 
     probe = commands.add_parser(
         "probe",
-        help="what checkpoints' encoders keep of a frame: linear probes on held-out D_e",
+        help="what checkpoints' encoders keep of a frame: linear probes on held-out D_e (or D_ca)",
         description="Fit linear probes from each checkpoint's frame embeddings (every encoder alone and all "
         "together) to the expert's action, whether the target is in view and its bearing, on half of the "
         "held-out trajectories, scored on the other half; write probe.json / probe.md (docs/evaluation.md, "
@@ -323,8 +323,12 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
         "repeat for each model",
     )  # fmt: skip
     probe.add_argument(
-        "--held-out", dest="probe_held_out", type=Path, required=True, metavar="DIR_E",
-        help="a D_e folder from mazes the checkpoints did not train on",
+        "--held-out", dest="probe_held_out", type=Path, required=True, metavar="DIR",
+        help="a D_e folder (or D_ca with --kind ca) from worlds the checkpoints did not train on",
+    )  # fmt: skip
+    probe.add_argument(
+        "--kind", dest="probe_kind", choices=("e", "ca"), default="e",
+        help="the held-out dataset's kind (default e)",
     )  # fmt: skip
     probe.add_argument("--out", dest="probe_out", type=cli_args.output_folder, required=True)
     probe.add_argument(
@@ -684,6 +688,7 @@ def _run_probe(args: argparse.Namespace) -> int:
         max_trajectories=args.probe_max_trajectories,
         seed=args.probe_seed,
         device=args.probe_device,
+        kind=args.probe_kind,
     )
     print((args.probe_out / PROBE_MD).read_text(), end="")
     print(f"probes in {args.probe_out / PROBE_MD}")

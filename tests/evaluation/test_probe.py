@@ -146,9 +146,8 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     run = checkpoint_factory(tmp_path / "run", config)
     frames = frame_embeddings(str(run), held_out_e, batch_trajs=4)
     names = ["general"] if dt else ["static", "general"]
-    readings = {"attention_to_target", "attention_keys", "observation_term"} | (
-        set() if dt else {"target_term"}
-    )
+    readings = {"attention_to_target", "attention_keys", "observation_term", "action_own", "action_swapped"}
+    readings |= set() if dt else {"target_term"}
     assert set(frames) == {*names, "head", "h_o", "action", "pose", "target", "trajectory", *readings}
     assert frames["attention_to_target"].shape == (len(frames["head"]), 1)  # one block
     assert np.all((frames["attention_to_target"] > 0) & (frames["attention_to_target"] <= 1))
@@ -172,15 +171,23 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     from navformer_rl.training.validation import FixedTrajectoryBatches
 
     actor = make_navformer_actor(model)
-    predicted = []
+    from navformer_rl.evaluation.diagnose.target_reading import TargetSwap
+
+    swap = TargetSwap(dataset.targets)
+    predicted, swapped = [], []
     with torch.no_grad():
         for batch in FixedTrajectoryBatches(dataset, 4, model.config.window_steps, 0):
             predicted.append(actor(batch.copy())["action_pred"][batch["mask"]].numpy())
+            other = batch.copy().set("target_pixels", swap.swap(batch["target_pixels"]))
+            swapped.append(actor(other)["action_pred"][batch["mask"]].numpy())
     head = torch.as_tensor(frames["head"])
     read_out = torch.tanh(head @ model.head.weight.T + model.head.bias).detach().numpy()
     np.testing.assert_allclose(read_out, np.concatenate(predicted), rtol=1e-4, atol=1e-5)
     terms = frames["observation_term"] + frames.get("target_term", 0.0) + model.head.bias.detach().numpy()
     np.testing.assert_allclose(np.tanh(terms), read_out, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(frames["action_own"], read_out, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(frames["action_swapped"], np.concatenate(swapped), rtol=1e-4, atol=1e-5)
+    assert not np.allclose(frames["action_swapped"], frames["action_own"])  # another target, other actions
 
 
 def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
@@ -211,8 +218,8 @@ def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
         len(reading["attention_to_target"]["all"]) == 1 and len(reading["head_terms"]["target_term_sd"]) == 2
     )
     assert "target_term_mean" not in record["results"]["DT"]["target_reading"]["head_terms"]
-    assert "| NavFormer | W_g h_g" not in table and table.count("| NavFormer | ") == 5 + 1 + 1
-    assert "Attention of the token the action head reads" in table
+    assert "| NavFormer | W_g h_g" not in table and table.count("| NavFormer | ") == 5 + 1 + 1 + 1
+    assert "Attention of the token the action head reads" in table and "target image swapped" in table
     capsys.readouterr()
     code = main(["evaluate", "probe", "--model", "DT", str(dt), "--held-out", str(tmp_path / "nowhere"),
                  "--out", str(tmp_path / "p2")])  # fmt: skip
@@ -230,3 +237,24 @@ def test_probe_cli_refuses_a_repeated_label_in_one_line(tmp_path, held_out_e, ch
     err = capsys.readouterr().err.strip()
     assert code == 2 and "['A'] repeat" in err and err.count("\n") == 0
     assert not (tmp_path / "p").exists()
+
+
+def test_probe_reads_held_out_collision_avoidance_data_with_kind_ca(tmp_path, checkpoint_factory, capsys):
+    from navformer_rl.cli import main
+    from navformer_rl.data import make_synthetic_dataset
+    from navformer_rl.modules import NavFormerConfig
+
+    ca = make_synthetic_dataset(tmp_path / "ca", "ca", 6, 5, 12, seed=22)
+    nf = checkpoint_factory(tmp_path / "nf", NavFormerConfig(**TINY_MODEL))
+    out = tmp_path / "probe"
+    code = main(["evaluate", "probe", "--model", "NavFormer", str(nf), "--held-out", str(ca), "--kind", "ca",
+                 "--out", str(out)])  # fmt: skip
+    assert code == 0
+    record = json.loads((out / PROBE_JSON).read_text())
+    assert record["kind"] == "ca" and record["results"]["NavFormer"]["frames"]["test"] > 0
+    assert "target_swap" in record["results"]["NavFormer"]["target_reading"]
+    capsys.readouterr()
+    code = main(["evaluate", "probe", "--model", "NavFormer", str(nf), "--held-out", str(ca),
+                 "--out", str(tmp_path / "p2")])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and err.count("\n") == 0 and str(ca) in err  # a D_ca folder read as D_e: one line

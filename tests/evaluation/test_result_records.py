@@ -1261,6 +1261,52 @@ def _target_reading(record: str, label: str) -> dict:
     return result["target_reading"]
 
 
+def test_the_target_swap_sentences_quote_their_records() -> None:
+    """studies.md's and results.md's "neither uses its target image": every number is a probe record's
+    ``target_swap`` (held-out D_e at both scales, held-out D_ca)."""
+
+    def pair(values: list[float], digits: int = 3) -> str:
+        return "(" + ", ".join(f"{v:.{digits}f}" for v in values) + ")"
+
+    def swap(record: str, label: str) -> dict:
+        return _target_reading(record, label)["target_swap"]
+
+    studies = " ".join(STUDIES_PAGE.read_text().split())
+    nf, dt = swap("paper10k", "NavFormer"), swap("paper10k", "DT")
+    assert (
+        f"change NavFormer's action by a mean of {pair(nf['change'])} (linear, angular) and DT's by "
+        f"{pair(dt['change'])}, against standard deviations of {pair(nf['own_sd'])} and {pair(dt['own_sd'])}"
+        in studies
+    )
+
+    def share(value: float) -> str:
+        return f"{100 * value:.1f} %"
+
+    assert (
+        f"(NavFormer {share(nf['own_toward'])} and {share(nf['swapped_toward'])}, "
+        f"DT {share(dt['own_toward'])} and {share(dt['swapped_toward'])}; "
+        f"the expert {share(nf['expert_toward'])})" in studies
+    )
+    nf_ca, dt_ca = swap("paper10k_ca", "NavFormer"), swap("paper10k_ca", "DT")
+    nf_tenth, dt_tenth = swap("tenth", "NavFormer"), swap("tenth", "DT")
+    assert (
+        f"the same: {pair(nf_ca['change'])} and {pair(dt_ca['change'])} against {pair(nf_ca['own_sd'])} and "
+        f"{pair(dt_ca['own_sd'])}; at the tenth scale {pair(nf_tenth['change'])} and "
+        f"{pair(dt_tenth['change'])}." in studies
+    )
+    swaps = [nf, dt, nf_ca, dt_ca]
+    assert max(max(s["change"]) for s in swaps) <= 0.003 + 5e-4  # "at most 0.003" in results.md
+    sds = [v for s in swaps for v in s["own_sd"]]
+    results = " ".join(RESULTS_PAGE.read_text().split())
+    assert (
+        f"changes by at most 0.003 (standard deviation over frames {min(sds):.2f}-{max(sds):.2f})" in results
+    )
+    assert all(s["swapped_toward"] >= s["own_toward"] - 0.005 for s in swaps)  # "not ... any less"
+    ca = json.loads((PROBE_RECORDS / "paper10k_ca" / "probe.json").read_text())
+    assert ca["kind"] == "ca" and ca["exploration"] == "data/paper_val/ca"
+    assert list(ca["checkpoints"].values()) == ["pretrained:navformer", "pretrained:dt"]
+
+
 def test_the_target_reading_sentences_quote_their_records() -> None:
     """studies.md's THSC-term and attention bullets and results.md's THSC sentence: every number is the probe
     record's ``target_reading`` of the shipped weights."""

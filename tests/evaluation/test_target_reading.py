@@ -155,3 +155,39 @@ def test_the_summary_and_its_tables_known_answers():
         "| NavFormer | 2.000, 0.000 | 1.0000, 0.0000 | 0.000, 1.000 |" in table and "| DT | 2." not in table
     )
     assert target_reading_summary({"trajectory": frames["trajectory"]}, in_view) == {}
+
+
+def test_target_swap_maps_every_kind_of_target_to_the_next_distinct_one():
+    from navformer_rl.evaluation.diagnose.target_reading import TargetSwap
+
+    kinds = torch.stack([torch.full((4, 4, 3), v, dtype=torch.uint8) for v in (30, 10, 20)])
+    targets = kinds[[0, 1, 1, 2, 0]]  # a dataset's targets: repeated kinds
+    swap = TargetSwap(targets)
+    assert swap.available
+    swapped = swap.swap(kinds)  # lexicographic order 10 -> 20 -> 30 -> 10
+    assert swapped[:, 0, 0, 0].tolist() == [10, 20, 30]
+    assert swapped.shape == kinds.shape and swapped.dtype == torch.uint8
+    with pytest.raises(ValueError, match="not one of the dataset's target images"):
+        swap.swap(torch.full((1, 4, 4, 3), 99, dtype=torch.uint8))
+    assert not TargetSwap(kinds[[0, 0]]).available
+
+
+def test_the_swap_summary_counts_turns_towards_the_object_with_each_target_image():
+    n = 4
+    bearing = np.radians(40.0)  # at the edge of the 90° view, 2 m ahead-left
+    frames = {
+        "trajectory": np.array([0, 0, 1, 1]),
+        "pose": np.zeros((n, 3)),
+        "target": np.tile([2 * np.cos(bearing), 2 * np.sin(bearing)], (n, 1)),
+        "action": np.tile([0.5, 0.3], (n, 1)),
+        "action_own": np.array([[0.5, 0.5], [0.5, 0.5], [0.5, 0.5], [0.5, -0.5]]),
+        "action_swapped": np.array([[0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [0.5, -0.5]]),
+    }
+    swap = target_reading_summary(frames, np.ones(n, dtype=bool))["target_swap"]
+    assert swap["edge_steps"] == 4 and swap["expert_toward"] == 1.0
+    assert swap["own_toward"] == 0.75 and swap["swapped_toward"] == 0.25
+    np.testing.assert_allclose(swap["change"], [0.0, 0.5])
+    np.testing.assert_allclose(swap["change_in_view"], [0.0, 0.5])
+    table = target_reading_markdown({"M": {"target_swap": swap}})
+    assert "| M | 0.000, 0.500 | 0.000, 0.500 | 0.000, 0.433 | 4 | 100.0 % / 75.0 % / 25.0 % |" in table
+    assert "Attention of the token" not in table and "W_g h_g" not in table

@@ -43,6 +43,7 @@ from navformer_rl.evaluation.diagnose.measures import bearing_to
 from navformer_rl.evaluation.diagnose.target_reading import (
     READINGS,
     TargetAttentionRecorder,
+    TargetSwap,
     head_terms,
     target_reading_markdown,
     target_reading_summary,
@@ -72,8 +73,9 @@ def frame_embeddings(
     seed: int = 0,
     device: str = "cpu",
     context_steps: int | None = None,
+    kind: str = "e",
 ) -> dict[str, np.ndarray]:
-    """Every encoder's embedding of every frame of held-out D_e windows, with the frame's labels.
+    """Every encoder's embedding of every frame of held-out D_e (or D_ca) windows, with the frame's labels.
 
     The windows are those ``navformer validate`` scores (one per trajectory, at most the model's context,
     drawn with ``seed`` from the first ``max_trajectories`` of a seeded permutation), encoded in eval mode
@@ -81,7 +83,7 @@ def frame_embeddings(
 
     Args:
         checkpoint: any form :func:`~navformer_rl.training.checkpoint.resolve_checkpoint` takes.
-        exploration: a D_e folder (held out from the checkpoint's training).
+        exploration: a D_e folder (held out from the checkpoint's training); a D_ca one with ``kind="ca"``.
         context_steps: the windows' length (default: the model's context, ``window_steps``); at most that.
 
     Returns:
@@ -90,8 +92,9 @@ def frame_embeddings(
         without), "h_o": [N, d] the observation's hidden state alone (``head`` without THSC), "action":
         [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N], "attention_to_target": [N,
         n_blocks], "attention_keys": int64 [N], "observation_term": [N, 2] and with THSC "target_term":
-        [N, 2]}`` over the N valid frames (the last four: :mod:`.target_reading`; no ``*_term`` with the
-        binned head).
+        [N, 2], "action_own" / "action_swapped": [N, 2] the model's action with the trajectory's target image
+        and with another target's}`` over the N valid frames (the last six: :mod:`.target_reading`; no
+        ``*_term`` with the binned head, no ``action_*`` when the dataset holds one kind of target).
         ``head`` and ``h_o`` are teacher-forced: the navigation network reads the window's frames, the
         target image and the expert's actions up to that step, as in training.
     """
@@ -104,11 +107,13 @@ def frame_embeddings(
     from navformer_rl.utils.devices import check_device, resolve_device
 
     torch_device = resolve_device(check_device(device))
+    if kind not in ("e", "ca"):
+        raise ValueError(f"kind={kind!r}: expected 'e' or 'ca'")
     if not os.path.exists(exploration):
-        raise FileNotFoundError(f"e dataset {str(exploration)!r} does not exist")
-    dataset = open_dataset(exploration, kind="e")
+        raise FileNotFoundError(f"{kind} dataset {str(exploration)!r} does not exist")
+    dataset = open_dataset(exploration, kind=kind)
     config, model = ckpt.load_policy_model(ckpt.resolve_checkpoint(checkpoint))
-    check_model_reads(config, {"e": dataset}, {"e": f"e dataset {str(exploration)!r}"}, tunable=False)
+    check_model_reads(config, {kind: dataset}, {kind: f"{kind} dataset {str(exploration)!r}"}, tunable=False)
     model.to(torch_device)
     dve = model.dve
     rows: dict[str, list[np.ndarray]] = {k: [] for k in (*dve.names, "head", "h_o", *LABELS, *READINGS)}
@@ -116,20 +121,25 @@ def frame_embeddings(
     if not 1 <= window <= config.window_steps:
         raise ValueError(f"context_steps={context_steps!r}: expected 1 to the model's {config.window_steps}")
     batches = FixedTrajectoryBatches(dataset, batch_trajs, window, seed, max_trajectories=max_trajectories)
+    swap = TargetSwap(dataset.targets)
     with evaluation_mode(model):
         for batch in batches:
             batch = batch.to(torch_device)
             mask = batch["mask"]
             *observations, e_g = dve(batch["pixels"], batch["target_pixels"], mask)  # [B, T, d] each, [B, d]
+            steps = (batch["return_to_go"], batch["action"], batch["step"], mask)
+            named = dict(zip(dve.names, observations, strict=True))
             with TargetAttentionRecorder(model.transformer) as attention:
-                h_g, h_o, _ = model.transformer(
-                    e_g,
-                    batch["return_to_go"],
-                    batch["action"],
-                    batch["step"],
-                    mask,
-                    **dict(zip(dve.names, observations, strict=True)),
-                )
+                h_g, h_o, _ = model.transformer(e_g, *steps, **named)
+            if swap.available:
+                target = batch["target_pixels"]  # [B, H, W, 3], or [B, T, H, W, 3] constant over T
+                e_swapped = dve.encode_target(swap.swap(target[:, 0] if target.dim() == 5 else target))
+                swapped_g, swapped_o, _ = model.transformer(e_swapped, *steps, **named)
+                swapped = {"target": swapped_g, "observation": swapped_o}
+                own = {"target": h_g, "observation": h_o}
+                for name, hidden_of in (("action_own", own), ("action_swapped", swapped)):
+                    action = model.head.actions(*(hidden_of[r] for r in model.head.reads), mask)
+                    rows[name].append(action[mask].float().cpu().numpy())
             rows["attention_to_target"].append(attention.weights[mask].cpu().numpy())
             rows["attention_keys"].append(attention.keys.expand_as(mask.cpu())[mask.cpu()].numpy())
             for name, term in head_terms(model.head, h_g, h_o).items():
@@ -289,7 +299,7 @@ def probe_scores(
         is fitted), when the frames hold its readings.
     """
     probes, split = _fit_probes(frames, ridge, max_range)
-    reading = target_reading_summary(frames, split["in_view"])
+    reading = target_reading_summary(frames, split["in_view"], max_range)
     return {
         "frames": {
             "fit": int(split["fit"].sum()),
@@ -409,10 +419,11 @@ def probe(
     seed: int = 0,
     device: str = "cpu",
     resamples: int = 1000,
+    kind: str = "e",
 ) -> dict[str, Any]:
     """:func:`probe_scores` of each checkpoint of ``models`` (``{label: checkpoint}``) on the same held-out
-    D_e windows, and each later model's :func:`paired_probe_differences` against the first one, written to
-    ``out_dir/probe.json`` and ``out_dir/probe.md``; returns the JSON's content.
+    D_e (``kind="ca"``: D_ca) windows, and each later model's :func:`paired_probe_differences` against the
+    first one, written to ``out_dir/probe.json`` and ``out_dir/probe.md``; returns the JSON's content.
 
     Every model reads windows of the shortest context among them (DT's 341 steps otherwise give it other
     windows of the long trajectories than NavFormer's 256), so all probes score the same frames.
@@ -425,7 +436,13 @@ def probe(
     window = min(ckpt.load_policy_model(ckpt.resolve_checkpoint(c))[0].window_steps for c in models.values())
     frames = {
         label: frame_embeddings(
-            checkpoint, exploration, max_trajectories, seed=seed, device=device, context_steps=window
+            checkpoint,
+            exploration,
+            max_trajectories,
+            seed=seed,
+            device=device,
+            context_steps=window,
+            kind=kind,
         )
         for label, checkpoint in models.items()
     }
@@ -439,6 +456,7 @@ def probe(
             )
     record = {
         "exploration": str(exploration),
+        "kind": kind,
         "max_trajectories": max_trajectories,
         "seed": seed,
         "context_steps": window,
