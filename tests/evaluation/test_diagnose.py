@@ -139,6 +139,43 @@ def test_each_robot_trial_gets_one_outcome():
     assert outcome(robot(straight(120), success=True)) == "success"
 
 
+# ------------------------------------------------------------------------------------- other targets
+
+
+def test_lingering_at_another_robots_target_is_told_from_passing_by():
+    from dataclasses import replace
+
+    from navformer_rl.evaluation.diagnose.measures import (
+        longest_run,
+        near_other_target,
+        other_target_measures,
+    )
+
+    others = np.array([[2.0, 0.0], [50.0, 50.0]])
+    passing = replace(robot(straight(60)), other_targets=others)  # 0.1 m a step past (2, 0): x in [0.5, 3.5]
+    parked = np.vstack([straight(20), np.repeat(straight(20)[-1:], 40, axis=0)])  # stops at (2, 0): 55 steps
+    lingering = replace(robot(parked), other_targets=others)
+    arriving = replace(robot(straight(10, start=(0.0, 10.0)), success=True), other_targets=others)  # far
+    alone = robot(straight(60))  # no other robot's target known: left out
+    assert near_other_target(passing)[:61].sum() == 31 and near_other_target(alone).sum() == 0
+    block = other_target_measures([passing, lingering, arriving, alone])
+    assert block["robot_trials"] == 3 and block["failures"] == 2
+    near = 31 + 55  # active steps (the last pose has no step): passing t = 5..35, lingering t = 5..59
+    assert block["near_step_fraction"] == pytest.approx(near / (60 + 60 + 10))
+    assert block["lingered_fraction"] == pytest.approx(1 / 3)  # passing stays 31 steps: < 50
+    assert block["failures_ending_near_fraction"] == pytest.approx(0.5)  # lingering ends there, passing not
+    assert other_target_measures([passing], linger=31)["lingered_fraction"] == 1.0
+    assert other_target_measures([passing], linger=32)["lingered_fraction"] == 0.0
+    assert [longest_run(np.array(f, bool)) for f in ([], [0, 0], [1, 1, 0, 1], [0, 1, 1, 1])] == [0, 0, 2, 3]
+    assert other_target_measures([alone]) == {
+        "robot_trials": 0,
+        "near_step_fraction": None,
+        "lingered_fraction": None,
+        "failures": 0,
+        "failures_ending_near_fraction": None,
+    }
+
+
 # ----------------------------------------------------------------------------------------- sightings
 
 

@@ -1341,3 +1341,23 @@ def test_the_target_reading_sentences_quote_their_records() -> None:
         f"varies between targets by {paper['target_term_sd'][0]:.4f} (linear command) against "
         f"{paper['observation_term_sd'][0]:.3f} for the observation's term between frames" in results
     )
+
+
+def test_the_other_target_sentence_quotes_its_diagnoses() -> None:
+    """studies.md's closed-loop stays at other robots' targets: the 40-trial diagnoses of the shipped weights
+    and of the exploration expert, on the same episodes."""
+    records = {
+        "navformer": PAPER10K / "diagnosis" / "navformer_10k_s0_runb_it10000",
+        "dt": PAPER10K / "diagnosis" / "dt_10k_s0_it10000",
+        "frontier": EXPERT / "diagnosis" / "frontier",
+    }
+    diagnoses = {k: json.loads((v / "diagnosis.json").read_text()) for k, v in records.items()}
+    assert len({json.dumps(d["episode_set"], sort_keys=True) for d in diagnoses.values()}) == 1
+    stay = {k: d["all"]["other_targets"]["lingered_fraction"] for k, d in diagnoses.items()}
+    studies = " ".join(STUDIES_PAGE.read_text().split())
+    assert (
+        f"in {100 * stay['navformer']:.1f} % and {100 * stay['dt']:.1f} % of their robot-trials, the "
+        f"exploration expert, which detects only its own target, in {100 * stay['frontier']:.1f} %" in studies
+    )
+    excess = [100 * (stay[k] - stay["frontier"]) for k in ("navformer", "dt")]
+    assert f"the excess over the expert ({excess[0]:.1f} and {excess[1]:.1f} points)" in studies

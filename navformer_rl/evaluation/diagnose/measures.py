@@ -24,6 +24,13 @@ answer to the observation at ``pose[t]``; ``contact[t]`` is what happened on tha
   recognised: on sightings with the target more than :data:`OFF_CENTRE` off the heading, the share of turn
   commands towards it (a policy that steers at the target it sees turns towards it; one that does not
   react to it turns either way about equally).
+- **other targets**: over robot-trials whose world holds other robots' targets, the share of active steps
+  within ``SUCCESS_RADIUS`` of another robot's target, the share of robot-trials that stay there for at least
+  :data:`LINGER_STEPS` consecutive active steps, and the share of failed robot-trials that end there. A policy
+  that takes another robot's target for its own drives to it and stays (it never arrives there); one that
+  recognises its target passes by. In small mazes every robot passes others' targets often, and a failed
+  robot-trial lasts the whole episode: the exploration expert (``frontier``), which detects only its own
+  target, on the same episodes is the base rate.
 - **progress**: geodesic progress ``geodesic[t] - geodesic[t+1]`` (positive = closer along the shortest
   path): per active step, per metre driven (efficiency: 1 = every metre brings the robot a metre closer,
   ~0 = wandering), split by whether the target was visible, and the net fraction of ℓ covered.
@@ -43,8 +50,12 @@ from typing import Any
 
 import numpy as np
 
+from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.evaluation.diagnose.trace import RobotSteps
 
+LINGER_STEPS = 50
+"""Consecutive active steps (10 s) within ``SUCCESS_RADIUS`` of another robot's target from which a
+robot-trial counts as lingering there."""
 STUCK_WINDOW = 50
 STUCK_DISPLACEMENT = 0.1
 FREE_STEPS = 5
@@ -236,6 +247,36 @@ def sighting_measures(
     return blocks
 
 
+def near_other_target(robot: RobotSteps) -> np.ndarray:
+    """bool ``[n+1]``: the poses within ``SUCCESS_RADIUS`` of another robot's target (all False without
+    ``robot.other_targets``)."""
+    if robot.other_targets is None or not len(robot.other_targets):
+        return np.zeros(robot.pose.shape[0], dtype=bool)
+    offset = robot.pose[:, None, :2] - np.asarray(robot.other_targets)[None, :, :2]  # [n+1, k, 2]
+    return (np.hypot(offset[..., 0], offset[..., 1]) <= SUCCESS_RADIUS).any(axis=1)
+
+
+def longest_run(flags: np.ndarray) -> int:
+    """The length of the longest run of consecutive True values in bool ``flags`` ``[n]`` (0 without one)."""
+    edges = np.diff(np.r_[0, np.asarray(flags, dtype=np.int8), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return int((ends - starts).max()) if starts.size else 0
+
+
+def other_target_measures(robots: Sequence[RobotSteps], linger: int = LINGER_STEPS) -> dict[str, Any]:
+    """The ``other_targets`` block of the summary (module docstring)."""
+    robots = [r for r in robots if r.other_targets is not None and len(r.other_targets)]
+    near = [near_other_target(r)[: r.n] for r in robots]  # active steps
+    failed = [r for r in robots if not r.success]
+    return {
+        "robot_trials": len(robots),
+        "near_step_fraction": _ratio(sum(int(m.sum()) for m in near), sum(r.n for r in robots)),
+        "lingered_fraction": _mean([longest_run(m) >= linger for m in near]),
+        "failures": len(failed),
+        "failures_ending_near_fraction": _mean([bool(near_other_target(r)[-1]) for r in failed]),
+    }
+
+
 def progress_measures(robots: Sequence[RobotSteps], eps: float = PROGRESS_EPS) -> dict[str, Any]:
     """The ``progress`` block of the summary (module docstring)."""
     progress, driven, visible, net = [], [], [], []
@@ -375,6 +416,7 @@ def robot_row(robot: RobotSteps) -> dict[str, Any]:
         "first_contact_step": int(hits[0]) if hits.size else None,
         "steps_to_free": steps_to_free(robot),
         "first_sighting_step": int(seen[0]) if seen.size else None,
+        "steps_near_other_target": int(near_other_target(robot)[: robot.n].sum()),
         "geodesic_start": float(robot.geodesic[0]),
         "geodesic_end": float(robot.geodesic[-1]),
         "path_driven": float(robot.driven.sum()),
@@ -394,6 +436,7 @@ def summarize_robots(robots: Sequence[RobotSteps]) -> dict[str, Any]:
         "walls": wall_measures(robots),
         "circling": circling_measures(robots),
         "sightings": sighting_measures(robots),
+        "other_targets": other_target_measures(robots),
         "progress": progress_measures(robots),
         "commands": command_statistics(actions, starts=starts),
         "phases": phase_measures(robots),

@@ -11,11 +11,13 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from navformer_rl.constants import SUCCESS_RADIUS
 from navformer_rl.evaluation.diagnose.actions import HALF_FIELD_OF_VIEW
 from navformer_rl.evaluation.diagnose.measures import (
     APPROACH_WINDOW,
     ARRIVAL_WINDOW,
     LARGE_TURN,
+    LINGER_STEPS,
     OFF_CENTRE,
     OUTCOMES,
     SIGHTING_RANGES,
@@ -48,6 +50,10 @@ def _sighting(index: int, key: str, formatter: Callable[[Any], str]) -> Render:
         return formatter(entries[index].get(key) if index < len(entries) else None)
 
     return render
+
+
+def _other_targets(key: str) -> Render:
+    return lambda block: _pct(block.get("other_targets", {}).get(key))  # n/a in older diagnoses
 
 
 def _rows(summary: dict[str, Any]) -> list[tuple[str, Render]]:
@@ -104,6 +110,12 @@ def _rows(summary: dict[str, Any]) -> list[tuple[str, Render]]:
             ),
         ]
     rows += [
+        (
+            f"**other robots' targets**: active steps within {SUCCESS_RADIUS:g} m of one",
+            _other_targets("near_step_fraction"),
+        ),
+        (f"robot-trials staying there {LINGER_STEPS}+ steps on end", _other_targets("lingered_fraction")),
+        ("failures ending there", _other_targets("failures_ending_near_fraction")),
         ("**progress** along the shortest path per step (m)", _cell("progress", "per_step", _num(3))),
         ("driven per step (m)", _cell("progress", "driven_per_step", _num(3))),
         ("efficiency (progress / driven)", _cell("progress", "efficiency", _num(2))),

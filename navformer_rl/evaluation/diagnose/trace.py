@@ -100,6 +100,7 @@ class EpisodeTrace:
             dt=self.dt,
             robot_contact=self.contact[:n, i] == 2,
             target=self.target[i].astype(np.float64),
+            other_targets=np.delete(self.target, i, axis=0).astype(np.float64),
         )
 
 
@@ -112,7 +113,8 @@ class RobotSteps:
     ``geodesic`` ``[n+1]`` (metres to the target), ``visible`` bool ``[n+1]``, ``success`` (it arrived on its
     last step), ``dt`` (seconds per step), ``robot_contact`` bool ``[n]`` (the contact was with a robot;
     default: none was), ``target`` float ``[2]`` (its target's centre; default: unknown, and the measures
-    that need it report None).
+    that need it report None), ``other_targets`` float ``[k, 2]`` (the other robots' targets in its world;
+    default: unknown).
     """
 
     pose: np.ndarray
@@ -126,6 +128,7 @@ class RobotSteps:
     dt: float
     robot_contact: np.ndarray | None = None
     target: np.ndarray | None = None
+    other_targets: np.ndarray | None = None
 
     @property
     def n(self) -> int:
