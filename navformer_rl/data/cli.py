@@ -92,6 +92,14 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "instead of the paper's training worlds (default: mazes for e / ssl, the arena for ca)",
     )
     parser.add_argument(
+        "--distractors",
+        type=cli_args.int_at_least(0),
+        default=None,
+        metavar="K",
+        help="e: K more targets in each maze that the robot does not seek, beside its own (not in the paper; "
+        "default 0; fewer where a small maze cannot hold them)",
+    )
+    parser.add_argument(
         "--robots",
         type=robot_range,
         default=None,
@@ -114,6 +122,10 @@ def run_collect(args: argparse.Namespace) -> int:
         return _error("--dagger-policy applies to e and ca (D_ssl has no actions)")
     if args.kind == "e" and args.robots is not None:
         return _error("--robots applies to ca and ssl (D_e has one robot per world)")
+    if args.kind != "e" and args.distractors is not None:
+        return _error(
+            f"--distractors applies to e, not to {args.kind!r} (D_ca's worlds hold every robot's target)"
+        )
     if args.dagger_beta is not None and args.dagger_policy is None:
         return _error("--dagger-beta needs --dagger-policy CHECKPOINT")
     if args.dagger_policy is not None and args.action_noise:
@@ -131,6 +143,8 @@ def run_collect(args: argparse.Namespace) -> int:
     workers = default_workers() if args.workers is None else args.workers
     options = {} if args.action_noise is None else {"action_noise": args.action_noise}
     world_options = {} if args.worlds is None else {"worlds": args.worlds}
+    if args.distractors is not None:
+        options["distractors"] = args.distractors
     if args.dagger_policy is not None:
         from navformer_rl.data.dagger import dagger_settings
 

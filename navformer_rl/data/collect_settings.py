@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from navformer_rl.constants import MAX_EPISODE_STEPS
+from navformer_rl.constants import MAX_EPISODE_STEPS, TARGET_COLORS, TARGET_SHAPES
 from navformer_rl.data.schema import DatasetKind
 from navformer_rl.utils.checks import check_int, check_number
 
@@ -102,6 +102,10 @@ class ExplorationSettings:
     worlds: str = "maze"
     """``"maze"`` (the paper's, sized from ``world_sizes``) or one of :data:`FURNISHED_WORLDS` (each at its
     footprint; ``world_sizes`` unused)."""
+    distractors: int = 0
+    """Targets the robot does not seek, added to each world beside its own (not in the paper; 0, the
+    default, is the paper's one target per maze). The expert detects and drives to its own target only, so
+    the data then shows which of the targets in view the target image names."""
 
 
 @dataclass(frozen=True)
@@ -168,6 +172,13 @@ def settings_for(kind: DatasetKind | str, scale: str = "small", seed: int = 0, *
         raise ValueError(f"unknown {kind.value} collection setting(s) {sorted(unknown)}")
     if "action_noise" in overrides:
         check_number(overrides["action_noise"], f"{kind.value} action_noise", at_least=0.0, at_most=1.0)
+    if "distractors" in overrides:
+        most = len(TARGET_SHAPES) * len(TARGET_COLORS) - 1  # the catalogue beside the robot's own target
+        check_int(overrides["distractors"], f"{kind.value} distractors", minimum=0)
+        if overrides["distractors"] > most:
+            raise ValueError(
+                f"{kind.value} distractors={overrides['distractors']!r}: expected at most {most}"
+            )
     if "worlds" in overrides:
         allowed = (TRAINING_WORLDS[kind.value], *FURNISHED_WORLDS)
         if overrides["worlds"] not in allowed:
@@ -205,11 +216,13 @@ def _check_range(value: Any, name: str, least: int) -> None:
 def settings_record(settings: CollectionSettings) -> dict[str, Any]:
     """The settings as a dataset records them: ``dataclasses.asdict``, with ``dagger`` as
     :meth:`DaggerSettings.record` and left out when None, and ``worlds`` left out when it is the paper's
-    training worlds (so a plain collection records what it always did)."""
+    training worlds and ``distractors`` when 0 (so a plain collection records what it always did)."""
     record = dataclasses.asdict(settings)
     record.pop("dagger", None)
     if record.get("worlds") in TRAINING_WORLDS.values():
         record.pop("worlds")
+    if record.get("distractors") == 0:
+        record.pop("distractors")
     dagger = getattr(settings, "dagger", None)
     if dagger is not None:
         record["dagger"] = dagger.record()

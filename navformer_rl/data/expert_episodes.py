@@ -188,16 +188,25 @@ def world_kind_and_size(worlds: str, sizes: tuple[float, ...], rng: np.random.Ge
 
 def exploration_world(settings: ExplorationSettings, unit: int, k: int):
     """``(world, rng)`` of episode ``k`` of D_e unit ``unit``: a single-robot world of ``settings.worlds``
-    (the paper's: a maze of a size drawn from ``settings.world_sizes``); ``rng`` (numpy Generator) then seeds
-    the expert."""
+    (the paper's: a maze of a size drawn from ``settings.world_sizes``) with ``settings.distractors`` targets
+    beside the robot's own, or as many fewer as the maze holds (drawn from a stream of their own: the maze,
+    the start and the robot's target are those of the plain collection); ``rng`` (numpy Generator) then
+    seeds the expert."""
     from navformer_rl.envs.robots import get_robot_spec
-    from navformer_rl.envs.world import WorldConfig, generate_world
+    from navformer_rl.envs.world import WorldConfig, add_distractor_targets, generate_world
 
     seed = unit_seed(settings.seed, DatasetKind.EXPLORATION, unit, k)
     rng = np.random.default_rng(seed)
     kind, size = world_kind_and_size(settings.worlds, settings.world_sizes, rng)
     radius = get_robot_spec(settings.robot).radius
-    return generate_world(WorldConfig(size=size, kind=kind, n_robots=1, robot_radius=radius), seed), rng
+    world = generate_world(WorldConfig(size=size, kind=kind, n_robots=1, robot_radius=radius), seed)
+    for n in range(settings.distractors, 0, -1):  # a small maze that cannot hold them all: one fewer
+        try:
+            stream = np.random.default_rng(np.random.SeedSequence([seed, 0xD157, n]))
+            return add_distractor_targets(world, n, stream), rng
+        except ValueError:
+            continue
+    return world, rng
 
 
 def collision_avoidance_world(settings: CollisionAvoidanceSettings, unit: int):

@@ -232,7 +232,8 @@ class WorldSpec:
         wall_height: metres.
         occupancy: :class:`OccupancyMap` at 0.05 m of walls and (solid) targets.
         starts: float32 ``[R, 3]`` start poses ``(x, y, yaw)``.
-        targets: one :class:`TargetSpec` per robot, all distinct (shape, colour) pairs.
+        targets: one :class:`TargetSpec` per robot, all distinct (shape, colour) pairs; after them, the
+            targets no robot seeks that :func:`add_distractor_targets` adds (none in a generated world).
         seed: the generator seed.
         config: the :class:`WorldConfig` it was generated from.
         style: a furnished world's :class:`~navformer_rl.envs.furnished.SceneStyle` (each box's colour and
@@ -590,6 +591,58 @@ def replace_layout(world: WorldSpec, starts=None, targets: list[TargetSpec] | No
     if gaps.min(initial=np.inf) < 2 * world.config.robot_radius:
         raise ValueError("two starts overlap (closer than two robot radii)")
     return new
+
+
+def add_distractor_targets(world: WorldSpec, n: int, rng: np.random.Generator) -> WorldSpec:
+    """A copy of ``world`` with ``n`` more targets that no robot seeks, after the robots' own (``targets[i]``
+    stays robot ``i``'s; the simulator renders and collides with every target).
+
+    They are catalogue targets (``world.config``'s shapes x colours) none of the world's targets already is,
+    placed as :func:`generate_world` places targets: 0.9 m from walls, more than 2 m (1.2 m where that does
+    not fit) from one another, from the other targets and from every start, with the free space still one
+    component. ``n = 0`` returns ``world`` itself. ValueError for a negative ``n``, more than the catalogue
+    has left, or when they do not fit.
+    """
+    n = check_int(n, "n", minimum=0)
+    if n == 0:
+        return world
+    config = world.config
+    used = {(t.shape, t.color) for t in world.targets}
+    pairs = [
+        (s, c)
+        for s in dict.fromkeys(config.target_shapes)
+        for c in dict.fromkeys(config.target_colors)
+        if (s, c) not in used
+    ]
+    if n > len(pairs):
+        raise ValueError(
+            f"n={n} distractor targets: the catalogue has {len(pairs)} targets this world does not use yet"
+        )
+    chosen = rng.permutation(len(pairs))[:n]
+    wall_map = OccupancyMap.from_shapes(world.size, OCCUPANCY_RESOLUTION, world.walls)
+    clearance = max(TARGET_HALF_EXTENT.values()) + 2 * config.robot_radius + 0.05
+    avoid = np.concatenate([world.target_positions, world.starts[:, :2]]).astype(np.float64)
+    for attempt in range(40):
+        separation = 2.0 if attempt < 20 else 1.2
+        try:
+            positions = sample_free_positions(
+                wall_map, n, clearance, separation, rng, avoid=avoid, avoid_separation=separation,
+                largest_only=world.style is None,
+            )  # fmt: skip
+        except ValueError:
+            continue
+        extra = [
+            TargetSpec(position=positions[i].astype(np.float32), shape=pairs[k][0], color=pairs[k][1])
+            for i, k in enumerate(chosen)
+        ]
+        targets = [*world.targets, *extra]
+        occupancy = _build_occupancy(world.size, world.walls, targets)
+        if _targets_reachable(occupancy, targets, config.robot_radius):
+            return dataclasses.replace(world, targets=targets, occupancy=occupancy)
+    raise ValueError(
+        f"could not place {n} distractor targets in this {world.size} m {world.kind} beside its "
+        f"{len(world.targets)} targets and {world.n_robots} starts"
+    )
 
 
 def _build_occupancy(size: float, walls: np.ndarray, targets: list[TargetSpec]) -> OccupancyMap:

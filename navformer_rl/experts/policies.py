@@ -87,7 +87,7 @@ class _ExpertBase:
         self.step_count = 0
         self.reached = np.zeros(sim.n_robots, dtype=bool)
         self.failed = np.zeros(sim.n_robots, dtype=bool)
-        self.targets = world.target_positions.astype(np.float64)
+        self.targets = world.target_positions[: sim.n_robots].astype(np.float64)  # robot i's: targets[i]
         self.boxes = world.obstacle_boxes
         self.circles = world.obstacle_circles
         self.lidar = StaticLidar.for_world(world)

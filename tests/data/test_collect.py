@@ -1,6 +1,7 @@
 """Tiny real collections through the simulator and the experts (seeded), resume, and the CLI."""
 
 import ast
+import dataclasses
 import os
 import signal
 import subprocess
@@ -84,7 +85,41 @@ def test_tiny_exploration_collection(tmp_path):
     assert meta["settings"]["world_sizes"] == [5.0] and meta["counts"]["attempted"] >= 2
     assert meta["settings"][VERSIONS_KEY] == data_versions("e") and "code_sha256" not in meta["settings"]
     assert "worlds" not in meta["settings"]  # the training worlds: the identity plain collections always had
+    assert "distractors" not in meta["settings"]
     assert meta["seeds"]["base"] == 0
+
+
+def test_distractor_targets_join_the_mazes_and_the_expert_still_seeks_its_own(tmp_path, capsys):
+    s = settings_for(
+        "e", "small", seed=0, n_trajectories=2, episodes_per_unit=1, world_sizes=(7.5,), distractors=3
+    )
+    ds = open_dataset(collect("e", tmp_path / "e", s, workers=1, progress=False), kind="e")
+    _check_trajectories(
+        ds, task=0, settings=s
+    )  # each ends at its own target and holds its own target's image
+    assert ds.metadata["settings"]["distractors"] == 3
+    plain = dataclasses.replace(s, distractors=0)
+    for unit in range(ds.metadata["counts"]["units"]):
+        with_them, _ = expert_episodes.exploration_world(s, unit, 0)
+        without, _ = expert_episodes.exploration_world(plain, unit, 0)
+        assert len(with_them.targets) == 4 and len(without.targets) == 1
+        assert np.array_equal(with_them.walls, without.walls) and np.array_equal(
+            with_them.starts, without.starts
+        )
+        mine, plain_own = with_them.targets[0], without.targets[0]
+        assert np.array_equal(mine.position, plain_own.position) and (mine.shape, mine.color) == (
+            plain_own.shape,
+            plain_own.color,
+        )
+    with pytest.raises(ValueError, match="e distractors=10: expected at most 9"):
+        settings_for("e", "small", distractors=10)
+    with pytest.raises(ValueError, match="unknown ca collection setting"):
+        settings_for("ca", "small", distractors=1)
+    assert cli_main(["collect", "ca", "--distractors", "2", "--out", str(tmp_path / "ca")]) == 2
+    assert "--distractors applies to e, not to 'ca'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli_main(["collect", "e", "--distractors", "-1", "--out", str(tmp_path / "x")])
+    assert "--distractors" in capsys.readouterr().err
 
 
 def test_tiny_collision_avoidance_collection(tmp_path):

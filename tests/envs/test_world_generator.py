@@ -270,3 +270,29 @@ def test_numpy_scalars_in_a_config_become_python_numbers():
     assert all(type(v) is float for v in config.arena_wall_length)
     json.dumps(dataclasses.asdict(config))  # episode sets store it as JSON
     assert config == WorldConfig(size=12.5, n_robots=2, arena_wall_length=(1.0, 2.0))
+
+
+def test_distractor_targets_are_new_kinds_placed_apart_and_leave_the_robots_targets():
+    from navformer_rl.envs.world import add_distractor_targets
+
+    world = generate_world(WorldConfig(size=10.0, n_robots=2), seed=4)
+    assert add_distractor_targets(world, 0, np.random.default_rng(0)) is world
+    more = add_distractor_targets(world, 3, np.random.default_rng(0))
+    assert len(more.targets) == 5 and more.n_robots == 2
+    assert more.targets[:2] == world.targets  # robot i still seeks targets[i]
+    kinds = [(t.shape, t.color) for t in more.targets]
+    assert len(set(kinds)) == 5  # none repeats a target already there
+    xy = more.target_positions.astype(np.float64)
+    gaps = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))[np.triu_indices(5, 1)]
+    assert gaps.min() > 1.2
+    to_starts = np.hypot(*(xy[2:, None] - world.starts[None, :, :2]).transpose(2, 0, 1))
+    assert to_starts.min() > 1.2
+    for t in more.targets[2:]:  # solid: the occupancy holds them, the old one did not
+        cell = more.occupancy.world_to_cell(t.position)
+        assert more.occupancy.grid[tuple(cell)] and not world.occupancy.grid[tuple(cell)]
+    again = add_distractor_targets(world, 3, np.random.default_rng(0))
+    assert [(t.shape, t.color) for t in again.targets] == kinds  # seeded
+    with pytest.raises(ValueError, match="n=9 distractor targets: the catalogue has 8"):
+        add_distractor_targets(world, 9, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="n must be an integer >= 0"):
+        add_distractor_targets(world, -1, np.random.default_rng(0))
