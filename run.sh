@@ -40,7 +40,7 @@ pip_install() {
 # the tests also cover the optional backends (Ray, Minari), so `test` installs their extras too
 extras="dev"
 if [ "${1:-}" = "test" ]; then extras="dev,distributed,minari"; fi
-stamp="$VENV/.navformer-installed-$(sha256sum < "$REPO/pyproject.toml" | cut -c1-16)-${extras//,/-}"
+stamp="$VENV/.navformer-installed-$(cat "$REPO/pyproject.toml" "$REPO/constraints.txt" | sha256sum | cut -c1-16)-${extras//,/-}"
 if [ ! -f "$stamp" ]; then
     # torch first, pinned, so nothing later pulls the multi-GB CUDA build from the registry.
     # A machine with a local CPU wheel folder (/opt/wheels here) uses it; elsewhere set
@@ -51,7 +51,7 @@ if [ ! -f "$stamp" ]; then
     say "installing torch 2.13.0, CPU build (1 of 2, about a minute)"
     pip_install "${torch_args[@]}"
     say "installing navformer_rl and its dependencies: torchrl, tensordict, pybullet, ... (2 of 2, about a minute)"
-    pip_install -e "$REPO[$extras]"
+    pip_install -c "$REPO/constraints.txt" -e "$REPO[$extras]"   # the tested versions (constraints.txt)
     touch "$stamp"
     say "installed; later runs start at once"
 fi

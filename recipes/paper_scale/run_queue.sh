@@ -44,8 +44,10 @@ install_code() {  # install_code REV: the frozen copy of REV's code in RUN_DIR/v
     local torch=(torch==2.13.0)
     [ -d /opt/wheels ] && torch+=(--find-links /opt/wheels)
     [ -n "${NAVFORMER_TORCH_INDEX:-}" ] && torch+=(--extra-index-url "$NAVFORMER_TORCH_INDEX")
-    python3 -m venv "$venv" && "$venv/bin/pip" install -q "${torch[@]}" && "$venv/bin/pip" install -q "$code" \
-        && touch "$venv/.installed"
+    local pins=()  # the tested dependency versions of the working tree's constraints.txt, for every revision
+    [ -f "$REPO/constraints.txt" ] && pins=(-c "$REPO/constraints.txt")
+    python3 -m venv "$venv" && "$venv/bin/pip" install -q "${torch[@]}" \
+        && "$venv/bin/pip" install -q "${pins[@]}" "$code" && touch "$venv/.installed"
 }
 
 while true; do
