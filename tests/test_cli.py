@@ -137,9 +137,10 @@ def test_run_sh_says_what_each_install_step_does(tmp_path):
     ]
     assert "torch" in steps[1] and "navformer_rl" in steps[2]
     calls = (venv / "calls.txt").read_text().splitlines()
-    assert calls[0].startswith("pip install --quiet torch==") and calls[1].startswith(
-        "pip install --quiet -e "
-    )
+    assert calls[0].startswith("pip install --quiet torch==")
+    assert calls[1].startswith(
+        f"pip install --quiet -c {REPO / 'constraints.txt'} -e "
+    )  # the tested versions
     assert calls[2] == "navformer collect --help"
     again = subprocess.run(run, capture_output=True, text=True, timeout=30, env=env)
     assert again.stderr == ""  # installed: nothing to say
