@@ -1302,6 +1302,13 @@ def test_the_target_swap_sentences_quote_their_records() -> None:
         f"changes by at most 0.003 (standard deviation over frames {min(sds):.2f}-{max(sds):.2f})" in results
     )
     assert all(s["swapped_toward"] >= s["own_toward"] - 0.005 for s in swaps)  # "not ... any less"
+    terms = _target_reading("paper10k", "NavFormer")["head_terms"]
+    assert (
+        f"(sd {terms['target_term_sd'][0]:.4f} between targets, against "
+        f"{terms['observation_term_sd'][0]:.3f} for the observation's term between frames), and with its "
+        "target image swapped for another target's neither model changes its action by more than 0.003"
+        in results
+    )
     ca = json.loads((PROBE_RECORDS / "paper10k_ca" / "probe.json").read_text())
     assert ca["kind"] == "ca" and ca["exploration"] == "data/paper_val/ca"
     assert list(ca["checkpoints"].values()) == ["pretrained:navformer", "pretrained:dt"]
