@@ -1368,3 +1368,24 @@ def test_the_other_target_sentence_quotes_its_diagnoses() -> None:
     )
     excess = [100 * (stay[k] - stay["frontier"]) for k in ("navformer", "dt")]
     assert f"the excess over the expert ({excess[0]:.1f} and {excess[1]:.1f} points)" in studies
+
+
+@pytest.mark.parametrize("name, label", [("navformer", "NavFormer"), ("dt", "DT")])
+def test_the_model_cards_target_image_failure_quotes_the_probe(name: str, label: str) -> None:
+    """The shipped cards' "does not use its target image" failure mode: every number is the paper-scale
+    probe record's."""
+    card = (CARDS / name / "MODEL_CARD.md").read_text()
+    failures = card.split("## Known failure modes", 1)[1].split("\n## ", 1)[0]
+    reading = _target_reading("paper10k", label)
+    swap = reading["target_swap"]
+    change, sd = swap["change"], swap["own_sd"]
+    assert (
+        f"its action changes by {change[0]:.3f} (linear) and {change[1]:.3f} (angular) on average against "
+        f"standard deviations of {sd[0]:.3f} and {sd[1]:.3f} over held-out frames" in failures
+    )
+    assert (
+        f"({100 * swap['own_toward']:.1f} % with its own image, "
+        f"{100 * swap['swapped_toward']:.1f} % with the other)" in failures
+    )
+    if "target_term_sd" in reading["head_terms"]:
+        assert f"(sd {reading['head_terms']['target_term_sd'][0]:.4f} between targets)" in failures
