@@ -27,5 +27,7 @@ FURNISHED_FOOTPRINTS: dict[str, tuple[float, float]] = {
 }
 """Table II's out-of-distribution worlds (paper §VII.B): kind -> footprint ``(x, y)`` in metres."""
 TABLE2_ROBOTS = 3
+TABLE2_TARGETS = 8
+"""Fig. 4: three Jackals and eight target objects in each photorealistic world (five no robot seeks)."""
 TABLE2_TRIALS_PER_KIND = 30
 """Table II: three Jackal robots, 30 trials in each world kind (paper §VII.B)."""

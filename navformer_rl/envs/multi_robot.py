@@ -105,7 +105,8 @@ class MultiRobotNavEnv(EnvBase):
     ``env.world`` (:class:`WorldSpec`) and ``env.simulator`` (:class:`Simulator`) expose the current
     episode; ``env.set_next_episode(EpisodeSpec | WorldSpec)`` makes the next reset replay a fixed
     world, starts and targets (evaluation); its ``world.config.robot_radius`` must cover every robot
-    (ValueError naming both radii otherwise).
+    (ValueError naming both radii otherwise). Robot ``i`` seeks ``world.targets[i]``; targets after the
+    robots' (``world.distractors``) stand in the world, seen and collided with, and no robot seeks them.
 
     ``step`` raises RuntimeError before the first reset, after a reset that failed while building the
     simulator (e.g. starts that overlap a wall), and once the episode has ended (root ``done``: every robot
@@ -244,9 +245,9 @@ class MultiRobotNavEnv(EnvBase):
         self.world = world
         self._ended = False
         a = self.n_agents
-        self._target_xy = world.target_positions.astype(np.float64)
+        self._target_xy = world.robot_target_positions.astype(np.float64)  # distractors are only seen
         self._target_pixels = torch.from_numpy(
-            np.stack([render_target_image(t.shape, t.color) for t in world.targets])
+            np.stack([render_target_image(t.shape, t.color) for t in world.targets[:a]])
         )
         self._shortest = np.array(
             [

@@ -58,8 +58,9 @@ def draw_topdown(
         poses: optional float ``[R, 3]`` current poses, drawn as discs with a heading tick.
         robot_specs: radii for the robot discs (default: Jackal for every robot).
         px_per_m: scale; margin_px: border around the world.
-        show_success_radius: draw each target's 1.5 m success circle (dashed look, in its robot's colour).
-        labels: write the robot index next to each robot and target.
+        show_success_radius: draw each robot's target's 1.5 m success circle (dashed look, in its robot's
+            colour); a target no robot seeks (``world.distractors``) has none.
+        labels: write the robot index next to each robot and its target (``T0``, ...).
 
     ValueError for a non-positive or non-finite ``px_per_m``, a negative or non-integer ``margin_px``,
     trajectories or poses that are not ``(x, y)`` / ``(x, y, yaw)`` rows, or fewer ``robot_specs`` than poses.
@@ -101,7 +102,8 @@ def draw_topdown(
         centre = to_px(target.position)
         rgb = tuple(int(255 * v) for v in target.rgba[:3])
         half = max(2, int(round(target.half_extent * px_per_m)))
-        if show_success_radius:
+        sought = i < world.n_robots
+        if show_success_radius and sought:
             _dashed_circle(img, centre, int(round(SUCCESS_RADIUS * px_per_m)), robot_color(i))
         if target.shape == "sphere":
             cv2.circle(img, centre, half, rgb, -1, cv2.LINE_AA)
@@ -113,7 +115,7 @@ def draw_topdown(
             cv2.rectangle(
                 img, (centre[0] - half, centre[1] - half), (centre[0] + half, centre[1] + half), (0, 0, 0), 1
             )
-        if labels:
+        if labels and sought:
             cv2.putText(
                 img,
                 f"T{i}",

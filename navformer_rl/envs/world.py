@@ -257,8 +257,18 @@ class WorldSpec:
 
     @property
     def target_positions(self) -> np.ndarray:
-        """float32 ``[R, 2]`` target centres."""
+        """float32 ``[T, 2]``: every target's centre, the robots' own first (``T >= R``)."""
         return np.array([t.position for t in self.targets], dtype=np.float32).reshape(-1, 2)
+
+    @property
+    def robot_target_positions(self) -> np.ndarray:
+        """float32 ``[R, 2]``: robot ``i``'s target centre in row ``i`` (the targets the robots seek)."""
+        return self.target_positions[: self.n_robots]
+
+    @property
+    def distractors(self) -> list[TargetSpec]:
+        """The targets no robot seeks (``targets[R:]``; empty in a generated world)."""
+        return self.targets[self.n_robots :]
 
     @property
     def obstacle_boxes(self) -> np.ndarray:
@@ -565,16 +575,18 @@ def check_targets(size: float, walls: np.ndarray, targets: Sequence[TargetSpec])
 
 
 def replace_layout(world: WorldSpec, starts=None, targets: list[TargetSpec] | None = None) -> WorldSpec:
-    """A copy of ``world`` with new ``starts`` float ``[R, 3]`` and/or ``targets`` (occupancy rebuilt).
+    """A copy of ``world`` with new ``starts`` float ``[R, 3]`` and/or ``targets`` (occupancy rebuilt): robot
+    ``i`` seeks ``targets[i]``; targets after the first ``R`` are distractors no robot seeks.
 
-    ValueError when counts disagree, a target fails :func:`check_targets` (unknown or repeated, outside the
-    world, overlapping a wall or another target), or a start overlaps a wall or target or another start."""
+    ValueError when there are fewer targets than starts, a target fails :func:`check_targets` (unknown or
+    repeated, outside the world, overlapping a wall or another target), or a start overlaps a wall, a
+    target or another start."""
     targets = world.targets if targets is None else list(targets)
     starts = world.starts if starts is None else np.asarray(starts, dtype=np.float32)
     if starts.ndim != 2 or starts.shape[1] != 3 or not np.all(np.isfinite(starts)):
         raise ValueError(f"starts must be finite float [R, 3] (x, y, yaw), got shape {starts.shape}")
-    if len(targets) != len(starts):
-        raise ValueError(f"{len(starts)} starts need as many targets, got {len(targets)}")
+    if len(targets) < len(starts):
+        raise ValueError(f"{len(starts)} starts need one target each, got {len(targets)} targets")
     check_targets(world.size, world.walls, targets)
     occupancy = _build_occupancy(world.size, world.walls, targets)
     new = dataclasses.replace(world, starts=starts, targets=targets, occupancy=occupancy)
@@ -599,9 +611,10 @@ def add_distractor_targets(world: WorldSpec, n: int, rng: np.random.Generator) -
 
     They are catalogue targets (``world.config``'s shapes x colours) none of the world's targets already is,
     placed as :func:`generate_world` places targets: 0.9 m from walls, more than 2 m (1.2 m where that does
-    not fit) from one another, from the other targets and from every start, with the free space still one
-    component. ``n = 0`` returns ``world`` itself. ValueError for a negative ``n``, more than the catalogue
-    has left, or when they do not fit.
+    not fit) from one another, from the other targets and from every start, with the free space of a maze
+    still one component (in a furnished world, with its cluttered corners, every start and target still in
+    one component). ``n = 0`` returns ``world`` itself. ValueError for a negative ``n``, more than the
+    catalogue has left, or when they do not fit.
     """
     n = check_int(n, "n", minimum=0)
     if n == 0:
@@ -637,7 +650,13 @@ def add_distractor_targets(world: WorldSpec, n: int, rng: np.random.Generator) -
         ]
         targets = [*world.targets, *extra]
         occupancy = _build_occupancy(world.size, world.walls, targets)
-        if _targets_reachable(occupancy, targets, config.robot_radius):
+        if world.style is None:
+            reachable = _targets_reachable(occupancy, targets, config.robot_radius)
+        else:
+            reachable = _one_component(
+                occupancy, [t.position for t in targets], world.starts, config.robot_radius
+            )
+        if reachable:
             return dataclasses.replace(world, targets=targets, occupancy=occupancy)
     raise ValueError(
         f"could not place {n} distractor targets in this {world.size} m {world.kind} beside its "
@@ -689,6 +708,15 @@ def _targets_reachable(occupancy: OccupancyMap, targets: list[TargetSpec], clear
     if n != 1:
         return False
     return all(labels[occupancy.snap_to_free(t.position, clearance)] == 1 for t in targets)
+
+
+def _one_component(occupancy: OccupancyMap, targets, starts: np.ndarray, clearance: float) -> bool:
+    """True when every target ``(x, y)`` and start lies (snapped to free space) in one component of the free
+    space at ``clearance``; pockets elsewhere do not count."""
+    labels, _ = occupancy.free_components(clearance)
+    points = [*targets, *np.asarray(starts)[:, :2]]
+    found = {int(labels[occupancy.snap_to_free(np.asarray(p, dtype=np.float64), clearance)]) for p in points}
+    return len(found) == 1 and 0 not in found
 
 
 # ---------------------------------------------------------------------------------------------- generator

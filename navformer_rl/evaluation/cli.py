@@ -412,6 +412,13 @@ def _add_generation_options(parser: argparse.ArgumentParser) -> None:
             "with --protocol: only these of its setups, comma-separated (e.g. 7.5m-2r,12.5m-4r; default: all)"
         ),
     )
+    parser.add_argument(
+        "--distractors",
+        type=cli_args.int_at_least(0),
+        help="with --protocol: targets no robot seeks in every episode, beside the robots' own (default: the "
+        "protocol's, table2: 5 for Fig. 4's eight targets, the others 0); the robots' starts and targets do "
+        "not depend on it",
+    )
 
 
 def _setup_names(text: str) -> list[str]:
@@ -434,7 +441,8 @@ def _check_setups(protocol: str, setups: list[str] | None) -> None:
 
 
 _GENERATION_OPTIONS = ("trials_per_setup", "trials_per_world", "episode_seed", "max_steps")
-"""Positional arguments of ``make_protocol_episodes`` after the protocol (``--setups`` is a keyword)."""
+"""Positional arguments of ``make_protocol_episodes`` after the protocol (``--setups`` and ``--distractors``
+are keywords)."""
 
 
 def _generation(args: argparse.Namespace) -> tuple[int | None, ...]:
@@ -467,7 +475,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     if problem is not None:
         raise ValueError(problem)
     if args.episodes is not None:
-        given = [name for name in (*_GENERATION_OPTIONS, "setups") if getattr(args, name) is not None]
+        options = (*_GENERATION_OPTIONS, "setups", "distractors")
+        given = [name for name in options if getattr(args, name) is not None]
         if given:  # the file fixes them: silently ignoring them would run other episodes than asked for
             flags = ", ".join("--" + name.replace("_", "-") for name in given)
             raise ValueError(
@@ -480,7 +489,11 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         # generated here: with Ray, --workers may count a cluster's CPUs
         workers = args.workers if args.backend == "local" else min(args.workers, len(os.sched_getaffinity(0)))
         episode_set = make_protocol_episodes(
-            args.protocol, *_generation(args), workers=workers, setups=args.setups
+            args.protocol,
+            *_generation(args),
+            workers=workers,
+            setups=args.setups,
+            distractors=args.distractors,
         )
     config = EvaluateConfig(
         checkpoint=args.checkpoint,
@@ -516,7 +529,11 @@ def _run_make_episodes(args: argparse.Namespace) -> int:
     out = _output_file(args.make_out, "--out")
     _check_setups(args.make_protocol, args.setups)
     episode_set = make_protocol_episodes(
-        args.make_protocol, *_generation(args), workers=args.make_workers, setups=args.setups
+        args.make_protocol,
+        *_generation(args),
+        workers=args.make_workers,
+        setups=args.setups,
+        distractors=args.distractors,
     )
     if out.exists():  # the same episodes again is fine; anything else would be lost
         try:

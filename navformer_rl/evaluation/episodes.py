@@ -2,8 +2,9 @@
 
 Paper protocol (§VII.A): 60 trials per setup, a new maze every 10 trials, sizes {7.5, 12.5, 17.5} m x
 {2, 4, 6} robots (Table I); Table II (§VII.B): 30 trials in each furnished out-of-distribution world kind
-(``bookstore``, ``cafe``, ``house``, :mod:`navformer_rl.envs.furnished`) with 3 Jackals, a new furniture
-layout every 10 trials (the paper had one fixed world per kind); Table III: 12.5 m, 4 robots, with Jackal
+(``bookstore``, ``cafe``, ``house``, :mod:`navformer_rl.envs.furnished`) with 3 Jackals and eight
+targets (Fig. 4: each robot's own and five that no robot seeks, *distractors*), a new furniture layout every
+10 trials (the paper had one fixed world per kind); Table III: 12.5 m, 4 robots, with Jackal
 ("seen") or TurtleBot3 ("unseen") dynamic obstacles; Table IV: the ablations on 12.5 m, 4 robots. Within one
 world every trial draws new targets (shape, colour, position) and new robot starts ("robots were randomly
 located ... target object locations were randomly chosen").
@@ -19,6 +20,7 @@ File format (``FORMAT`` / ``FORMAT_VERSION``)::
                    "robots": [style per robot], "measured": [bool per robot],
                    "starts": [[x, y, yaw] per robot],
                    "targets": [{"position": [x, y], "shape", "color"} per robot],
+                   "distractors": [{"position", "shape", "color"} per target no robot seeks],  # only if any
                    "shortest_paths": [l_i per robot],            # SPL's l: start -> target, metres
                                                                  # (reach-5 grid, SHORTEST_PATH_REACH)
                    "shortest_paths_to_disc": [per robot],        # start -> 1.5 m success disc (reference)
@@ -51,6 +53,7 @@ from navformer_rl.constants import (
     MAX_EPISODE_STEPS,
     SUCCESS_RADIUS,
     TABLE2_ROBOTS,
+    TABLE2_TARGETS,
     TABLE2_TRIALS_PER_KIND,
 )
 from navformer_rl.utils.durable import atomic_write_text
@@ -72,14 +75,17 @@ PROTOCOL_TRIALS: dict[str, tuple[int, int]] = {"table2": (TABLE2_TRIALS_PER_KIND
 
 @dataclass(frozen=True)
 class Setup:
-    """One experiment setup: world size, robot styles (one per robot), which robots are measured, and the
-    world ``kind`` (``"maze"``, or a furnished kind whose ``size`` is ``max`` of its footprint)."""
+    """One experiment setup: world size, robot styles (one per robot), which robots are measured, the world
+    ``kind`` (``"maze"``, or a furnished kind whose ``size`` is ``max`` of its footprint), and
+    ``distractors``, the number of catalogue targets no robot seeks that each episode adds beside the robots'
+    own."""
 
     name: str
     size: float
     robots: tuple[str, ...]
     measured: tuple[bool, ...]
     kind: str = "maze"
+    distractors: int = 0
 
     @property
     def n_robots(self) -> int:
@@ -96,10 +102,11 @@ def table1_setups() -> list[Setup]:
 
 
 def table2_setups() -> list[Setup]:
-    """Table II: three Jackal robots, every robot measured, in each furnished world kind (setup = kind)."""
+    """Table II: three Jackal robots, every robot measured, in each furnished world kind (setup = kind), with
+    eight targets (Fig. 4): each robot's own and five distractors."""
     return [
         Setup(kind, float(max(FURNISHED_FOOTPRINTS[kind])), ("jackal",) * TABLE2_ROBOTS,
-              (True,) * TABLE2_ROBOTS, kind)
+              (True,) * TABLE2_ROBOTS, kind, TABLE2_TARGETS - TABLE2_ROBOTS)
         for kind in FURNISHED_FOOTPRINTS
     ]  # fmt: skip
 
@@ -157,9 +164,10 @@ class Episode:
     shortest_paths: tuple[float, ...]
     shortest_paths_to_disc: tuple[float, ...]
     seed: int
+    distractors: tuple[dict[str, Any], ...] = ()
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        row = {
             "episode_id": self.episode_id,
             "setup": self.setup,
             "size": self.size,
@@ -179,6 +187,9 @@ class Episode:
             "shortest_paths_to_disc": list(self.shortest_paths_to_disc),
             "seed": self.seed,
         }
+        if self.distractors:  # a set without distractors keeps the content hash it had before they existed
+            row["distractors"] = [dict(t) for t in self.distractors]
+        return row
 
     @classmethod
     def from_json(cls, row: dict[str, Any]) -> Episode:
@@ -199,17 +210,11 @@ class Episode:
                 robots=tuple(str(r) for r in row["robots"]),
                 measured=tuple(bool(m) for m in row["measured"]),
                 starts=tuple(tuple(float(v) for v in s) for s in row["starts"]),
-                targets=tuple(
-                    {
-                        "position": [float(v) for v in t["position"]],
-                        "shape": str(t["shape"]),
-                        "color": str(t["color"]),
-                    }
-                    for t in row["targets"]
-                ),
+                targets=tuple(_target_json(t) for t in row["targets"]),
                 shortest_paths=tuple(float(v) for v in row["shortest_paths"]),
                 shortest_paths_to_disc=tuple(float(v) for v in row["shortest_paths_to_disc"]),
                 seed=int(row["seed"]),
+                distractors=tuple(_target_json(t) for t in row.get("distractors", ())),
             )
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f"episode {row.get('episode_id', '?') if isinstance(row, dict) else '?'} "
@@ -224,7 +229,9 @@ class Episode:
                 raise ValueError(
                     f"episode {episode.episode_id}: {name} has {len(values)} entries, expected n_robots={n}"
                 )
-        if any(len(s) != 3 for s in episode.starts) or any(len(t["position"]) != 2 for t in episode.targets):
+        if any(len(s) != 3 for s in episode.starts) or any(
+            len(t["position"]) != 2 for t in episode.targets + episode.distractors
+        ):
             raise ValueError(
                 f"episode {episode.episode_id}: starts must be [x, y, yaw], target positions [x, y]"
             )
@@ -249,7 +256,7 @@ class Episode:
 
     def world_spec(self):
         """The :class:`~navformer_rl.envs.world.EpisodeSpec` to hand to
-        ``MultiRobotNavEnv.set_next_episode``."""
+        ``MultiRobotNavEnv.set_next_episode`` (its targets: the robots' own, then the distractors)."""
         from navformer_rl.envs.world import EpisodeSpec, TargetSpec
 
         return EpisodeSpec(
@@ -260,7 +267,7 @@ class Episode:
                 TargetSpec(
                     position=np.array(t["position"], dtype=np.float32), shape=t["shape"], color=t["color"]
                 )
-                for t in self.targets
+                for t in self.targets + self.distractors
             ],
         )
 
@@ -340,6 +347,8 @@ def make_episode_set(
     if max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
     workers = check_int(workers, "workers")
+    for setup in setups:
+        _check_distractors(setup)
     worlds = []
     for setup in setups:
         for world_index in range((trials_per_setup + trials_per_world - 1) // trials_per_world):
@@ -379,12 +388,18 @@ def make_protocol_episodes(
     max_steps: int = MAX_EPISODE_STEPS,
     workers: int = 1,
     setups: Sequence[str] | None = None,
+    distractors: int | None = None,
 ) -> EpisodeSet:
     """:func:`make_episode_set` for a named protocol (see :func:`protocol_setups`), or for only the setups it
     names in ``setups`` (e.g. ``["7.5m-2r", "12.5m-4r"]`` of ``table1``; ValueError for a name the protocol
     lacks). A setup's episodes do not depend on which other setups are made. ``trials_per_setup`` /
-    ``trials_per_world`` None: the protocol's (:func:`protocol_trials`: 60 / 10, Table II 30 / 10)."""
+    ``trials_per_world`` None: the protocol's (:func:`protocol_trials`: 60 / 10, Table II 30 / 10).
+    ``distractors``: targets no robot seeks in every episode (None: the protocol's, Table II 5 (Fig. 4), the
+    others 0 (§VII.A: "each robot had a different target object")). The robots' starts and targets do not
+    depend on it, so episode sets that differ only in ``distractors`` pair robot-trial by robot-trial."""
     chosen = protocol_setups(protocol)
+    if distractors is not None:
+        chosen = [dataclasses.replace(s, distractors=distractors) for s in chosen]
     default_setup, default_world = protocol_trials(protocol)
     trials_per_setup = default_setup if trials_per_setup is None else trials_per_setup
     trials_per_world = default_world if trials_per_world is None else trials_per_world
@@ -480,12 +495,40 @@ def _world_config(fields: dict[str, Any]):
 
 
 def _setup_record(setup: Setup) -> dict[str, Any]:
-    """A setup's fields for ``generation.setups``; a maze setup's record leaves out its kind (maze sets keep
-    the content hash they had before furnished kinds existed)."""
+    """A setup's fields for ``generation.setups``; a maze setup's record leaves out its kind, and one without
+    distractors their count (such sets keep the content hash they had before these fields existed)."""
     record = dataclasses.asdict(setup)
     if record["kind"] == "maze":
         del record["kind"]
+    if record["distractors"] == 0:
+        del record["distractors"]
     return record
+
+
+def _check_distractors(setup: Setup) -> None:
+    """ValueError naming the setup unless its ``distractors`` is an integer >= 0 that leaves the target
+    catalogue (shapes x colours) enough distinct targets for its robots and distractors."""
+    from navformer_rl.constants import TARGET_COLORS, TARGET_SHAPES
+
+    catalogue = len(TARGET_SHAPES) * len(TARGET_COLORS)
+    if isinstance(setup.distractors, bool) or not isinstance(setup.distractors, int) or setup.distractors < 0:
+        raise ValueError(f"setup {setup.name}: distractors={setup.distractors!r}, expected an integer >= 0")
+    if setup.n_robots + setup.distractors > catalogue:
+        raise ValueError(
+            f"setup {setup.name}: distractors={setup.distractors} with {setup.n_robots} robots needs "
+            f"{setup.n_robots + setup.distractors} distinct targets; the catalogue has {catalogue}, so at "
+            f"most {catalogue - setup.n_robots} distractors"
+        )
+
+
+def _target_json(target: dict[str, Any]) -> dict[str, Any]:
+    """A target object of an episode row, its fields typed (KeyError, TypeError or ValueError if
+    malformed)."""
+    return {
+        "position": [float(v) for v in target["position"]],
+        "shape": str(target["shape"]),
+        "color": str(target["color"]),
+    }
 
 
 def _jsonable(value: Any) -> Any:
@@ -527,6 +570,7 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
         OCCUPANCY_RESOLUTION,
         TARGET_HALF_EXTENT,
         TargetSpec,
+        add_distractor_targets,
         replace_layout,
         sample_free_positions,
         sample_start_poses,
@@ -555,6 +599,10 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
     )
     starts = sample_start_poses(dataclasses.replace(with_targets, occupancy=occupancy), setup.n_robots, rng)
     world = replace_layout(base, starts=starts, targets=targets)
+    # Distractors draw from their own stream: the robots' starts and targets, and the episode seed, are those
+    # of the same episode without them. They are obstacles too, so l is measured around them.
+    distractor_rng = np.random.default_rng(np.random.SeedSequence([world_seed, trial, 0xD157]))
+    world = add_distractor_targets(world, setup.distractors, distractor_rng)
     shortest, to_disc = [], []
     for i, spec in enumerate(specs):
         l_target, l_disc = _shortest_paths(world.occupancy, starts[i, :2], targets[i].position, spec.radius)
@@ -583,6 +631,10 @@ def _make_episode(setup: Setup, base, world_index: int, trial: int) -> Episode:
         shortest_paths=tuple(round(float(v), 6) for v in shortest),
         shortest_paths_to_disc=tuple(round(float(v), 6) for v in to_disc),
         seed=episode_seed,
+        distractors=tuple(
+            {"position": [round(float(v), 6) for v in t.position], "shape": t.shape, "color": t.color}
+            for t in world.distractors
+        ),
     )
 
 

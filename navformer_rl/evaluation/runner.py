@@ -157,7 +157,7 @@ class EpisodeRunner:
             )
             path = save_map_png(image, Path(task.out_dir) / "maps" / f"{name}.png", f"{title} | {outcome}")
             maps.append(str(path.relative_to(task.out_dir)))
-        final_distance = np.hypot(*(poses[:, :2] - world.target_positions.astype(np.float64)).T)
+        final_distance = np.hypot(*(poses[:, :2] - world.robot_target_positions.astype(np.float64)).T)
         records = robot_trials(task.label, episode, tracker, final_distance)
         return {"records": records, "maps": maps, "videos": videos}
 
@@ -168,7 +168,7 @@ class EpisodeRunner:
         cameras = td.get(("agents", "pixels")).numpy()
         targets = td.get(("agents", "target_pixels")).numpy()
         collided = td.get(("agents", "collision")).numpy().reshape(-1)
-        distance = np.hypot(*(poses[:, :2] - world.target_positions).T)
+        distance = np.hypot(*(poses[:, :2] - world.robot_target_positions).T)
         status = []
         for i in range(len(poses)):
             if tracker.success[i]:

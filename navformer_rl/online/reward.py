@@ -99,7 +99,7 @@ class ShapedNavReward(Transform):
         # the env's reset computed the same fields for shortest_path_length: these come from its cache
         self._fields = [
             world.occupancy.distance_field(target, clearance, goal_radius=SUCCESS_RADIUS)
-            for target, clearance in zip(world.target_positions, self._clearances)
+            for target, clearance in zip(world.robot_target_positions, self._clearances)
         ]
         tensordict_reset.set(GEODESIC_KEY, self._distances(tensordict_reset.get(("privileged", "pose"))))
         return tensordict_reset

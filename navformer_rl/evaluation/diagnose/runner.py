@@ -98,6 +98,7 @@ class TraceRunner:
             geodesic=geodesic.astype(np.float32),
             visible=visible,
             target=geometry.targets[:, :2].astype(np.float32),
+            distractors=geometry.distractors.astype(np.float32),
             success_step=success_step,
             measured=np.array(episode.measured, dtype=bool),
             shortest_path=np.array(episode.shortest_paths, dtype=np.float64),

@@ -21,7 +21,9 @@ visible    bool [T+1, R]     the target's centre is in the camera's field of vie
 Per robot: ``target`` float32 ``[R, 2]`` (its target's centre), ``success_step`` int64 ``[R]`` (steps
 taken when it arrived, -1 if never: it was *active* on steps ``t < success_step``, as in
 :class:`~navformer_rl.evaluation.measures.TrialTracker`), ``measured``, ``shortest_path`` (ℓ of the
-episode), ``v_max`` / ``w_max``. Traces are saved as one compressed ``.npz``
+episode), ``v_max`` / ``w_max``. Per episode: ``distractors`` float32 ``[K, 2]``, the centres of the
+targets no robot seeks (``K = 0`` in most episode sets; a trace saved before the field existed loads with
+none). Traces are saved as one compressed ``.npz``
 per episode (:func:`save_trace`, atomic) with a resume ``key``.
 
 :class:`EpisodeGeometry` answers the geometric questions per world: one Dijkstra per robot from its
@@ -35,7 +37,7 @@ import json
 import math
 import os
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +49,8 @@ TRACE_VERSION = 2
 
 ARRAY_FIELDS = ("pose", "action", "velocity", "contact", "distance", "geodesic", "visible")
 ROBOT_FIELDS = ("target", "success_step", "measured", "shortest_path", "v_max", "w_max")
+OPTIONAL_FIELDS = ("distractors",)
+"""Arrays a trace may lack (written before they existed): each loads as empty."""
 
 
 @dataclass
@@ -71,6 +75,7 @@ class EpisodeTrace:
     v_max: np.ndarray
     w_max: np.ndarray
     key: str = ""
+    distractors: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
 
     @property
     def steps(self) -> int:
@@ -100,7 +105,9 @@ class EpisodeTrace:
             dt=self.dt,
             robot_contact=self.contact[:n, i] == 2,
             target=self.target[i].astype(np.float64),
-            other_targets=np.delete(self.target, i, axis=0).astype(np.float64),
+            other_targets=np.concatenate([np.delete(self.target, i, axis=0), self.distractors]).astype(
+                np.float64
+            ),
         )
 
 
@@ -113,8 +120,8 @@ class RobotSteps:
     ``geodesic`` ``[n+1]`` (metres to the target), ``visible`` bool ``[n+1]``, ``success`` (it arrived on its
     last step), ``dt`` (seconds per step), ``robot_contact`` bool ``[n]`` (the contact was with a robot;
     default: none was), ``target`` float ``[2]`` (its target's centre; default: unknown, and the measures
-    that need it report None), ``other_targets`` float ``[k, 2]`` (the other robots' targets in its world;
-    default: unknown).
+    that need it report None), ``other_targets`` float ``[k, 2]`` (every other target in its world: the other
+    robots' and the distractors; default: unknown).
     """
 
     pose: np.ndarray
@@ -152,7 +159,7 @@ def save_trace(trace: EpisodeTrace, path: str | os.PathLike) -> Path:
         "dt": trace.dt,
         "key": trace.key,
     }
-    arrays = {name: getattr(trace, name) for name in ARRAY_FIELDS + ROBOT_FIELDS}
+    arrays = {name: getattr(trace, name) for name in ARRAY_FIELDS + ROBOT_FIELDS + OPTIONAL_FIELDS}
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
         np.savez_compressed(handle, meta=np.array(json.dumps(meta)), **arrays)
     return path
@@ -165,6 +172,7 @@ def load_trace(path: str | os.PathLike) -> EpisodeTrace:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             arrays = {name: data[name] for name in ARRAY_FIELDS + ROBOT_FIELDS}
+            arrays |= {name: data[name] for name in OPTIONAL_FIELDS if name in data.files}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
         raise ValueError(f"{path}: not a diagnosis trace ({error})") from None
     if meta.get("version") != TRACE_VERSION:
@@ -192,7 +200,8 @@ class EpisodeGeometry:
     def __init__(self, world, specs, reach: int = 5) -> None:
         self.world = world
         self.specs = list(specs)
-        self.targets = np.asarray(world.target_positions, dtype=np.float64)
+        self.targets = np.asarray(world.robot_target_positions, dtype=np.float64)
+        self.distractors = np.asarray(world.target_positions[world.n_robots :], dtype=np.float64)  # [K, 2]
         self.fields = [
             world.occupancy.distance_field(self.targets[i], spec.radius, reach=reach)
             for i, spec in enumerate(self.specs)
