@@ -71,7 +71,7 @@ def test_the_committed_table2_set_without_distractors_is_regenerated_row_for_row
     import gzip
     from pathlib import Path
 
-    record = Path(__file__).parents[2] / "docs/results/paper10k/table2/dt_10k_s0_it10000"
+    record = Path(__file__).parents[2] / "docs/results/paper10k/table2_one_target/dt_10k_s0_it10000"
     run = json.loads((record / "run.json").read_text())
     assert run["episode_set"]["content_sha256"].startswith("9d7d08dbf0ba")
     made = make_protocol_episodes("table2", trials_per_setup=1, setups=["house"], distractors=0)
