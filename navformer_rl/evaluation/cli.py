@@ -207,6 +207,15 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
         required=False,
     )
     compare.add_argument(
+        "--episodes",
+        dest="compare_episodes",
+        type=Path,
+        nargs="+",
+        metavar="FILE",
+        help="the episode files of folders that ran different sets: they pair when the sets hold the same "
+        "robots and differ only in their distractors (e.g. table2 against --distractors 0)",
+    )
+    compare.add_argument(
         "--out",
         dest="compare_out",
         type=Path,
@@ -563,14 +572,12 @@ def _run_unseen(args: argparse.Namespace) -> int:
 
 
 def _run_compare(args: argparse.Namespace) -> int:
-    from navformer_rl.evaluation.paired import (
-        paired_differences,
-        paired_markdown,
-        pooled_paired_differences,
-    )
+    from navformer_rl.evaluation.episodes import load_episode_set
+    from navformer_rl.evaluation.paired import paired_markdown, pooled_paired_differences
     from navformer_rl.utils.durable import atomic_write_text
 
     out = _output_file(args.compare_out, "--out") if args.compare_out is not None else None
+    episode_sets = [load_episode_set(path) for path in args.compare_episodes or []]
     groups = args.compare_groups or []
     positional = [folder for folder in (args.compare_a, args.compare_b) if folder is not None]
     if groups:
@@ -587,9 +594,12 @@ def _run_compare(args: argparse.Namespace) -> int:
             [Path(f) for f in folders_b],
             (name_a, name_b),
             cluster=args.cluster_by,
+            episode_sets=episode_sets,
         )
     elif len(positional) == 2:
-        labels, rows = paired_differences(args.compare_a, args.compare_b, cluster=args.cluster_by)
+        labels, rows = pooled_paired_differences(
+            [args.compare_a], [args.compare_b], cluster=args.cluster_by, episode_sets=episode_sets
+        )
     else:
         raise ValueError(
             "compare needs two evaluation folders A B, or two --group NAME FOLDER... (one folder per seed)"

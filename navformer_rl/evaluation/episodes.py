@@ -312,6 +312,15 @@ class EpisodeSet:
     def content_hash(self) -> str:
         return hashlib.sha256(_canonical(self.content()).encode()).hexdigest()
 
+    def robots_hash(self) -> str:
+        """sha256 of what the robots face, without the distractors: every episode's id, world, robots, starts,
+        targets and seed, and ``max_steps``. Two sets with the same ``robots_hash`` differ at most in their
+        distractors (and so in ℓ, measured around them): their evaluations pair robot-trial by robot-trial."""
+        varying = ("distractors", "shortest_paths", "shortest_paths_to_disc")
+        rows = [{k: v for k, v in e.to_json().items() if k not in varying} for e in self.episodes]
+        faced = {"max_steps": self.max_steps, "episodes": rows}
+        return hashlib.sha256(_canonical(faced).encode()).hexdigest()
+
 
 def walls_digest(walls: np.ndarray) -> str:
     """sha256 of the float32 wall boxes ``[W, 4]`` (identifies a maze)."""

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from navformer_rl.evaluation.episodes import SEEN_SUFFIX, UNSEEN_SUFFIX
+from navformer_rl.evaluation.episodes import SEEN_SUFFIX, UNSEEN_SUFFIX, EpisodeSet
 from navformer_rl.evaluation.measures import (
     RobotTrial,
     bootstrap_mean_interval,
@@ -199,6 +199,7 @@ def pooled_paired_differences(
     confidence: float = 0.95,
     seed: int = 0,
     n_resamples: int = 10_000,
+    episode_sets: Sequence[EpisodeSet] = (),
 ) -> tuple[tuple[str, str], list[PairedDifference]]:
     """``A - B`` per setup and pooled (``all``, last) for two models, each given as the evaluation folders of
     its training seeds on one episode set (module docstring: each robot-trial's mean over a side's seeds; a
@@ -209,11 +210,14 @@ def pooled_paired_differences(
         names: ``(name of A, name of B)``; None: the folders' labels (one folder per side) or
             ``"label + N seeds"``.
         cluster, confidence, seed, n_resamples: as :func:`paired_differences`.
+        episode_sets: the episode sets of folders that ran different sets, which then pair when the sets
+            hold the same robots (:meth:`EpisodeSet.robots_hash`: they differ only in their distractors,
+            e.g. ``--distractors 0`` against a protocol's default); empty: every folder ran one set.
 
     Raises:
         FileNotFoundError: a folder that is not a finished evaluation.
-        ValueError: a side with no folder or the same folder twice, folders of different episode sets, or
-            one lacking robot-trials of another.
+        ValueError: a side with no folder or the same folder twice, folders of different episode sets (unless
+            ``episode_sets`` shows they hold the same robots), or one lacking robot-trials of another.
     """
     check_cluster(cluster)
     sides = [[Path(f) for f in folders_a], [Path(f) for f in folders_b]]
@@ -227,13 +231,23 @@ def pooled_paired_differences(
     folders = [*sides[0], *sides[1]]
     runs = [read_run(folder) for folder in folders]
     digests = [(run.get("episode_set") or {}).get("content_sha256") for run in runs]
+    robots = {episode_set.content_hash(): episode_set.robots_hash() for episode_set in episode_sets}
     for folder, digest in zip(folders[1:], digests[1:], strict=True):
-        if digests[0] is None or digest != digests[0]:
+        if digests[0] is not None and digest == digests[0]:
+            continue
+        if digests[0] in robots and digest in robots:
+            if robots[digest] == robots[digests[0]]:
+                continue
             raise ValueError(
-                f"{folders[0]} and {folder} ran different episode sets (content_sha256 "
-                f"{str(digests[0])[:12]} vs {str(digest)[:12]}); a paired comparison needs every evaluation "
-                "run with the same --episodes file"
+                f"{folders[0]} and {folder} ran episode sets ({digests[0][:12]}, {digest[:12]}) whose robots "
+                "differ (other worlds, starts or targets); only sets that differ in their distractors pair"
             )
+        raise ValueError(
+            f"{folders[0]} and {folder} ran different episode sets (content_sha256 "
+            f"{str(digests[0])[:12]} vs {str(digest)[:12]}); a paired comparison needs every evaluation "
+            "run with the same --episodes file, or both sets' files (compare --episodes) when they differ "
+            "only in their distractors"
+        )
     labels = [str(run.get("label")) for run in runs]
     if names is None:
         k_a = len(sides[0])

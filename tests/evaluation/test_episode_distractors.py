@@ -211,3 +211,38 @@ def test_make_episodes_cli_takes_distractors_and_evaluate_refuses_them_with_a_fi
     with pytest.raises(SystemExit):
         _run(["evaluate", "make-episodes", "--protocol", "smoke", "--distractors", "-1", "--out", str(out)])
     assert TINY_SETUP.distractors == 0
+
+
+def test_sets_that_differ_only_in_distractors_share_their_robots_hash(pair):
+    plain, with_distractors = pair
+    assert plain.content_hash() != with_distractors.content_hash()
+    assert plain.robots_hash() == with_distractors.robots_hash()
+    other = make_episode_set([SETUP], trials_per_setup=2, trials_per_world=2, seed=5, max_steps=10)
+    assert other.robots_hash() != plain.robots_hash()
+
+
+def test_compare_pairs_runs_of_sets_that_differ_only_in_distractors(tmp_path, pair):
+    from navformer_rl.evaluation.harness import evaluate
+    from navformer_rl.evaluation.paired import pooled_paired_differences
+
+    from .test_cli_and_report import _run
+
+    plain, with_distractors = pair
+    other = make_episode_set([SETUP], trials_per_setup=2, trials_per_world=2, seed=5, max_steps=10)
+    folders = {}
+    for name, episodes in (("plain", plain), ("with", with_distractors), ("other", other)):
+        folders[name] = tmp_path / name
+        evaluate("vrw", episodes, folders[name], seed=3, maps_per_setup=0, videos_per_setup=0, progress=False)
+    with pytest.raises(ValueError, match="ran different episode sets .* or both sets' files"):
+        pooled_paired_differences([folders["with"]], [folders["plain"]])
+    _, rows = pooled_paired_differences(
+        [folders["with"]], [folders["plain"]], episode_sets=[plain, with_distractors]
+    )
+    assert rows[-1].setup == "all" and rows[-1].n_robot_trials == 4  # 2 trials x 2 robots, matched
+    with pytest.raises(ValueError, match="whose robots differ"):
+        pooled_paired_differences([folders["other"]], [folders["plain"]], episode_sets=[plain, other])
+    files = [save_episode_set(s, tmp_path / f"{n}.json") for n, s in (("p", plain), ("w", with_distractors))]
+    out = tmp_path / "compare.md"
+    argv = ["evaluate", "compare", str(folders["with"]), str(folders["plain"]), "--out", str(out)]
+    assert _run([*argv, "--episodes", *map(str, files)]) == 0
+    assert "| all |" in out.read_text()
