@@ -612,8 +612,9 @@ def add_distractor_targets(world: WorldSpec, n: int, rng: np.random.Generator) -
     They are catalogue targets (``world.config``'s shapes x colours) none of the world's targets already is,
     placed as :func:`generate_world` places targets: 0.9 m from walls, more than 2 m (1.2 m where that does
     not fit) from one another, from the other targets and from every start, with the free space of a maze
-    still one component (in a furnished world, with its cluttered corners, every start and target still in
-    one component). ``n = 0`` returns ``world`` itself. ValueError for a negative ``n``, more than the
+    still one component when it was one (a generated maze's always is; in a furnished world, with its
+    cluttered corners, or a maze whose layout already left pockets, every start and target still in one
+    component). ``n = 0`` returns ``world`` itself. ValueError for a negative ``n``, more than the
     catalogue has left, or when they do not fit.
     """
     n = check_int(n, "n", minimum=0)
@@ -635,6 +636,7 @@ def add_distractor_targets(world: WorldSpec, n: int, rng: np.random.Generator) -
     wall_map = OccupancyMap.from_shapes(world.size, OCCUPANCY_RESOLUTION, world.walls)
     clearance = max(TARGET_HALF_EXTENT.values()) + 2 * config.robot_radius + 0.05
     avoid = np.concatenate([world.target_positions, world.starts[:, :2]]).astype(np.float64)
+    strict = world.style is None and world.occupancy.free_components(config.robot_radius)[1] == 1
     for attempt in range(40):
         separation = 2.0 if attempt < 20 else 1.2
         try:
@@ -650,7 +652,7 @@ def add_distractor_targets(world: WorldSpec, n: int, rng: np.random.Generator) -
         ]
         targets = [*world.targets, *extra]
         occupancy = _build_occupancy(world.size, world.walls, targets)
-        if world.style is None:
+        if strict:
             reachable = _targets_reachable(occupancy, targets, config.robot_radius)
         else:
             reachable = _one_component(

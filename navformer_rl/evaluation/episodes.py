@@ -35,6 +35,7 @@ turned into a world the maze is regenerated from ``(config, seed)`` and its wall
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import hashlib
 import json
 import os
@@ -450,13 +451,15 @@ def save_episode_set(episode_set: EpisodeSet, path: str | os.PathLike) -> Path:
 
 
 def load_episode_set(path: str | os.PathLike) -> EpisodeSet:
-    """Read and verify an episode-set file (see the module docstring for what is refused)."""
+    """Read and verify an episode-set file, or its gzip (``.json.gz``, as the committed records keep them; see
+    the module docstring for what is refused)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no episode-set file at {str(path)!r}")
     try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raw = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+        document = json.loads(raw.decode("utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError, gzip.BadGzipFile, EOFError) as error:
         raise ValueError(f"{path} is not a valid episode-set file (not JSON: {error})") from None
     if not isinstance(document, dict) or document.get("format") != FORMAT:
         found = document.get("format") if isinstance(document, dict) else type(document).__name__

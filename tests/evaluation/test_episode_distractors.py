@@ -246,3 +246,21 @@ def test_compare_pairs_runs_of_sets_that_differ_only_in_distractors(tmp_path, pa
     argv = ["evaluate", "compare", str(folders["with"]), str(folders["plain"]), "--out", str(out)]
     assert _run([*argv, "--episodes", *map(str, files)]) == 0
     assert "| all |" in out.read_text()
+
+
+def test_a_maze_whose_layout_left_pockets_still_takes_its_distractors():
+    """Table I 12.5m-6r world 4 trial 49: its six targets leave one-cell pockets in the free space, so the
+    free space is not one component before any distractor; distractors then keep every start and target in
+    one component (a generated world, one component, keeps the stricter rule D_e's data was made with)."""
+    from navformer_rl.evaluation.episodes import _make_episode, _make_world
+
+    (setup,) = [s for s in protocol_setups("table1") if s.name == "12.5m-6r"]
+    base = _make_world(setup, 4, 0)
+    plain = _make_episode(setup, base, 4, 49).world_spec().build()
+    assert plain.occupancy.free_components(plain.config.robot_radius)[1] > 1
+    episode = _make_episode(dataclasses.replace(setup, distractors=4), base, 4, 49)
+    world = episode.world_spec().build()
+    labels, _ = world.occupancy.free_components(world.config.robot_radius)
+    points = [t.position for t in world.targets] + list(world.starts[:, :2])
+    assert len(world.distractors) == 4
+    assert len({int(labels[world.occupancy.snap_to_free(p, world.config.robot_radius)]) for p in points}) == 1

@@ -1389,3 +1389,27 @@ def test_the_model_cards_target_image_failure_quotes_the_probe(name: str, label:
     )
     if "target_term_sd" in reading["head_terms"]:
         assert f"(sd {reading['head_terms']['target_term_sd'][0]:.4f} between targets)" in failures
+
+
+EPISODE_FILES = DATA_SCALING.parent / "episodes"
+T2_ONE_TARGET = {
+    "navformer": PAPER10K / "table2_one_target" / "navformer_10k_s0_runb_it10000",
+    "dt": PAPER10K / "table2_one_target" / "dt_10k_s0_it10000",
+    "vrw": BASELINES / "table2_one_target" / "vrw",
+    "fca": BASELINES / "table2_one_target" / "fca",
+}
+
+
+@pytest.mark.parametrize(
+    "name, records",
+    [("table1_60", T1), ("table2", T2), ("table2_one_target", T2_ONE_TARGET), ("table3", T3)],
+)
+def test_the_committed_episode_files_are_the_ones_the_records_ran(name: str, records: dict) -> None:
+    from navformer_rl.evaluation.episodes import load_episode_set
+
+    episode_set = load_episode_set(EPISODE_FILES / f"{name}.json.gz")
+    for folder in records.values():
+        run = json.loads((folder / "run.json").read_text())
+        assert run["episode_set"]["content_sha256"] == episode_set.content_hash(), folder
+    assert f"`{name}.json.gz`" in (EPISODE_FILES / "README.md").read_text()
+    assert f"`{episode_set.content_hash()[:12]}...`" in (EPISODE_FILES / "README.md").read_text()
