@@ -1101,7 +1101,7 @@ def test_the_prose_of_results_md_quotes_the_records() -> None:
         in text
     )
     table2 = paired_differences(T2["navformer"], T2["dt"])[1][-1]
-    assert f"CR is level too ({_paired(table2, 'cr')})" in text
+    assert f"DT collides more (CR {_paired(table2, 'cr')}, NavFormer - DT)" in text.replace("\\*", "*")
     t2 = {name: _summaries(folder)["all"].sr for name, folder in T2.items()}
     assert (
         f"NavFormer falls from {100 * nf['all'].sr:.1f} % on Table I to {100 * t2['navformer']:.1f} %" in text
@@ -1392,6 +1392,7 @@ def test_the_model_cards_target_image_failure_quotes_the_probe(name: str, label:
 
 
 EPISODE_FILES = DATA_SCALING.parent / "episodes"
+T2_NAMES = {"navformer": "NavFormer", "dt": "DT", "vrw": "VRW", "fca": "FCA"}
 T2_ONE_TARGET = {
     "navformer": PAPER10K / "table2_one_target" / "navformer_10k_s0_runb_it10000",
     "dt": PAPER10K / "table2_one_target" / "dt_10k_s0_it10000",
@@ -1413,3 +1414,22 @@ def test_the_committed_episode_files_are_the_ones_the_records_ran(name: str, rec
         assert run["episode_set"]["content_sha256"] == episode_set.content_hash(), folder
     assert f"`{name}.json.gz`" in (EPISODE_FILES / "README.md").read_text()
     assert f"`{episode_set.content_hash()[:12]}...`" in (EPISODE_FILES / "README.md").read_text()
+
+
+def test_table2_distractor_table_is_each_method_paired_with_its_one_target_run() -> None:
+    """What the five distractors cost: each method on Table II's eight-target trials against the same robots
+    with their own three targets only (two episode sets with one robots_hash)."""
+    from navformer_rl.evaluation.episodes import load_episode_set
+    from navformer_rl.evaluation.paired import pooled_paired_differences
+
+    sets = [load_episode_set(EPISODE_FILES / f"{name}.json.gz") for name in ("table2", "table2_one_target")]
+    assert sets[0].robots_hash() == sets[1].robots_hash()
+    rows = _table_under("Table II: furnished worlds (§VII.B)", 1)
+    assert [row[0] for row in rows] == list(T2_NAMES.values())
+    for row, name in zip(rows, T2_NAMES):
+        _, pairs = pooled_paired_differences([T2[name]], [T2_ONE_TARGET[name]], episode_sets=sets)
+        d = pairs[-1]
+        assert d.setup == "all" and d.n_robot_trials == 270
+        expected = [f"{100 * d.b['sr']:.1f} % -> {100 * d.a['sr']:.1f} %"]
+        expected += [_paired(d), _paired(d, "spl"), _paired(d, "cr")]
+        assert row[1:] == expected, name
