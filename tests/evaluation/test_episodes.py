@@ -216,3 +216,15 @@ def test_table2_episodes_carry_their_world_kind(tmp_path):
         )
         assert np.hypot(*(xy - world.targets[i].position)) > 1.5
     assert len({(t["shape"], t["color"]) for t in episode.targets}) == 3
+
+
+def test_a_gzipped_episode_file_loads_like_the_plain_one(tmp_path, small_set):
+    import gzip
+
+    plain = save_episode_set(small_set, tmp_path / "set.json")
+    packed = tmp_path / "set.json.gz"
+    packed.write_bytes(gzip.compress(plain.read_bytes()))
+    assert load_episode_set(packed) == small_set
+    packed.write_bytes(packed.read_bytes()[:40])
+    with pytest.raises(ValueError, match="not a valid episode-set file"):
+        load_episode_set(packed)
