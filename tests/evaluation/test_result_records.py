@@ -1403,7 +1403,16 @@ T2_ONE_TARGET = {
 
 @pytest.mark.parametrize(
     "name, records",
-    [("table1_60", T1), ("table2", T2), ("table2_one_target", T2_ONE_TARGET), ("table3", T3)],
+    [
+        ("table1_60", T1),
+        (
+            "table1_60_d4",
+            {n: DATA_SCALING.parent / "distractors" / "table1_d4" / T1[n].name for n in ("navformer", "dt")},
+        ),
+        ("table2", T2),
+        ("table2_one_target", T2_ONE_TARGET),
+        ("table3", T3),
+    ],
 )
 def test_the_committed_episode_files_are_the_ones_the_records_ran(name: str, records: dict) -> None:
     from navformer_rl.evaluation.episodes import load_episode_set
@@ -1433,3 +1442,36 @@ def test_table2_distractor_table_is_each_method_paired_with_its_one_target_run()
         expected = [f"{100 * d.b['sr']:.1f} % -> {100 * d.a['sr']:.1f} %"]
         expected += [_paired(d), _paired(d, "spl"), _paired(d, "cr")]
         assert row[1:] == expected, name
+
+
+def test_studies_distractor_table_is_each_policy_paired_with_its_table1_run() -> None:
+    """studies.md "What other targets cost in closed loop": each shipped policy on Table I with four
+    distractors against its Table I record (the same robots), and NavFormer - DT without and with them."""
+    from navformer_rl.evaluation.episodes import load_episode_set
+    from navformer_rl.evaluation.paired import pooled_paired_differences
+
+    sets = [load_episode_set(EPISODE_FILES / f"{name}.json.gz") for name in ("table1_60_d4", "table1_60")]
+    assert sets[0].robots_hash() == sets[1].robots_hash()
+    folders = {
+        name: DATA_SCALING.parent / "distractors" / "table1_d4" / T1[name].name
+        for name in ("navformer", "dt")
+    }
+    (rows,) = [
+        r for title, r in _page_tables(STUDIES_PAGE) if title == "What other targets cost in closed loop"
+    ]
+    assert [row[0] for row in rows] == [
+        "NavFormer (`pretrained:navformer`)", "DT (`pretrained:dt`)", "NavFormer - DT, paired",
+    ]  # fmt: skip
+    for row, name in zip(rows, ("navformer", "dt")):
+        run = json.loads((folders[name] / "run.json").read_text())
+        assert run["episode_set"]["content_sha256"] == sets[0].content_hash()
+        _, pairs = pooled_paired_differences([folders[name]], [T1[name]], episode_sets=sets)
+        by_setup = {d.setup: d for d in pairs}
+        d = by_setup.pop("all")
+        worst = min(by_setup.values(), key=lambda x: x.difference["sr"])
+        expected = [f"{100 * d.b['sr']:.1f} % -> {100 * d.a['sr']:.1f} %"]
+        expected += [_paired(d), _paired(d, "spl"), _paired(d, "cr"), f"{worst.setup}: {_paired(worst)}"]
+        assert row[1:] == expected, name
+    without = paired_differences(T1["navformer"], T1["dt"])[1][-1]
+    with_them = paired_differences(folders["navformer"], folders["dt"])[1][-1]
+    assert rows[2][1] == f"{_paired(without)} -> {_paired(with_them)}"
