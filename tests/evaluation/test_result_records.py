@@ -1389,6 +1389,9 @@ def test_the_model_cards_target_image_failure_quotes_the_probe(name: str, label:
     )
     if "target_term_sd" in reading["head_terms"]:
         assert f"(sd {reading['head_terms']['target_term_sd'][0]:.4f} between targets)" in failures
+    with_distractors = DATA_SCALING.parent / "distractors" / "table1_d4" / T1[name].name
+    sr, sr_d4 = (_summaries(folder)["all"].sr for folder in (T1[name], with_distractors))
+    assert f"take it from {100 * sr:.1f} % to {100 * sr_d4:.1f} % on Table I's trials" in failures
 
 
 EPISODE_FILES = DATA_SCALING.parent / "episodes"
@@ -1475,3 +1478,17 @@ def test_studies_distractor_table_is_each_policy_paired_with_its_table1_run() ->
     without = paired_differences(T1["navformer"], T1["dt"])[1][-1]
     with_them = paired_differences(folders["navformer"], folders["dt"])[1][-1]
     assert rows[2][1] == f"{_paired(without)} -> {_paired(with_them)}"
+
+
+def test_results_md_quotes_the_distractor_study() -> None:
+    """The "Why DT leads here" bullet on the target image quotes the Table I distractor records."""
+    text = " ".join(RESULTS_PAGE.read_text().split())
+    folders = {n: DATA_SCALING.parent / "distractors" / "table1_d4" / T1[n].name for n in ("navformer", "dt")}
+    sr = {n: _summaries(T1[n])["all"].sr for n in folders}
+    sr_d4 = {n: _summaries(folders[n])["all"].sr for n in folders}
+    with_them = paired_differences(folders["navformer"], folders["dt"])[1][-1]
+    assert (
+        f"take NavFormer from {100 * sr['navformer']:.1f} % to {100 * sr_d4['navformer']:.1f} % and DT from "
+        f"{100 * sr['dt']:.1f} % to {100 * sr_d4['dt']:.1f} %" in text
+    )
+    assert f"NavFormer's deficit shrinks to {_paired(with_them).removesuffix(' *')}." in text
