@@ -264,3 +264,17 @@ def test_a_maze_whose_layout_left_pockets_still_takes_its_distractors():
     points = [t.position for t in world.targets] + list(world.starts[:, :2])
     assert len(world.distractors) == 4
     assert len({int(labels[world.occupancy.snap_to_free(p, world.config.robot_radius)]) for p in points}) == 1
+
+
+def test_other_target_area_is_the_free_space_near_a_target_not_ones_own(pair):
+    from navformer_rl.evaluation.diagnose.trace import other_target_area
+
+    plain, with_distractors = pair
+    without, with_them = (other_target_area(s.episodes[0]) for s in (plain, with_distractors))
+    assert without.shape == with_them.shape == (2,)
+    assert np.all((0 < without) & (without < with_them) & (with_them < 1))
+    # known answer: a robot alone in its world has no other target to end near
+    (alone,) = make_episode_set(
+        [Setup("7.5m-1r", 7.5, ("jackal",), (True,))], trials_per_setup=1, max_steps=5
+    ).episodes
+    assert other_target_area(alone).tolist() == [0.0]

@@ -1492,3 +1492,36 @@ def test_results_md_quotes_the_distractor_study() -> None:
         f"{100 * sr['dt']:.1f} % to {100 * sr_d4['dt']:.1f} %" in text
     )
     assert f"NavFormer's deficit shrinks to {_paired(with_them).removesuffix(' *')}." in text
+
+
+def test_studies_distractor_diagnosis_quotes_its_records() -> None:
+    """The "They stop at the objects that are not theirs" bullet: the four diagnoses' other-target measures
+    and the chance level from the committed episode files."""
+    import numpy as np
+
+    from navformer_rl.evaluation.diagnose.trace import other_target_area
+    from navformer_rl.evaluation.episodes import load_episode_set
+
+    text = " ".join(STUDIES_PAGE.read_text().split())
+    found = {}
+    for suffix in ("", "_d4"):
+        episodes = load_episode_set(EPISODE_FILES / f"table1_7.5m-2r{suffix}.json.gz")
+        found[f"chance{suffix}"] = np.mean(np.concatenate([other_target_area(e) for e in episodes.episodes]))
+        for name in ("navformer", "dt"):
+            record = DATA_SCALING.parent / "distractors" / "diagnosis" / f"{name}_7.5m-2r{suffix}"
+            diagnosis = json.loads((record / "diagnosis.json").read_text())
+            assert diagnosis["episode_set"]["content_sha256"] == episodes.content_hash()
+            found[f"{name}{suffix}"] = diagnosis["all"]["other_targets"]
+
+    def pct(x: float) -> str:
+        return f"{100 * x:.1f} %"
+
+    nf, dt, nf4, dt4 = (found[k] for k in ("navformer", "dt", "navformer_d4", "dt_d4"))
+    assert (
+        f"rise from {pct(nf['lingered_fraction'])} to {pct(nf4['lingered_fraction'])} (NavFormer) and from "
+        f"{pct(dt['lingered_fraction'])} to {pct(dt4['lingered_fraction'])} (DT), and "
+        f"{pct(nf4['failures_ending_near_fraction'])} and {pct(dt4['failures_ending_near_fraction'])} of "
+        f"their failures end there ({pct(nf['failures_ending_near_fraction'])} and "
+        f"{pct(dt['failures_ending_near_fraction'])} without)" in text
+    )
+    assert f"{pct(found['chance_d4'])} of it with the distractors, {pct(found['chance'])} without" in text

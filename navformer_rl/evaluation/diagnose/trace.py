@@ -187,6 +187,29 @@ def load_trace(path: str | os.PathLike) -> EpisodeTrace:
     )
 
 
+def other_target_area(episode) -> np.ndarray:
+    """float ``[R]``: for each robot of ``episode`` (an evaluation ``Episode``), the share of the free space
+    it can stand in (the occupancy map inflated by its radius) that lies within the success radius (1.5 m) of
+    a target other than its own, the other robots' and the distractors: where a robot that wandered at random
+    would end "near another target" by chance, the reference for the diagnosis's "failures ending there"."""
+    from navformer_rl.constants import SUCCESS_RADIUS
+    from navformer_rl.envs.robots import get_robot_spec
+
+    world = episode.world_spec().build()
+    targets = world.target_positions.astype(np.float64)
+    shares = []
+    for i, style in enumerate(episode.robots):
+        free = np.argwhere(~world.occupancy.inflate(get_robot_spec(style).radius))
+        centres = world.occupancy.cell_to_world(free)
+        others = np.delete(targets, i, axis=0)
+        if not len(others) or not len(centres):
+            shares.append(0.0)
+            continue
+        gaps = np.hypot(centres[:, None, 0] - others[None, :, 0], centres[:, None, 1] - others[None, :, 1])
+        shares.append(float((gaps.min(axis=1) <= SUCCESS_RADIUS).mean()))
+    return np.array(shares)
+
+
 class EpisodeGeometry:
     """Geodesic distance and target visibility in one episode's world.
 
