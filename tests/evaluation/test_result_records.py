@@ -1111,6 +1111,9 @@ def test_the_prose_of_results_md_quotes_the_records() -> None:
         f"solves {100 * t2['fca']:.1f} % of these trials" in text
         and f"VRW reaches {100 * t2['vrw']:.1f} %" in text
     )
+    cr = {name: _summaries(folder)["all"].cr for name, folder in T2.items()}
+    learned = sorted((cr["navformer"], cr["dt"]))
+    assert f"(CR {cr['vrw']:.2f} against their {learned[0]:.2f}-{learned[1]:.2f};" in text
     t3 = {name: _summaries(folder) for name, folder in T3.items()}
     seen_unseen = [
         100 * t3[name][f"12.5m-4r-{kind}"].sr for name in ("fca", "vrw") for kind in ("seen", "unseen")
@@ -1525,3 +1528,6 @@ def test_studies_distractor_diagnosis_quotes_its_records() -> None:
         f"{pct(dt['failures_ending_near_fraction'])} without)" in text
     )
     assert f"{pct(found['chance_d4'])} of it with the distractors, {pct(found['chance'])} without" in text
+    evaluation = " ".join((ROOT / "docs" / "evaluation.md").read_text().split())
+    chance = f"7.5 m mazes with 2 robots: {pct(found['chance'])}, with four distractors "
+    assert chance + pct(found["chance_d4"]) in evaluation
