@@ -8,6 +8,7 @@ import gzip
 import os
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -172,3 +173,65 @@ def test_publish_record_refuses_an_unfinished_folder_in_one_line(tmp_path, missi
     )
     assert done.returncode == 2 and not (tmp_path / "record").exists()
     assert done.stderr.count("\n") == 1 and missing.split("/")[1] in done.stderr
+
+
+STATUS = ROOT / "recipes" / "paper_scale" / "queue_status.py"
+
+
+def queue_status(*args: Path | str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(STATUS), *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=30
+    )
+
+
+def test_queue_status_reads_each_jobs_state_and_the_running_ones_progress(tmp_path):
+    (tmp_path / "episodes.json").write_text('{"episodes": [{"n_robots": 2}, {"n_robots": 4}]}')
+    queue = tmp_path / "q.tsv"
+    queue.write_text(
+        "# NAME\tCODE\tCOMMAND\n"
+        "collect\t-\tnavformer collect e --n 3 --out data/e\n"
+        "broken\t-\texit 3\n"
+        "train\tabc123\tnavformer train seed=1 output_dir=$PWD/runs/t resume=true optim.iterations=1000\n"
+        "evaluate\t-\tnavformer evaluate --method dt --episodes episodes.json --out runs/ev --label x\n"
+    )
+    run_dir = tmp_path / "run"
+    for folder in ("done", "failed", "logs"):
+        (run_dir / folder).mkdir(parents=True)
+    (run_dir / "done/collect").write_text("95\n")
+    (run_dir / "failed/broken").write_text("exit 3\n")
+    for step in (250, 500):
+        (tmp_path / f"runs/t/checkpoints/iter_{step:06d}").mkdir(parents=True)
+    (tmp_path / "runs/ev").mkdir()
+    (tmp_path / "runs/ev/episodes.jsonl").write_text("{}\n{}\n{}\n")
+    (run_dir / "runner.log").write_text(
+        "2026-12-01T10:00:00Z start collect (code -)\n2026-12-01T10:01:35Z done collect in 95 s\n"
+        "2026-12-01T10:02:00Z start train (code abc123)\n"
+    )
+    (run_dir / "runner.pid").write_text(f"{os.getpid()}\n")  # a live process stands in for the runner
+
+    done = queue_status(queue, run_dir, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[1].split() == ["done", "collect", "95", "s"]
+    assert lines[2].split()[:3] == ["failed", "broken", "exit"]
+    assert "running  train     checkpoint 500 of 1,000 (50 %), started 2026-12-01T10:02:00Z" in lines[3]
+    assert lines[4].split() == ["waiting", "evaluate"]
+    assert lines[-1] == "1 of 4 done (0.0 h), 1 running, 1 waiting, 1 failed"
+
+    # the evaluation running, the runner stopped by a signal before: only the last start counts
+    with (run_dir / "runner.log").open("a") as log:
+        log.write("2026-12-01T11:00:00Z stopped by a signal\n2026-12-01T11:05:00Z start evaluate (code -)\n")
+    lines = queue_status(queue, run_dir, cwd=tmp_path).stdout.splitlines()
+    assert lines[3].split()[:2] == ["waiting", "train"]
+    assert "running  evaluate  3 of 6 robot-trials (50 %), started 2026-12-01T11:05:00Z" in lines[4]
+
+    (run_dir / "runner.pid").unlink()  # no runner: nothing is running
+    assert (
+        "runner not running" in (lines := queue_status(queue, run_dir, cwd=tmp_path).stdout.splitlines())[0]
+    )
+    assert lines[-1].endswith("0 running, 2 waiting, 1 failed")
+
+
+def test_queue_status_refuses_a_missing_run_folder_in_one_line(tmp_path):
+    done = queue_status(STUDY, tmp_path / "nowhere", cwd=ROOT)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "nowhere" in done.stderr
