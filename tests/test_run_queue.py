@@ -201,8 +201,8 @@ def test_queue_status_reads_each_jobs_state_and_the_running_ones_progress(tmp_pa
     (run_dir / "failed/broken").write_text("exit 3\n")
     for step in (250, 500):
         (tmp_path / f"runs/t/checkpoints/iter_{step:06d}").mkdir(parents=True)
-    (tmp_path / "runs/ev").mkdir()
-    (tmp_path / "runs/ev/episodes.jsonl").write_text("{}\n{}\n{}\n")
+    (tmp_path / "runs/ev/per_episode").mkdir(parents=True)  # the evaluation's finished episodes
+    (tmp_path / "runs/ev/per_episode/w00t00.json").write_text("{}")
     (run_dir / "runner.log").write_text(
         "2026-12-01T10:00:00Z start collect (code -)\n2026-12-01T10:01:35Z done collect in 95 s\n"
         "2026-12-01T10:02:00Z start train (code abc123)\n"
@@ -223,7 +223,7 @@ def test_queue_status_reads_each_jobs_state_and_the_running_ones_progress(tmp_pa
         log.write("2026-12-01T11:00:00Z stopped by a signal\n2026-12-01T11:05:00Z start evaluate (code -)\n")
     lines = queue_status(queue, run_dir, cwd=tmp_path).stdout.splitlines()
     assert lines[3].split()[:2] == ["waiting", "train"]
-    assert "running  evaluate  3 of 6 robot-trials (50 %), started 2026-12-01T11:05:00Z" in lines[4]
+    assert "running  evaluate  1 of 2 episodes (50 %), started 2026-12-01T11:05:00Z" in lines[4]
 
     (run_dir / "runner.pid").unlink()  # no runner: nothing is running
     assert (

@@ -4,7 +4,7 @@
     recipes/paper_scale/queue_status.py QUEUE RUN_DIR [--all]
 
 States: done (with its seconds), failed (its log), running (training: its newest checkpoint of
-``optim.iterations``; evaluation: robot-trials written of those in its episode file), waiting. Without --all
+``optim.iterations``; evaluation: its finished episodes of those in its episode file), waiting. Without --all
 only the last three done jobs and the next five waiting ones are listed. It reads the queue file and RUN_DIR
 only (the standard library, no navformer_rl), so it runs from any shell while the queue works; run it from
 the repository root, as the queue's jobs are.
@@ -108,28 +108,19 @@ def progress(command: str) -> str:
         out, episodes = _value(words, "--out"), _value(words, "--episodes")
         if out is None:
             return ""
-        written = _count_lines(_path(out) / "episodes.jsonl")
-        total = _robot_trials(_path(episodes)) if episodes else None
+        finished = len(list((_path(out) / "per_episode").glob("*.json")))
+        total = _episode_count(_path(episodes)) if episodes else None
         if total:
-            return f"{written:,} of {total:,} robot-trials ({100 * written / total:.0f} %)"
-        return f"{written:,} robot-trials"
+            return f"{finished:,} of {total:,} episodes ({100 * finished / total:.0f} %)"
+        return f"{finished:,} episodes"
     return ""
 
 
-def _count_lines(path: Path) -> int:
+def _episode_count(path: Path) -> int | None:
     try:
-        with path.open("rb") as f:
-            return sum(1 for _ in f)
-    except OSError:
-        return 0
-
-
-def _robot_trials(path: Path) -> int | None:
-    try:
-        episodes = json.loads(path.read_text())["episodes"]
+        return len(json.loads(path.read_text())["episodes"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    return sum(int(episode["n_robots"]) for episode in episodes)
 
 
 def status_lines(queue: Path, run_dir: Path, show_all: bool = False) -> list[str]:
