@@ -1531,3 +1531,58 @@ def test_studies_distractor_diagnosis_quotes_its_records() -> None:
     evaluation = " ".join((ROOT / "docs" / "evaluation.md").read_text().split())
     chance = f"7.5 m mazes with 2 robots: {pct(found['chance'])}, with four distractors "
     assert chance + pct(found["chance_d4"]) in evaluation
+
+
+def test_dt_seed_1_on_table1_against_seed_0_and_navformer() -> None:
+    """results.md "Three training seeds per model": DT seed 1's cells and the sentences under the table, each
+    recomputed from the records (DT seeds 0 and 1, NavFormer seed 0)."""
+    from navformer_rl.evaluation.paired import pooled_paired_differences
+
+    table1 = PAPER10K / "table1"
+    dt_s0, dt_s1 = table1 / "dt_10k_s0_it10000", table1 / "dt_10k_s1"
+    navformer = table1 / "navformer_10k_s0_runb_it10000"
+    (summary,) = summarize_seed_groups({"DT": [dt_s0, dt_s1]})
+    assert [run.metrics.n_trials for run in summary.runs] == [540, 540]
+    rows = {row[0]: row for row in _table_under("Three training seeds per model (running)")}
+    seed1 = summary.runs[1].metrics
+    assert rows["DT"][2] == f"{100 * seed1.sr:.1f} % [{100 * seed1.sr_ci[0]:.1f}, {100 * seed1.sr_ci[1]:.1f}]"
+    assert rows["DT"][4] == f"seeds 0-1: {100 * summary.mean['sr']:.1f} ± {100 * summary.std['sr']:.1f} %"
+    _, pooled_rows = pooled_paired_differences([navformer], [dt_s0, dt_s1])
+    pooled = {row.setup: row for row in pooled_rows}
+    cell = rows["NavFormer - DT, paired (points)"][4].replace("\\*", "*")
+    assert cell == f"NavFormer seed 0 - DT seeds 0-1: {_paired(pooled['all'])}"
+    seed_gap, against_s0, against_s1 = (
+        paired_differences(a, b)[1][-1] for a, b in ((dt_s1, dt_s0), (navformer, dt_s0), (navformer, dt_s1))
+    )
+    assert seed_gap.n_robot_trials == against_s1.n_robot_trials == 2160
+    text = " ".join(RESULTS_PAGE.read_text().split()).replace("\\*", "*")
+    assert f"**The seed moves DT by {-100 * seed_gap.difference['sr']:.1f} points**" in text
+    assert f"seed 1 - seed 0 is {_paired(seed_gap)} on the same robot-trials" in text
+    assert f"{_paired(against_s0)} against seed 0, {_paired(against_s1)} against seed 1" in text
+    assert f"12.5m-2r ({_paired(pooled['12.5m-2r'])} against both seeds)" in text
+    assert f"17.5m-2r ({_paired(pooled['17.5m-2r'])})" in text
+    assert f"({_paired(pooled['all'], 'spl')} pooled)" in text
+    assert all(row.difference["spl"] < 0 for row in pooled_rows)
+    assert sum(row.excludes_zero("spl") for row in pooled_rows if row.setup != "all") == 8
+
+
+def test_the_second_dt_seeds_probe_sentence_quotes_its_record() -> None:
+    """studies.md's "A second DT training seed reads the same": DT seed 1's probe beside the shipped pair."""
+    probe = json.loads((PROBE_RECORDS / "paper10k_dt_10k_s1" / "probe.json").read_text())
+    assert probe["reference"] == "NavFormer"
+    assert list(probe["checkpoints"].values())[:2] == ["pretrained:navformer", "pretrained:dt"]
+    seed1 = probe["results"]["dt_10k_s1"]
+    assert seed1["frames"] == {"fit": 16386, "test": 14245, "in_view_test": 1153}
+
+    def paired(features: str, quantity: str) -> str:
+        p = seed1["paired"][features][quantity]
+        return f"{p['difference']:+.3f} [{p['low']:+.3f}, {p['high']:+.3f}]"
+
+    swap = seed1["target_reading"]["target_swap"]
+    change, sd = ("(" + ", ".join(f"{v:.3f}" for v in swap[k]) + ")" for k in ("change", "own_sd"))
+    studies = " ".join(STUDIES_PAGE.read_text().split())
+    assert f"better than NavFormer's ({paired('all', 'linear')})" in studies
+    assert (
+        f"bearing ({seed1['probes']['head']['bearing']:.3f}; {paired('head', 'bearing')}), and a swapped "
+        f"target image changes its action by {change} against standard deviations of {sd}" in studies
+    )
