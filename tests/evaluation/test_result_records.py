@@ -1586,3 +1586,49 @@ def test_the_second_dt_seeds_probe_sentence_quotes_its_record() -> None:
         f"bearing ({seed1['probes']['head']['bearing']:.3f}; {paired('head', 'bearing')}), and a swapped "
         f"target image changes its action by {change} against standard deviations of {sd}" in studies
     )
+
+
+def test_studies_where_navformer_loses_to_dt_quotes_its_diagnoses() -> None:
+    """studies.md "Where NavFormer loses to DT on Table I": the paired shares and every measure of the
+    three diagnoses on Table I's 12.5m-2r and 17.5m-2r trials, from the committed records."""
+    from navformer_rl.evaluation.diagnose import load_diagnosis, paired_robot_trial_shares
+    from navformer_rl.evaluation.episodes import load_episode_set
+
+    folder = PAPER10K / "diagnosis" / "table1_2r_large"
+    names = ("navformer_10k_s0", "dt_10k_s0", "dt_10k_s1")
+    diagnoses = [load_diagnosis(folder / name) for name in names]
+    episodes = load_episode_set(EPISODE_FILES / "table1_2r_large.json.gz")
+    assert {d["episode_set"]["content_sha256"] for d in diagnoses} == {episodes.content_hash()}
+    assert f"content_sha256 `{episodes.content_hash()[:12]}...`" in " ".join(STUDIES_PAGE.read_text().split())
+    table1 = {e.episode_id: e for e in load_episode_set(EPISODE_FILES / "table1_60.json.gz").episodes}
+    assert all(table1[e.episode_id] == e for e in episodes.episodes)  # Table I's own trials
+    first, second = (
+        r for title, r in _page_tables(STUDIES_PAGE) if title == "Where NavFormer loses to DT on Table I"
+    )
+
+    def pct(x: float) -> str:
+        return f"{100 * x:.1f} %"
+
+    def points(share) -> str:
+        low, high = share.interval
+        star = " *" if share.excludes_zero() else ""
+        return f"{100 * share.difference:+.1f} [{100 * low:+.1f}, {100 * high:+.1f}]{star}"
+
+    pairs = [paired_robot_trial_shares(folder / names[0], folder / name) for name in names[1:]]
+    assert all(p["success"].n_robot_trials == 240 and p["success"].n_trials == 120 for p in pairs)
+    for row, measure in zip(first, ("success", "sighted", "stuck"), strict=True):
+        shares = [pairs[0][measure].a, pairs[0][measure].b, pairs[1][measure].b]
+        assert row[1:] == [*map(pct, shares), *(points(p[measure]) for p in pairs)], measure
+    sightings = [{s["range_m"]: s for s in d["all"]["sightings"]} for d in diagnoses]
+    expected = [
+        [pct(s[3.0]["robot_trials_with_sighting_success_fraction"]) for s in sightings],
+        [pct(s[6.0]["first_sighting_arrive_fraction"]) for s in sightings],
+        [f"{d['all']['progress']['per_step_target_hidden']:.3f} m" for d in diagnoses],
+        [pct(d["all"]["progress"]["net_fraction_of_l"]) for d in diagnoses],
+        [f"{d['all']['progress']['driven_per_step']:.3f} m" for d in diagnoses],
+        [pct(d["all"]["other_targets"]["near_step_fraction"]) for d in diagnoses],
+    ]
+    assert [row[1:] for row in second] == expected
+    results = " ".join(RESULTS_PAGE.read_text().split()).replace("\\*", "*")
+    sighted = [points(p["sighted"]) for p in pairs]
+    assert f"({sighted[0]} against seed 0, {sighted[1]} against seed 1)" in results

@@ -3,8 +3,8 @@ per-step records and measures the failures.
 
 Modules: ``diagnosis`` (:func:`diagnose`, :func:`load_diagnosis`, the output folder), ``runner`` (one episode,
 recorded), ``trace`` (the per-step arrays and their files), ``measures`` (failure measures per robot-trial),
-``actions`` (the experts' commands and the teacher-forced turns), ``report`` (``diagnosis.md``). This package
-imports nothing heavy by itself.
+``actions`` (the experts' commands and the teacher-forced turns), ``report`` (``diagnosis.md``), ``paired``
+(two diagnoses' robot-trial shares, paired). This package imports nothing heavy by itself.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ _EXPORTS = {
     "SUMMARY_MD": "navformer_rl.evaluation.diagnose.diagnosis",
     "diagnose": "navformer_rl.evaluation.diagnose.diagnosis",
     "load_diagnosis": "navformer_rl.evaluation.diagnose.diagnosis",
+    "paired_robot_trial_shares": "navformer_rl.evaluation.diagnose.paired",
 }
 
 __all__ = sorted(_EXPORTS)
