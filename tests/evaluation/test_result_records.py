@@ -914,6 +914,8 @@ def test_the_readme_caption_quotes_the_records() -> None:
     paper = [TABLE1[setup]["NavFormer"][0] for setup in TABLE1]
     assert f"it reaches {100 * nf:.1f} % SR over Table I" in caption
     assert f"DT trained the same way {100 * dt:.1f} %" in caption
+    dt_s1 = _summaries(PAPER10K / "table1" / "dt_10k_s1")["all"].sr
+    assert f"(training seed 0; seed 1: {100 * dt_s1:.1f} %)" in caption
     assert f"{100 * min(paper):.0f}-{100 * max(paper):.0f} % per setup" in caption
     assert "steps 0, 167, 333 and 500\n(0-100 s of the trial)" in caption  # 0.2 s per step
 
