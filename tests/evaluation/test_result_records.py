@@ -1634,3 +1634,21 @@ def test_studies_where_navformer_loses_to_dt_quotes_its_diagnoses() -> None:
     results = " ".join(RESULTS_PAGE.read_text().split()).replace("\\*", "*")
     sighted = [points(p["sighted"]) for p in pairs[:2]]
     assert f"({sighted[0]} against seed 0, {sighted[1]} against seed 1)" in results
+
+
+def test_studies_two_against_four_robots_at_every_checkpoint() -> None:
+    """studies.md's "Not one checkpoint's luck": SR with two robots minus SR with four in the 12.5 m and
+    17.5 m mazes, for NavFormer's four Table I checkpoints and both DT seeds."""
+    table1 = PAPER10K / "table1"
+
+    def gains(record: str) -> list[float]:
+        sr = {setup: m.sr for setup, m in _summaries(table1 / record).items()}
+        return [100 * (sr[f"{size}-2r"] - sr[f"{size}-4r"]) for size in ("12.5m", "17.5m")]
+
+    navformer = [gains(f"navformer_10k_s0_runb_it{i:05d}") for i in (5000, 6000, 7000, 10000)]
+    dt = [gains(record) for record in ("dt_10k_s0_it10000", "dt_10k_s1")]
+    low, high = min(map(min, navformer)), max(map(max, navformer))
+    dt_low, dt_high = min(map(min, dt)), max(map(max, dt))
+    text = " ".join(STUDIES_PAGE.read_text().split())
+    assert f"lies between {low:.1f} and {high:+.1f} points of its SR with four robots" in text
+    assert f"DT's lies {dt_low:.1f} to {dt_high:.1f} points above it with either seed" in text
