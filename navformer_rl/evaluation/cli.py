@@ -317,6 +317,22 @@ def _register_diagnose(commands: argparse._SubParsersAction, methods: tuple[str,
     )
     diagnose.set_defaults(run=_run_diagnose)
 
+    pair = commands.add_parser(
+        "diagnose-pair",
+        help="two diagnoses of the same episodes paired: success, sighting and stuck shares, A - B",
+        description="For two `evaluate diagnose` folders of the same episode set: the share of robot-trials "
+        "that succeed, see their target within 3 m and end stuck, and A - B paired robot-trial by "
+        "robot-trial with a trial-bootstrap interval (docs/evaluation.md, 'Diagnosing failures').",
+    )
+    pair.add_argument("pair_a", type=Path, metavar="A", help="diagnosis folder")
+    pair.add_argument("pair_b", type=Path, metavar="B", help="diagnosis folder of the same episodes")
+    pair.add_argument(
+        "--setups", dest="pair_setups", type=lambda text: tuple(text.split(",")), default=None,
+        help="only these setups, comma-separated (default: all)",
+    )  # fmt: skip
+    pair.add_argument("--out", dest="pair_out", type=Path, metavar="FILE", help="also write the table here")
+    pair.set_defaults(run=_run_diagnose_pair)
+
     probe = commands.add_parser(
         "probe",
         help="what checkpoints' encoders keep of a frame: linear probes on held-out D_e (or D_ca)",
@@ -698,6 +714,21 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     )
     print((args.diag_out / SUMMARY_MD).read_text(), end="")
     print(f"diagnosis in {args.diag_out / SUMMARY_MD}")
+    return 0
+
+
+def _run_diagnose_pair(args: argparse.Namespace) -> int:
+    from navformer_rl.evaluation.diagnose import load_diagnosis
+    from navformer_rl.evaluation.diagnose.paired import paired_robot_trial_shares, paired_shares_markdown
+    from navformer_rl.utils.durable import atomic_write_text
+
+    out = _output_file(args.pair_out, "--out") if args.pair_out is not None else None
+    names = tuple(load_diagnosis(folder)["label"] for folder in (args.pair_a, args.pair_b))
+    shares = paired_robot_trial_shares(args.pair_a, args.pair_b, setups=args.pair_setups)
+    table = paired_shares_markdown(names, shares)
+    if out is not None:
+        atomic_write_text(out, table)
+    print(table, end="")
     return 0
 
 

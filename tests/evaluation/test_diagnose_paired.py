@@ -82,3 +82,39 @@ def test_folders_that_do_not_pair_are_refused_in_one_line(tmp_path):
     (no_rows / "robot_trials.jsonl").unlink()
     with pytest.raises(FileNotFoundError, match="no robot_trials.jsonl"):
         paired_robot_trial_shares(a, no_rows)
+
+
+def test_the_diagnose_pair_command_prints_the_paired_table(tmp_path, capsys):
+    import argparse
+
+    from navformer_rl.evaluation.cli import register
+
+    parser = argparse.ArgumentParser(prog="navformer")
+    register(parser.add_subparsers(dest="command", required=True))
+    out = tmp_path / "pair.md"
+    argv = [
+        "evaluate",
+        "diagnose-pair",
+        str(RECORDS / "navformer_10k_s0"),
+        str(RECORDS / "dt_10k_s1"),
+        "--setups",
+        "12.5m-2r",
+    ]
+    args = parser.parse_args([*argv, "--out", str(out)])
+    assert args.run(args) == 0
+    printed = capsys.readouterr().out
+    assert printed == out.read_text()
+    lines = printed.splitlines()
+    assert lines[0] == (
+        "| robot-trials (120 in 60 trials) | navformer_10k_s0 | dt_10k_s1 | "
+        "navformer_10k_s0 - dt_10k_s1 (points) |"
+    )
+    shares = paired_robot_trial_shares(
+        RECORDS / "navformer_10k_s0", RECORDS / "dt_10k_s1", setups=("12.5m-2r",)
+    )
+    sighted = shares["sighted"]
+    low, high = sighted.interval
+    assert lines[3] == (
+        f"| sees its target within 3 m | {100 * sighted.a:.1f} % | {100 * sighted.b:.1f} % | "
+        f"{100 * sighted.difference:+.1f} [{100 * low:+.1f}, {100 * high:+.1f}] * |"
+    )

@@ -5,6 +5,8 @@ whole trials (as ``navformer evaluate compare`` pairs SR).
     >>> from navformer_rl.evaluation.diagnose.paired import paired_robot_trial_shares
     >>> rows = paired_robot_trial_shares("runs/diagnosis/navformer", "runs/diagnosis/dt")  # doctest: +SKIP
     >>> rows["sighted"].difference, rows["sighted"].interval                               # doctest: +SKIP
+
+``navformer evaluate diagnose-pair A B`` prints :func:`paired_shares_markdown` of the same.
 """
 
 from __future__ import annotations
@@ -20,13 +22,20 @@ import numpy as np
 from navformer_rl.evaluation.diagnose.diagnosis import ROBOT_TRIALS, load_diagnosis
 from navformer_rl.evaluation.measures import bootstrap_mean_interval
 
+SHARE_NAMES = {
+    "success": "succeeds",
+    "sighted": "sees its target within 3 m",
+    "stuck": "ends stuck",
+}
+"""How the markdown table names each measure of :data:`ROBOT_TRIAL_SHARES`."""
+
 ROBOT_TRIAL_SHARES = {
     "success": lambda row: row["outcome"] == "success",
-    "stuck": lambda row: row["outcome"] == "stuck",
     "sighted": lambda row: row["first_sighting_step"] is not None,
+    "stuck": lambda row: row["outcome"] == "stuck",
 }
-"""Per-robot-trial yes/no measures of ``robot_trials.jsonl``: it succeeded; it ended stuck; its target was
-ever in view within 3 m (``first_sighting_step`` set)."""
+"""Per-robot-trial yes/no measures of ``robot_trials.jsonl``: it succeeded; its target was ever in view within
+3 m (``first_sighting_step`` set); it ended stuck."""
 
 
 @dataclass(frozen=True)
@@ -104,3 +113,26 @@ def paired_robot_trial_shares(
             n_trials=int(groups.max()) + 1,
         )
     return out
+
+
+def paired_shares_markdown(names: tuple[str, str], shares: dict[str, PairedShare]) -> str:
+    """A markdown table of :func:`paired_robot_trial_shares`: per measure A's and B's shares and A - B in
+    points with its interval, ``*`` where it excludes zero."""
+    first = next(iter(shares.values()))
+    lines = [
+        f"| robot-trials ({first.n_robot_trials} in {first.n_trials} trials) | {names[0]} | {names[1]} | "
+        f"{names[0]} - {names[1]} (points) |",
+        "|---|---|---|---|",
+    ]
+    for measure, share in shares.items():
+        low, high = share.interval
+        star = " *" if share.excludes_zero() else ""
+        lines.append(
+            f"| {SHARE_NAMES[measure]} | {100 * share.a:.1f} % | {100 * share.b:.1f} % | "
+            f"{100 * share.difference:+.1f} [{100 * low:+.1f}, {100 * high:+.1f}]{star} |"
+        )
+    note = (
+        "\nPaired on the same robot-trials; 95 % percentile-bootstrap intervals resampling whole trials; "
+        "* : the interval excludes zero.\n"
+    )
+    return "\n".join(lines) + "\n" + note
