@@ -1631,6 +1631,25 @@ def test_studies_where_navformer_loses_to_dt_quotes_its_diagnoses() -> None:
         [pct(d["all"]["other_targets"]["near_step_fraction"]) for d in diagnoses],
     ]
     assert [row[1:] for row in second] == expected
+    # the derived numbers of the bullets: SR without a sighting, and NavFormer at DT's sighting rate
+    rows = [
+        [json.loads(line) for line in (folder / name / "robot_trials.jsonl").read_text().splitlines()]
+        for name in names[:3]
+    ]
+    unseen = [
+        sum(r["outcome"] == "success" for r in model if r["first_sighting_step"] is None)
+        / sum(r["first_sighting_step"] is None for r in model)
+        for model in rows
+    ]
+    studies = " ".join(STUDIES_PAGE.read_text().split())
+    assert f"({100 * min(unseen):.0f}-{100 * max(unseen):.0f} % for all three)" in studies
+    own = sightings[0][3.0]["robot_trials_with_sighting_success_fraction"]
+    dt_rate = (pairs[0]["sighted"].b + pairs[1]["sighted"].b) / 2
+    at_dt_rate = dt_rate * own + (1 - dt_rate) * unseen[0]
+    assert f"NavFormer would reach about {100 * at_dt_rate:.0f} %" in studies
+    dt_sr = (pairs[0]["success"].b + pairs[1]["success"].b) / 2
+    nf_sr = pairs[0]["success"].a
+    assert round(3 * (at_dt_rate - nf_sr) / (dt_sr - nf_sr)) == 2  # "two thirds of the way to DT"
     results = " ".join(RESULTS_PAGE.read_text().split()).replace("\\*", "*")
     sighted = [points(p["sighted"]) for p in pairs[:2]]
     assert f"({sighted[0]} against seed 0, {sighted[1]} against seed 1)" in results
