@@ -148,6 +148,8 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     names = ["general"] if dt else ["static", "general"]
     readings = {"attention_to_target", "attention_keys", "observation_term", "action_own", "action_swapped"}
     readings |= set() if dt else {"target_term"}
+    readings |= {f"action_without_{name}" for name in [*names, "past_actions"]}
+    readings |= set() if dt else {"action_without_all"}
     assert set(frames) == {*names, "head", "h_o", "action", "pose", "target", "trajectory", *readings}
     assert frames["attention_to_target"].shape == (len(frames["head"]), 1)  # one block
     assert np.all((frames["attention_to_target"] > 0) & (frames["attention_to_target"] <= 1))
@@ -188,6 +190,33 @@ def test_frame_embeddings_are_the_encoders_on_every_valid_frame_of_the_validatio
     np.testing.assert_allclose(frames["action_own"], read_out, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(frames["action_swapped"], np.concatenate(swapped), rtol=1e-4, atol=1e-5)
     assert not np.allclose(frames["action_swapped"], frames["action_own"])  # another target, other actions
+    # without an encoder: the actor's prediction with that encoder's embeddings set to their batch mean
+    for name, knocked_out in ({n: [n] for n in names} | ({} if dt else {"all": names})).items():
+        without = []
+        with torch.no_grad():
+            for batch in FixedTrajectoryBatches(dataset, 4, model.config.window_steps, 0):
+                mask = batch["mask"]
+                *observations, e_g = model.dve(batch["pixels"], batch["target_pixels"], mask)
+                embeddings = dict(zip(model.dve.names, observations, strict=True))
+                for encoder in knocked_out:
+                    valid = embeddings[encoder][mask]  # [n, d]
+                    embeddings[encoder] = valid.mean(dim=0).expand_as(embeddings[encoder])
+                steps = (batch["return_to_go"], batch["action"], batch["step"], mask)
+                h_g, h_o, _ = model.transformer(e_g, *steps, **embeddings)
+                hidden = {"target": h_g, "observation": h_o}
+                action = model.head.actions(*(hidden[r] for r in model.head.reads), mask)
+                without.append(action[mask].numpy())
+        np.testing.assert_allclose(frames[f"action_without_{name}"], np.concatenate(without), atol=1e-5)
+        assert not np.allclose(frames[f"action_without_{name}"], frames["action_own"])
+    # without the past actions: every action token given the mean of the window's expert actions
+    without = []
+    with torch.no_grad():
+        for batch in FixedTrajectoryBatches(dataset, 4, model.config.window_steps, 0):
+            mask = batch["mask"]
+            mean_action = batch["action"][mask].mean(dim=0).expand_as(batch["action"])
+            without.append(actor(batch.copy().set("action", mean_action))["action_pred"][mask].numpy())
+    np.testing.assert_allclose(frames["action_without_past_actions"], np.concatenate(without), atol=1e-5)
+    assert not np.allclose(frames["action_without_past_actions"], frames["action_own"])
 
 
 def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
@@ -218,7 +247,7 @@ def test_probe_cli_writes_a_table_per_model_and_refuses_a_missing_dataset(
         len(reading["attention_to_target"]["all"]) == 1 and len(reading["head_terms"]["target_term_sd"]) == 2
     )
     assert "target_term_mean" not in record["results"]["DT"]["target_reading"]["head_terms"]
-    assert "| NavFormer | W_g h_g" not in table and table.count("| NavFormer | ") == 5 + 1 + 1 + 1
+    assert "| NavFormer | W_g h_g" not in table and table.count("| NavFormer | ") == 5 + 1 + 1 + 1 + 4
     assert "Attention of the token the action head reads" in table and "target image swapped" in table
     capsys.readouterr()
     code = main(["evaluate", "probe", "--model", "DT", str(dt), "--held-out", str(tmp_path / "nowhere"),

@@ -25,7 +25,8 @@ frame embeddings together (``all``), and from what the action head reads at that
 far: whether what the encoders keep reaches the head; and with THSC from ``h_o`` alone, the part of the head's
 input that changes from step to step. Beside the probes,
 :mod:`~navformer_rl.evaluation.diagnose.target_reading` reads how the navigation network attends to the target
-token and what THSC's target term adds.
+token and what THSC's target term adds, and :mod:`~navformer_rl.evaluation.diagnose.knockout` how much of the
+action rests on each encoder.
 """
 
 from __future__ import annotations
@@ -39,6 +40,15 @@ from typing import Any
 import numpy as np
 
 from navformer_rl.evaluation.diagnose.actions import HALF_FIELD_OF_VIEW
+from navformer_rl.evaluation.diagnose.knockout import (
+    KNOCKOUT_PREFIX,
+    PAST_ACTIONS,
+    knockout_key,
+    knockout_markdown,
+    knockout_sets,
+    knockout_summary,
+    mean_embedding,
+)
 from navformer_rl.evaluation.diagnose.measures import bearing_to
 from navformer_rl.evaluation.diagnose.target_reading import (
     READINGS,
@@ -93,10 +103,13 @@ def frame_embeddings(
         [N, 2], "pose": [N, 3], "target": [N, 2], "trajectory": int64 [N], "attention_to_target": [N,
         n_blocks], "attention_keys": int64 [N], "observation_term": [N, 2] and with THSC "target_term":
         [N, 2], "action_own" / "action_swapped": [N, 2] the model's action with the trajectory's target image
-        and with another target's}`` over the N valid frames (the last six: :mod:`.target_reading`; no
-        ``*_term`` with the binned head, no ``action_*`` when the dataset holds one kind of target).
-        ``head`` and ``h_o`` are teacher-forced: the navigation network reads the window's frames, the
-        target image and the expert's actions up to that step, as in training.
+        and with another target's, "action_without_<encoder name>": [N, 2] per encoder (and ``_all`` with two
+        encoders; ``_past_actions``), the action with that encoder's frame embeddings (the action tokens)
+        replaced by their mean}`` over the N valid
+        frames (the readings: :mod:`.target_reading` and :mod:`.knockout`; no ``*_term`` with the binned head,
+        no ``action_swapped`` when the dataset holds one kind of target). ``head``, ``h_o`` and the actions
+        are teacher-forced: the navigation network reads the window's frames, the target image and the
+        expert's actions up to that step, as in training.
     """
     import torch
 
@@ -116,7 +129,11 @@ def frame_embeddings(
     check_model_reads(config, {kind: dataset}, {kind: f"{kind} dataset {str(exploration)!r}"}, tunable=False)
     model.to(torch_device)
     dve = model.dve
-    rows: dict[str, list[np.ndarray]] = {k: [] for k in (*dve.names, "head", "h_o", *LABELS, *READINGS)}
+    knocked_out = knockout_sets(dve.names)  # {"static": ("static",), ..., "all": every encoder}
+    knockouts = [knockout_key(name) for name in (*knocked_out, PAST_ACTIONS)]
+    rows: dict[str, list[np.ndarray]] = {
+        k: [] for k in (*dve.names, "head", "h_o", *LABELS, *READINGS, *knockouts)
+    }
     window = config.window_steps if context_steps is None else int(context_steps)
     if not 1 <= window <= config.window_steps:
         raise ValueError(f"context_steps={context_steps!r}: expected 1 to the model's {config.window_steps}")
@@ -131,15 +148,19 @@ def frame_embeddings(
             named = dict(zip(dve.names, observations, strict=True))
             with TargetAttentionRecorder(model.transformer) as attention:
                 h_g, h_o, _ = model.transformer(e_g, *steps, **named)
+            rows["action_own"].append(_head_actions(model.head, h_g, h_o, mask))
             if swap.available:
                 target = batch["target_pixels"]  # [B, H, W, 3], or [B, T, H, W, 3] constant over T
                 e_swapped = dve.encode_target(swap.swap(target[:, 0] if target.dim() == 5 else target))
                 swapped_g, swapped_o, _ = model.transformer(e_swapped, *steps, **named)
-                swapped = {"target": swapped_g, "observation": swapped_o}
-                own = {"target": h_g, "observation": h_o}
-                for name, hidden_of in (("action_own", own), ("action_swapped", swapped)):
-                    action = model.head.actions(*(hidden_of[r] for r in model.head.reads), mask)
-                    rows[name].append(action[mask].float().cpu().numpy())
+                rows["action_swapped"].append(_head_actions(model.head, swapped_g, swapped_o, mask))
+            for name, encoders in knocked_out.items():
+                without = {**named, **{e: mean_embedding(named[e], mask) for e in encoders}}
+                hidden = model.transformer(e_g, *steps, **without)[:2]
+                rows[knockout_key(name)].append(_head_actions(model.head, *hidden, mask))
+            past = mean_embedding(batch["action"], mask)
+            hidden = model.transformer(e_g, batch["return_to_go"], past, batch["step"], mask, **named)[:2]
+            rows[knockout_key(PAST_ACTIONS)].append(_head_actions(model.head, *hidden, mask))
             rows["attention_to_target"].append(attention.weights[mask].cpu().numpy())
             rows["attention_keys"].append(attention.keys.expand_as(mask.cpu())[mask.cpu()].numpy())
             for name, term in head_terms(model.head, h_g, h_o).items():
@@ -156,6 +177,14 @@ def frame_embeddings(
             trajectory = batch["trajectory"].unsqueeze(1).expand_as(mask)
             rows["trajectory"].append(trajectory[mask].cpu().numpy().astype(np.int64))
     return {key: np.concatenate(parts) for key, parts in rows.items() if parts}
+
+
+def _head_actions(head: Any, target_hidden: Any, observation_hidden: Any, mask: Any) -> np.ndarray:
+    """The action head's float32 ``[N, A]`` actions at the ``N`` valid steps of bool ``mask`` ``[B, T]``,
+    from h_g ``[B, d]`` and h_o ``[B, T, d]`` (each head reads what its ``reads`` name)."""
+    hidden_of = {"target": target_hidden, "observation": observation_hidden}
+    action = head.actions(*(hidden_of[r] for r in head.reads), mask)
+    return action[mask].float().cpu().numpy()
 
 
 def ridge_predict(
@@ -225,7 +254,8 @@ def _side_agreement(predicted: np.ndarray, actual: np.ndarray) -> float:
 
 
 def _feature_sets(frames: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    names = [k for k in frames if k not in (*LABELS, *READINGS, "head", "h_o")]
+    readings = (*LABELS, *READINGS, "head", "h_o")
+    names = [k for k in frames if k not in readings and not k.startswith(KNOCKOUT_PREFIX)]
     if not names:
         raise ValueError("frames: expected at least one encoder's embeddings beside action / pose / target")
     sets = {name: frames[name] for name in names}
@@ -295,11 +325,13 @@ def probe_scores(
         encoder alone, ``all`` of them concatenated (with two encoders), and (when given) ``head`` and
         ``h_o`` (when it differs from ``head``: with THSC);
         quantities as in :data:`QUANTITIES` (NaN where the test half has no frame with its target in view);
-        and ``"target_reading"``: :func:`.target_reading.target_reading_summary` over all the frames (nothing
-        is fitted), when the frames hold its readings.
+        ``"target_reading"``: :func:`.target_reading.target_reading_summary` over all the frames (nothing
+        is fitted), when the frames hold its readings; and ``"encoder_knockout"``:
+        :func:`.knockout.knockout_summary`, when they hold the actions without each encoder.
     """
     probes, split = _fit_probes(frames, ridge, max_range)
     reading = target_reading_summary(frames, split["in_view"], max_range)
+    knockout = knockout_summary(frames)
     return {
         "frames": {
             "fit": int(split["fit"].sum()),
@@ -312,6 +344,7 @@ def probe_scores(
             if label not in _repeated_rows(frames)
         },
         **({"target_reading": reading} if reading else {}),
+        **({"encoder_knockout": knockout} if knockout else {}),
     }
 
 
@@ -408,6 +441,9 @@ def probe_markdown(results: Mapping[str, Mapping[str, Any]], reference: str | No
     readings = {label: r["target_reading"] for label, r in results.items() if r.get("target_reading")}
     if readings:
         lines.append("\n" + target_reading_markdown(readings).rstrip("\n"))
+    knockouts = {label: r["encoder_knockout"] for label, r in results.items() if r.get("encoder_knockout")}
+    if knockouts:
+        lines.append("\n" + knockout_markdown(knockouts).rstrip("\n"))
     return "\n".join(lines) + "\n"
 
 
