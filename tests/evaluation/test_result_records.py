@@ -1671,3 +1671,72 @@ def test_studies_two_against_four_robots_at_every_checkpoint() -> None:
     text = " ".join(STUDIES_PAGE.read_text().split())
     assert f"lies between {low:.1f} and {high:+.1f} points of its SR with four robots" in text
     assert f"DT's lies {dt_low:.1f} to {dt_high:.1f} points above it with either seed" in text
+
+
+def test_studies_what_the_policies_take_from_frames_and_past_actions_quotes_the_knockouts() -> None:
+    """studies.md "What the policies take from their frames and from their past actions" and results.md's
+    bullet: every loss and rise from the committed probes' ``encoder_knockout``."""
+    heading = "What the policies take from their frames and from their past actions"
+    (rows,) = [r for title, r in _page_tables(STUDIES_PAGE) if title == heading]
+
+    def knockout(record: str, label: str) -> dict:
+        return json.loads((PROBE_RECORDS / record / "probe.json").read_text())["results"][label][
+            "encoder_knockout"
+        ]
+
+    def rise(row: dict, share_of: float | None = None) -> str:
+        value, low, high = (round(row[k], 4) + 0.0 for k in ("increase", "low", "high"))  # no "-0.0000"
+        text = f"{value:+.4f} [{low:+.4f}, {high:+.4f}]"
+        return text if share_of is None else f"{text} (+{round(100 * row['increase'] / share_of)} %)"
+
+    expected = {
+        "NavFormer (`pretrained:navformer`)": ("paper10k", "NavFormer"),
+        "DT (`pretrained:dt`)": ("paper10k", "DT"),
+        "DT, seed 1 (`dt_10k_s1`)": ("paper10k_dt_10k_s1", "dt_10k_s1"),
+        "NavFormer, tenth scale": ("tenth", "NavFormer, tenth"),
+        "DT, tenth scale": ("tenth", "DT, tenth"),
+    }
+    assert [row[0] for row in rows] == list(expected)
+    for row, (record, label) in zip(rows, expected.values(), strict=True):
+        k = knockout(record, label)
+        encoders = k["encoders"]
+        two = "static" in encoders
+        assert row[1] == f"{k['loss']:.4f}"
+        assert row[2] == (rise(encoders["static"]) if two else "")
+        assert row[3] == rise(encoders["general"], k["loss"])
+        assert row[4] == (rise(encoders["all"]) if two else "")
+        assert row[5] == rise(encoders["past_actions"])
+    # the paper10k probe's DT is the same checkpoint on the same frames as paper10k_dt_10k_s1's
+    assert knockout("paper10k", "DT") == knockout("paper10k_dt_10k_s1", "DT")
+    studies = " ".join(STUDIES_PAGE.read_text().split())
+    nf, ca_nf, ca_dt = (
+        knockout("paper10k", "NavFormer"),
+        knockout("paper10k_ca", "NavFormer"),
+        knockout("paper10k_ca", "DT"),
+    )
+    sd = json.loads((PROBE_RECORDS / "paper10k" / "probe.json").read_text())["results"]["NavFormer"][
+        "target_reading"
+    ]["target_swap"]["own_sd"]
+    change = nf["encoders"]["static"]["change"]
+    assert (
+        f"moves by a mean of ({change[0]:.3f}, {change[1]:.3f}) (linear, angular; standard deviations over "
+        f"frames {sd[0]:.3f}, {sd[1]:.3f})" in studies
+    )
+    assert f"on held-out D_ca ({rise(ca_nf['encoders']['static'])})" in studies
+    assert (
+        f"(NavFormer to {nf['encoders']['past_actions']['loss']:.4f}, DT to "
+        f"{knockout('paper10k', 'DT')['encoders']['past_actions']['loss']:.4f} and "
+        f"{knockout('paper10k_dt_10k_s1', 'dt_10k_s1')['encoders']['past_actions']['loss']:.4f})" in studies
+    )
+    assert f"level ({rise(ca_nf['encoders']['general'])} and {rise(ca_dt['encoders']['general'])})" in studies
+    dt0, dt1 = knockout("paper10k", "DT"), knockout("paper10k_dt_10k_s1", "dt_10k_s1")
+    assert (
+        f"without both encoders {rise(nf['encoders']['all'])} against {rise(dt0['encoders']['general'])} and "
+        f"{rise(dt1['encoders']['general'])} for DT's two seeds" in studies
+    )
+    results = " ".join(RESULTS_PAGE.read_text().split())
+    assert (
+        f"leaves NavFormer's action loss where it is ({rise(nf['encoders']['static'])}; the same at the "
+        f"tenth scale); replacing its frame embeddings raises it by {rise(nf['encoders']['all'])}, DT's by "
+        f"{rise(dt0['encoders']['general'])} (seed 1: {rise(dt1['encoders']['general'])})" in results
+    )
