@@ -287,3 +287,19 @@ def test_probe_reads_held_out_collision_avoidance_data_with_kind_ca(tmp_path, ch
                  "--out", str(tmp_path / "p2")])  # fmt: skip
     err = capsys.readouterr().err.strip()
     assert code != 0 and err.count("\n") == 0 and str(ca) in err  # a D_ca folder read as D_e: one line
+
+
+@pytest.mark.parametrize("ablation", ["no_fs", "no_fg", "no_thsc", "resnet18"])
+def test_probe_reads_every_ablated_model_with_a_knockout_per_encoder(
+    tmp_path, held_out_e, checkpoint_factory, ablation
+):
+    from navformer_rl.modules import NavFormerConfig
+
+    config = NavFormerConfig.ablation(ablation, **TINY_MODEL)
+    frames = frame_embeddings(str(checkpoint_factory(tmp_path / ablation, config)), held_out_e, batch_trajs=4)
+    scores = probe_scores(frames)
+    encoders = [k for k in scores["probes"] if k not in ("all", "head", "h_o")]
+    knockout = scores["encoder_knockout"]["encoders"]
+    expected = [*encoders, *(["all"] if len(encoders) > 1 else []), "past_actions"]
+    assert list(knockout) == expected
+    assert all(np.isfinite(row["increase"]) for row in knockout.values())
