@@ -1740,3 +1740,31 @@ def test_studies_what_the_policies_take_from_frames_and_past_actions_quotes_the_
         f"tenth scale); replacing its frame embeddings raises it by {rise(nf['encoders']['all'])}, DT's by "
         f"{rise(dt0['encoders']['general'])} (seed 1: {rise(dt1['encoders']['general'])})" in results
     )
+
+
+def test_studies_dt_checkpoint_series_of_knockouts_quotes_its_record() -> None:
+    """studies.md "Training deepens the reliance on past actions": DT seed 1's checkpoints in the record."""
+    record = json.loads((PROBE_RECORDS / "checkpoints" / "dt_10k_s1" / "probe.json").read_text())
+    assert record["reference"] == "NavFormer" and record["context_steps"] == 256
+    k = {label: r["encoder_knockout"] for label, r in record["results"].items()}
+    first, middle, last = (k[f"dt_10k_s1_it{i:05d}"] for i in (1000, 5000, 10000))
+    assert (
+        last
+        == json.loads((PROBE_RECORDS / "paper10k_dt_10k_s1" / "probe.json").read_text())["results"][
+            "dt_10k_s1"
+        ]["encoder_knockout"]
+    )  # the final checkpoint on the same windows reads as in the seed's own record
+    studies = " ".join(STUDIES_PAGE.read_text().split())
+
+    def share(row: dict, loss: float) -> str:
+        return f"{round(100 * row['increase'] / loss)} %"
+
+    past = (first["encoders"]["past_actions"], last["encoders"]["past_actions"])
+    assert (
+        f"the held-out loss falls from {first['loss']:.4f} to {last['loss']:.4f} while the rise without the "
+        f"past actions grows from {past[0]['increase']:+.4f} to {past[1]['increase']:+.4f} "
+        f"({share(past[0], first['loss'])} to {share(past[1], last['loss'])} of the loss); the rise without "
+        f"the frames falls from {first['encoders']['general']['increase']:+.4f} to "
+        f"{middle['encoders']['general']['increase']:+.4f} at 5,000 and comes back to "
+        f"{last['encoders']['general']['increase']:+.4f}" in studies
+    )
