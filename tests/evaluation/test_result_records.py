@@ -1736,6 +1736,12 @@ def test_studies_what_the_policies_take_from_frames_and_past_actions_quotes_the_
     )
     results = " ".join(RESULTS_PAGE.read_text().split())
     assert (
+        f"NavFormer's action moves by ({change[0]:.3f}, {change[1]:.3f}) and its held-out action loss by "
+        f"{rise(nf['encoders']['static'])} (the same at the tenth scale)" in results
+    )
+    tenth = knockout("tenth", "NavFormer, tenth")["encoders"]["static"]
+    assert tenth["low"] < 0 < tenth["high"]  # "the same at the tenth scale": an interval around zero
+    assert (
         f"leaves NavFormer's action loss where it is ({rise(nf['encoders']['static'])}; the same at the "
         f"tenth scale); replacing its frame embeddings raises it by {rise(nf['encoders']['all'])}, DT's by "
         f"{rise(dt0['encoders']['general'])} (seed 1: {rise(dt1['encoders']['general'])})" in results
